@@ -1,0 +1,38 @@
+# Two commands: `make demo` and `make test`. Each sets everything up first (idempotent):
+# Debian's SuiteSparse headers (for scikit-sparse / CHOLMOD), a virtual env in .venv, and the
+# package with its test + notebook extras.
+
+VENV    := .venv
+PY      := $(VENV)/bin/python
+STAMP   := $(VENV)/.fgopt-installed
+SUDO    := $(shell [ "$$(id -u)" = "0" ] || echo sudo)
+export FGOPT_DATA ?= $(abspath ../shared/data)
+
+.PHONY: setup demo test bench clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml
+	@if [ ! -f /usr/include/suitesparse/cholmod.h ]; then \
+	  echo "==> installing libsuitesparse-dev (CHOLMOD headers for scikit-sparse)"; \
+	  $(SUDO) apt-get install -y -q libsuitesparse-dev >/dev/null 2>&1 || \
+	  { $(SUDO) apt-get update -q >/dev/null && $(SUDO) apt-get install -y -q libsuitesparse-dev >/dev/null; }; \
+	fi
+	@test -x $(PY) || { echo "==> creating $(VENV)"; python3 -m venv $(VENV); }
+	@echo "==> installing fgopt and its dependencies into $(VENV)"
+	@$(PY) -m pip install -q --disable-pip-version-check --upgrade pip wheel setuptools
+	@$(PY) -m pip install -q --disable-pip-version-check -e '.[test,notebook]'
+	@touch $(STAMP)
+
+demo: setup
+	@$(PY) -m fgopt.demo
+
+test: setup
+	@$(PY) -m pytest -q
+
+bench: setup
+	@$(PY) -m pip install -q --disable-pip-version-check -e '.[bench]'
+	@$(PY) -m benchmarks.run
+
+clean:
+	rm -rf $(VENV) build *.egg-info

@@ -1,0 +1,25 @@
+"""fgopt: factor-graph optimization on manifolds from Python.
+
+>>> import fgopt
+>>> from fgopt import key, SE2
+>>> graph, initial = fgopt.FactorGraph(), fgopt.Variables()
+>>> ... add factors and values ...
+>>> result = fgopt.optimize(graph, initial, method="lm")
+"""
+
+__version__ = "0.1.0"
+
+from . import noise as noise
+from .errors import FgoptError as FgoptError
+from .factors import BetweenFactor as BetweenFactor
+from .factors import Factor as Factor
+from .factors import NumericalFactor as NumericalFactor
+from .factors import PriorFactor as PriorFactor
+from .graph import FactorGraph as FactorGraph
+from .key import Key as Key
+from .key import key as key
+from .problem import Problem as Problem
+from .solvers import optimize as optimize
+from .solvers.result import Result as Result
+from .solvers.result import Status as Status
+from .variables import Variables as Variables

@@ -1,0 +1,138 @@
+"""numba kernels that turn a batch's residuals and Jacobians into H = J^T W J and g = J^T W r.
+
+For each instance: whiten ``r = R e``, ``J <- R J`` (skipped for unit noise), robust weight
+``w = rho'(t)/t`` at ``t = |r|`` (IRLS), then add ``w J^T J`` into H's data array at the
+precomputed positions (lower triangle only) and ``w J^T r`` into g. Returns the batch cost
+``sum rho(t)``. No Python per factor.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .factors.robust import rho_and_weight
+
+
+@njit(cache=True)
+def _whiten(e, J, R, unit, r_out, J_out):
+    m = e.shape[0]
+    D = J.shape[1]
+    if unit:
+        for a in range(m):
+            r_out[a] = e[a]
+            for c in range(D):
+                J_out[a, c] = J[a, c]
+        return
+    for a in range(m):
+        acc = 0.0
+        for b in range(a, m):  # R is upper triangular
+            acc += R[a, b] * e[b]
+        r_out[a] = acc
+        for c in range(D):
+            acc = 0.0
+            for b in range(a, m):
+                acc += R[a, b] * J[b, c]
+            J_out[a, c] = acc
+
+
+@njit(cache=True)
+def scatter_batch(res, jac, sqrt_info, unit, loss_code, loss_param, arg_dims, arg_local_off,
+                  toff, pos, H_data, g, weights):
+    """Accumulate a batch into ``H_data`` / ``g``; return its cost. ``weights[i]`` gets w_i."""
+    n, m = res.shape
+    D = jac.shape[2]
+    k = arg_dims.shape[0]
+    r = np.empty(m)
+    Jw = np.empty((m, D))
+    Hl = np.empty((D, D))
+    col_arg = np.empty(D, dtype=np.int64)  # which argument each local column belongs to
+    for p in range(k):
+        for c in range(arg_dims[p]):
+            col_arg[arg_local_off[p] + c] = p
+    cost = 0.0
+    for i in range(n):
+        _whiten(res[i], jac[i], sqrt_info[0 if unit else i], unit, r, Jw)
+        s = 0.0
+        for a in range(m):
+            s += r[a] * r[a]
+        rho, w = rho_and_weight(loss_code, loss_param, s)
+        cost += rho
+        weights[i] = w
+        if w == 0.0:
+            continue
+        # local gradient
+        for c in range(D):
+            acc = 0.0
+            for a in range(m):
+                acc += Jw[a, c] * r[a]
+            p = col_arg[c]
+            g[toff[i, p] + c - arg_local_off[p]] += w * acc
+        # local Hessian (upper half computed, used symmetrically)
+        for c1 in range(D):
+            for c2 in range(c1, D):
+                acc = 0.0
+                for a in range(m):
+                    acc += Jw[a, c1] * Jw[a, c2]
+                Hl[c1, c2] = w * acc
+                Hl[c2, c1] = w * acc
+        for p in range(k):
+            op, dp = arg_local_off[p], arg_dims[p]
+            for q in range(k):
+                base0 = pos[i, p, q, 0]
+                if base0 < 0:
+                    continue
+                oq, dq = arg_local_off[q], arg_dims[q]
+                if p == q:
+                    for b in range(dq):
+                        base = pos[i, p, q, b]
+                        for a in range(b, dp):
+                            H_data[base + a - b] += Hl[op + a, oq + b]
+                else:
+                    for b in range(dq):
+                        base = pos[i, p, q, b]
+                        for a in range(dp):
+                            H_data[base + a] += Hl[op + a, oq + b]
+    return cost
+
+
+@njit(cache=True)
+def batch_cost(res, sqrt_info, unit, loss_code, loss_param):
+    """``sum rho(|R e|)`` over a batch; NaN if any residual is not finite."""
+    n, m = res.shape
+    r = np.empty(m)
+    cost = 0.0
+    for i in range(n):
+        s = 0.0
+        if unit:
+            for a in range(m):
+                s += res[i, a] * res[i, a]
+        else:
+            R = sqrt_info[i]
+            for a in range(m):
+                acc = 0.0
+                for b in range(a, m):
+                    acc += R[a, b] * res[i, b]
+                r[a] = acc
+                s += acc * acc
+        rho, _ = rho_and_weight(loss_code, loss_param, s)
+        cost += rho
+    return cost
+
+
+@njit(cache=True)
+def first_nonfinite_row(a):
+    """Index of the first row of a 2-D or 3-D array with a NaN/inf, or -1."""
+    n = a.shape[0]
+    flat = a.reshape(n, -1)
+    for i in range(n):
+        for j in range(flat.shape[1]):
+            if not np.isfinite(flat[i, j]):
+                return i
+    return -1
+
+
+@njit(cache=True)
+def add_diagonal(H_data, diag_pos, values):
+    for j in range(diag_pos.shape[0]):
+        H_data[diag_pos[j]] += values[j]

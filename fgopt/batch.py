@@ -1,0 +1,99 @@
+"""``FactorBatch``: many factors of one kernel, stored as arrays (no Python object per factor).
+
+Readers of large files (BAL, g2o) add factors with ``FactorGraph.add_batch`` so loading is
+vectorized; the compiled problem groups individual kernel factors into the same form. A batch
+holds, for ``n`` instances of ``kernel``:
+
+- ``keys``: ``(n, k)`` int64 variable keys, in ``kernel.arg_kinds`` order;
+- ``constants``: ``(n, c)`` float64 kernel constants (measurements);
+- ``sqrt_information``: ``(n, r, r)`` square-root information, or ``None`` for unit noise;
+- ``loss_code`` / ``loss_param``: one robust loss for the whole batch (``0`` = none), see
+  :mod:`fgopt.factors.robust`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import DimensionMismatchError, NonFiniteError, NotPositiveDefiniteError
+from .factors.base import KernelFactor
+from .factors.kernel import FactorKernel
+from .factors.noise import (NoiseModel, RobustLoss, Unit, base_noise, loss_code_and_param)
+from .key import Key
+
+
+@dataclass(eq=False)
+class FactorBatch:
+    kernel: FactorKernel
+    keys: np.ndarray
+    constants: np.ndarray
+    sqrt_information: np.ndarray | None
+    loss_code: int = 0
+    loss_param: float = 0.0
+    #: Optional labels for error messages (e.g. "file.g2o:123" per row).
+    origin: list[str] | None = field(default=None, repr=False)
+
+    def __post_init__(self):
+        k = self.kernel
+        self.keys = np.ascontiguousarray(self.keys, dtype=np.int64)
+        n = self.keys.shape[0]
+        if self.keys.ndim != 2 or self.keys.shape[1] != len(k.arg_kinds):
+            raise DimensionMismatchError(
+                f"{k.name} batch: keys must be (n, {len(k.arg_kinds)}), got {self.keys.shape}")
+        self.constants = np.ascontiguousarray(self.constants, dtype=float).reshape(n, k.num_constants)
+        if not np.all(np.isfinite(self.constants)):
+            row = int(np.nonzero(~np.all(np.isfinite(self.constants), axis=1))[0][0])
+            raise NonFiniteError(f"{k.name} batch: constants of row {self._where(row)} have NaN/inf")
+        if self.sqrt_information is not None:
+            R = np.ascontiguousarray(self.sqrt_information, dtype=float)
+            r = k.residual_dim
+            if R.shape == (r, r):
+                R = np.broadcast_to(R, (n, r, r)).copy()
+            if R.shape != (n, r, r):
+                raise DimensionMismatchError(
+                    f"{k.name} batch: sqrt_information must be ({n}, {r}, {r}), got {R.shape}")
+            if not np.all(np.isfinite(R)):
+                raise NonFiniteError(f"{k.name} batch: sqrt_information has NaN/inf")
+            self.sqrt_information = R
+
+    def _where(self, row: int) -> str:
+        return self.origin[row] if self.origin is not None else str(row)
+
+    def __len__(self) -> int:
+        return self.keys.shape[0]
+
+    def loss_of(self, i: int):
+        from .factors import noise
+
+        base: NoiseModel = (Unit(self.kernel.residual_dim) if self.sqrt_information is None
+                            else noise.Gaussian(self.sqrt_information[i]))
+        if self.loss_code == 0:
+            return base
+        cls = {noise.LOSS_HUBER: noise.Huber, noise.LOSS_CAUCHY: noise.Cauchy,
+               noise.LOSS_TUKEY: noise.Tukey, noise.LOSS_GEMAN_MCCLURE: noise.GemanMcClure}
+        return cls[self.loss_code](self.loss_param, base)
+
+    def factor(self, i: int) -> KernelFactor:
+        """Materialize row ``i`` as an ordinary factor object."""
+        return KernelFactor(self.kernel, [Key(int(k)) for k in self.keys[i]], self.constants[i],
+                            self.loss_of(i))
+
+
+def batch_from_factors(kernel: FactorKernel, factors: list[KernelFactor]) -> FactorBatch:
+    """Stack kernel factors that share ``kernel`` and a loss kind into one batch."""
+    n = len(factors)
+    keys = np.array([f.keys for f in factors], dtype=np.int64).reshape(n, len(kernel.arg_kinds))
+    consts = (np.array([f.constants for f in factors], dtype=float).reshape(n, kernel.num_constants))
+    code, param = loss_code_and_param(factors[0].loss)
+    if all(base_noise(f.loss).is_unit for f in factors):
+        R = None
+    else:
+        R = np.array([base_noise(f.loss).sqrt_information for f in factors], dtype=float)
+    return FactorBatch(kernel, keys, consts, R, code, param)
+
+
+def loss_group(loss) -> tuple[int, float]:
+    """Factors batch together only when their robust loss (kind and parameter) agree."""
+    return loss_code_and_param(loss) if isinstance(loss, RobustLoss) else (0, 0.0)

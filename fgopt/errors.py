@@ -1,0 +1,57 @@
+"""The fgopt error family: every error fgopt raises derives from :class:`FgoptError`.
+
+Messages say what went wrong, where (factor, key, file:line) and what to do about it.
+"""
+
+from __future__ import annotations
+
+
+class FgoptError(Exception):
+    """Root of every error fgopt raises on purpose."""
+
+
+class KeyNotFoundError(FgoptError, KeyError):
+    """A key is used that the `Variables` (or the graph) does not hold."""
+
+    def __str__(self) -> str:  # KeyError quotes its message; keep it readable
+        return str(self.args[0]) if self.args else ""
+
+
+class DuplicateKeyError(FgoptError):
+    """`Variables.add` was called for a key that is already present."""
+
+
+class DimensionMismatchError(FgoptError, ValueError):
+    """A value, measurement, noise model or Jacobian has the wrong size."""
+
+
+class NotPositiveDefiniteError(FgoptError, ValueError):
+    """A covariance / information matrix, or a linear system, is not positive definite."""
+
+
+class NonFiniteError(FgoptError, ValueError):
+    """A NaN or inf appeared in a value, residual or Jacobian."""
+
+
+class EmptyProblemError(FgoptError, ValueError):
+    """The graph has no factors, or no variables to optimize."""
+
+
+class BackendUnavailableError(FgoptError, ImportError):
+    """A linear-solver backend was selected but its library is missing."""
+
+
+class ManifoldError(FgoptError, TypeError):
+    """A value's type is not a known manifold (register it, or give it dim/local/retract)."""
+
+
+class FileFormatError(FgoptError, ValueError):
+    """A data file is malformed; the message names the file and line."""
+
+    def __init__(self, message: str, path: str | None = None, line: int | None = None):
+        where = ""
+        if path is not None:
+            where = f"{path}:{line}: " if line is not None else f"{path}: "
+        super().__init__(where + message)
+        self.path = path
+        self.line = line

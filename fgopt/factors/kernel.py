@@ -1,0 +1,61 @@
+"""The batched-kernel contract between factor types and the compiled problem.
+
+A :class:`FactorKernel` evaluates *n* instances of one factor type at once, from gathered
+storage rows of its variables and a per-instance constants array (measurements and other
+fixed inputs). It returns the *unwhitened* residual and the tangent-space Jacobian; the
+problem applies the noise model's square-root information and robust (IRLS) weights in its own
+numba scatter kernel, so kernels stay independent of noise and loss.
+
+Shapes (``r`` = residual dim, ``s_i`` / ``d_i`` = storage / tangent dim of argument ``i``,
+``c`` = ``num_constants``, ``D = sum(d_i)``)::
+
+    residual(args, consts)  -> res (n, r)
+    linearize(args, consts) -> (res (n, r), jac (n, r, D))
+
+``args`` is a tuple of ``(n, s_i)`` float64 arrays, one per variable argument in
+``arg_kinds`` order; ``consts`` is ``(n, c)`` float64 (``c`` may be 0). The Jacobian columns of
+argument ``i`` are ``jac[:, :, off_i:off_i + d_i]`` with ``off_i = sum(d_j for j < i)``, and they
+are derivatives with respect to the argument's tangent space *as the argument's manifold
+defines retract* (``x (+) delta``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from ..manifolds.base import BatchKind
+
+ResidualFn = Callable[[tuple, np.ndarray], np.ndarray]
+LinearizeFn = Callable[[tuple, np.ndarray], "tuple[np.ndarray, np.ndarray]"]
+
+
+@dataclass(frozen=True, eq=False)
+class FactorKernel:
+    """Batched residual / Jacobian evaluator of one factor type and variable pattern.
+
+    Kernels compare by identity: factors sharing a kernel object (and loss kind) are batched
+    together.
+    """
+
+    name: str
+    arg_kinds: tuple[BatchKind, ...]
+    residual_dim: int
+    num_constants: int
+    residual: ResidualFn = field(repr=False)
+    linearize: LinearizeFn = field(repr=False)
+    source: str = field(default="", repr=False)
+
+    @property
+    def tangent_dim(self) -> int:
+        return sum(k.dim for k in self.arg_kinds)
+
+    @property
+    def arg_offsets(self) -> tuple[int, ...]:
+        offs, o = [], 0
+        for k in self.arg_kinds:
+            offs.append(o)
+            o += k.dim
+        return tuple(offs)

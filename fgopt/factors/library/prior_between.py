@@ -1,0 +1,74 @@
+"""Built-in ``PriorFactor`` and ``BetweenFactor`` for every Lie group and vector space.
+
+Residuals follow GTSAM: prior ``e = Log(m^-1 x)``, between ``e = Log(m^-1 (a^-1 b))``; for vectors
+``e = x - m`` and ``e = (b - a) - m``. Values whose type has a batch kind use the batched kernels
+of :mod:`fgopt.factors.library.lie_kernels`; other manifolds (duck-typed classes) get a prior
+``e = local(m, x)`` with numerical Jacobians.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ...errors import ManifoldError
+from ...manifolds.base import ops_for
+from ..base import KernelFactor
+from ..noise import Loss
+from ..numerical import numerical_jacobians
+
+
+def _kind_of(value: Any, what: str):
+    ops = ops_for(value)
+    return ops, ops.batch_kind(value)
+
+
+class PriorFactor(KernelFactor):
+    """``PriorFactor(key, value, loss)``: pulls variable ``key`` toward ``value``."""
+
+    def __init__(self, key: int, value: Any, loss: Loss | None = None):
+        from .lie_kernels import prior_kernel
+
+        ops, kind = _kind_of(value, "prior")
+        self.prior = value
+        if kind is None:  # duck-typed manifold: slow path
+            self.kernel = None
+            self._ops = ops
+            self.constants = np.zeros(0)
+            super(KernelFactor, self).__init__([key], ops.dim(value), loss)
+            return
+        super().__init__(prior_kernel(kind), [key], kind.to_storage(value), loss)
+
+    def error(self, values: Any) -> np.ndarray:
+        if self.kernel is None:
+            return self._ops.local(self.prior, values.at(self.keys[0]))
+        return super().error(values)
+
+    def jacobians(self, values: Any) -> list[np.ndarray]:
+        if self.kernel is None:
+            return numerical_jacobians(self.error, values, self.keys)
+        return super().jacobians(values)
+
+    def describe(self) -> str:
+        return f"PriorFactor({self.keys[0]!r})" if hasattr(self, "keys") else "PriorFactor"
+
+
+class BetweenFactor(KernelFactor):
+    """``BetweenFactor(k1, k2, measured, loss)``: relative measurement ``measured ~ x1^-1 x2``."""
+
+    def __init__(self, key1: int, key2: int, measured: Any, loss: Loss | None = None):
+        from .lie_kernels import between_kernel
+
+        ops, kind = _kind_of(measured, "between")
+        if kind is None:
+            raise ManifoldError(
+                f"BetweenFactor needs a Lie group or vector measurement, got "
+                f"{type(measured).__name__}; write a custom factor for other manifolds")
+        self.measured = measured
+        super().__init__(between_kernel(kind), [key1, key2], kind.to_storage(measured), loss)
+
+    def describe(self) -> str:
+        if hasattr(self, "keys"):
+            return f"BetweenFactor({self.keys[0]!r}, {self.keys[1]!r})"
+        return "BetweenFactor"

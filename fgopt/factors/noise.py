@@ -1,0 +1,272 @@
+"""Noise models (whitening) and robust losses (IRLS weights).
+
+A noise model whitens a residual ``e`` by its square-root information ``R`` (upper triangular,
+``R^T R = Sigma^-1``): ``r = R e``. The cost of a factor is ``0.5 * |r|^2`` (GTSAM's and Ceres'
+definition) or, with a robust loss, ``rho(|r|)`` where ``rho(t) ~ t^2 / 2`` near 0.
+
+Robust losses are applied by iteratively re-weighted least squares: at each linearization the
+factor's whitened Jacobian and residual are scaled by ``sqrt(w)`` with ``w = rho'(t) / t``.
+Each loss has a small integer ``code`` and one parameter so the compiled problem can evaluate it
+inside its numba scatter kernel (see :func:`fgopt.factors.robust.rho_and_weight`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import DimensionMismatchError, NonFiniteError, NotPositiveDefiniteError
+
+
+class NoiseModel:
+    """Gaussian noise with square-root information ``R`` (``dim x dim``, upper triangular)."""
+
+    #: True when R is the identity: whitening can be skipped.
+    is_unit: bool = False
+
+    def __init__(self, sqrt_information: np.ndarray):
+        R = np.array(sqrt_information, dtype=float)
+        if R.ndim != 2 or R.shape[0] != R.shape[1]:
+            raise DimensionMismatchError(f"square-root information must be square, got {R.shape}")
+        if not np.all(np.isfinite(R)):
+            raise NonFiniteError("noise model has a NaN or inf entry")
+        R.setflags(write=False)
+        self._R = R
+
+    @property
+    def dim(self) -> int:
+        return self._R.shape[0]
+
+    @property
+    def sqrt_information(self) -> np.ndarray:
+        return self._R
+
+    @property
+    def information(self) -> np.ndarray:
+        return self._R.T @ self._R
+
+    @property
+    def covariance(self) -> np.ndarray:
+        Rinv = np.linalg.inv(self._R)
+        return Rinv @ Rinv.T
+
+    def whiten(self, e: np.ndarray) -> np.ndarray:
+        return self._R @ np.asarray(e, dtype=float)
+
+    def whiten_jacobian(self, J: np.ndarray) -> np.ndarray:
+        return self._R @ np.asarray(J, dtype=float)
+
+    def cost(self, e: np.ndarray) -> float:
+        r = self.whiten(e)
+        return 0.5 * float(r @ r)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(dim={self.dim})"
+
+
+class Gaussian(NoiseModel):
+    """Full-covariance Gaussian noise."""
+
+    @classmethod
+    def from_sqrt_information(cls, R: np.ndarray) -> "Gaussian":
+        return cls(R)
+
+    @classmethod
+    def from_information(cls, information: np.ndarray) -> "Gaussian":
+        """Whitening from the information matrix via its Cholesky factor (``I = R^T R``)."""
+        info = _symmetric(information, "information")
+        try:
+            L = np.linalg.cholesky(info)
+        except np.linalg.LinAlgError:
+            w = np.linalg.eigvalsh(info)
+            raise NotPositiveDefiniteError(
+                f"information matrix is not positive definite (smallest eigenvalue {w.min():.3g}); "
+                "pass a symmetric positive-definite matrix") from None
+        return cls(L.T)
+
+    @classmethod
+    def from_covariance(cls, covariance: np.ndarray) -> "Gaussian":
+        """Whitening from the covariance: ``R = L^-1`` for ``Sigma = L L^T``."""
+        cov = _symmetric(covariance, "covariance")
+        try:
+            L = np.linalg.cholesky(cov)
+        except np.linalg.LinAlgError:
+            w = np.linalg.eigvalsh(cov)
+            raise NotPositiveDefiniteError(
+                f"covariance is not positive definite (smallest eigenvalue {w.min():.3g}); "
+                "pass a symmetric positive-definite matrix") from None
+        # Sigma^-1 = L^-T L^-1 = R^T R with R = L^-1 (lower triangular; fine: any R with R^T R
+        # = Sigma^-1 whitens).  Use the upper-triangular Cholesky of the information instead so
+        # every Gaussian stores an upper-triangular R.
+        info = np.linalg.inv(L).T @ np.linalg.inv(L)
+        return cls.from_information(0.5 * (info + info.T))
+
+
+class Diagonal(NoiseModel):
+    """Independent noise per residual component."""
+
+    @classmethod
+    def sigmas(cls, sigmas) -> "Diagonal":
+        s = _positive_vector(sigmas, "sigmas")
+        return cls(np.diag(1.0 / s))
+
+    @classmethod
+    def variances(cls, variances) -> "Diagonal":
+        return cls.sigmas(np.sqrt(_positive_vector(variances, "variances")))
+
+    @classmethod
+    def precisions(cls, precisions) -> "Diagonal":
+        return cls(np.diag(np.sqrt(_positive_vector(precisions, "precisions"))))
+
+    @property
+    def sigma_values(self) -> np.ndarray:
+        return 1.0 / np.diag(self._R)
+
+
+class Isotropic(Diagonal):
+    """The same sigma on every component."""
+
+    @classmethod
+    def sigma(cls, dim: int, sigma: float) -> "Isotropic":
+        s = _positive_vector([sigma], "sigma")[0]
+        return cls(np.eye(int(dim)) / s)
+
+
+class Unit(Isotropic):
+    """Unit noise: the residual is already whitened."""
+
+    is_unit = True
+
+    def __init__(self, dim: int):
+        super().__init__(np.eye(int(dim)))
+
+    def __repr__(self) -> str:
+        return f"Unit(dim={self.dim})"
+
+
+def _positive_vector(values, name: str) -> np.ndarray:
+    v = np.atleast_1d(np.asarray(values, dtype=float)).reshape(-1)
+    if not np.all(np.isfinite(v)):
+        raise NonFiniteError(f"{name} has a NaN or inf entry: {v}")
+    if np.any(v <= 0):
+        raise NotPositiveDefiniteError(f"{name} must all be positive, got {v}")
+    return v
+
+
+def _symmetric(M, name: str) -> np.ndarray:
+    M = np.array(M, dtype=float)
+    if M.ndim != 2 or M.shape[0] != M.shape[1]:
+        raise DimensionMismatchError(f"{name} must be a square matrix, got shape {M.shape}")
+    if not np.all(np.isfinite(M)):
+        raise NonFiniteError(f"{name} has a NaN or inf entry")
+    scale = max(1.0, float(np.abs(M).max()))
+    if np.abs(M - M.T).max() > 1e-9 * scale:
+        raise NotPositiveDefiniteError(f"{name} is not symmetric")
+    return 0.5 * (M + M.T)
+
+
+# ----------------------------------------------------------------------------- robust losses
+
+LOSS_NONE, LOSS_HUBER, LOSS_CAUCHY, LOSS_TUKEY, LOSS_GEMAN_MCCLURE = 0, 1, 2, 3, 4
+
+
+class RobustLoss:
+    """A robust loss ``rho`` wrapping a Gaussian noise model (``base``).
+
+    ``base=None`` means unit noise of the factor's dimension (filled in by the factor).
+    """
+
+    code: int = LOSS_NONE
+
+    def __init__(self, k: float, base: NoiseModel | None = None):
+        k = float(k)
+        if not np.isfinite(k) or k <= 0:
+            raise NotPositiveDefiniteError(f"{type(self).__name__} parameter must be positive, got {k}")
+        self.k = k
+        self.base = base
+
+    def with_base(self, base: NoiseModel) -> "RobustLoss":
+        return type(self)(self.k, base)
+
+    @property
+    def dim(self) -> int:
+        return self.base.dim if self.base is not None else -1
+
+    @property
+    def sqrt_information(self) -> np.ndarray:
+        return self.base.sqrt_information
+
+    def whiten(self, e: np.ndarray) -> np.ndarray:
+        return self.base.whiten(e)
+
+    def cost(self, e: np.ndarray) -> float:
+        from .robust import rho_and_weight
+
+        r = self.whiten(e)
+        rho, _ = rho_and_weight(self.code, self.k, float(r @ r))
+        return rho
+
+    def weight(self, e: np.ndarray) -> float:
+        """IRLS weight ``rho'(t)/t`` at the whitened norm ``t``."""
+        from .robust import rho_and_weight
+
+        r = self.whiten(e)
+        return rho_and_weight(self.code, self.k, float(r @ r))[1]
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(k={self.k:g}, base={self.base!r})"
+
+
+class Huber(RobustLoss):
+    """``rho(t) = t^2/2`` for ``|t| <= k``, else ``k |t| - k^2/2``."""
+
+    code = LOSS_HUBER
+
+
+class Cauchy(RobustLoss):
+    """``rho(t) = k^2/2 log(1 + t^2/k^2)``."""
+
+    code = LOSS_CAUCHY
+
+
+class Tukey(RobustLoss):
+    """``rho(t) = k^2/6 (1 - (1 - t^2/k^2)^3)`` for ``|t| <= k``, else ``k^2/6``."""
+
+    code = LOSS_TUKEY
+
+
+class GemanMcClure(RobustLoss):
+    """``rho(t) = (k^2 t^2 / 2) / (k^2 + t^2)`` (GTSAM's Geman-McClure)."""
+
+    code = LOSS_GEMAN_MCCLURE
+
+
+Loss = NoiseModel | RobustLoss
+
+
+def resolve_loss(loss: Loss | None, dim: int, where: str) -> Loss:
+    """Fill in defaults (``None`` -> unit noise) and check the dimension against ``dim``."""
+    if loss is None:
+        return Unit(dim)
+    if isinstance(loss, RobustLoss):
+        if loss.base is None:
+            return loss.with_base(Unit(dim))
+        if loss.base.dim != dim:
+            raise DimensionMismatchError(
+                f"{where}: noise model has dim {loss.base.dim} but the residual has dim {dim}")
+        return loss
+    if isinstance(loss, NoiseModel):
+        if loss.dim != dim:
+            raise DimensionMismatchError(
+                f"{where}: noise model has dim {loss.dim} but the residual has dim {dim}")
+        return loss
+    raise DimensionMismatchError(f"{where}: loss must be a noise model or robust loss, got {loss!r}")
+
+
+def base_noise(loss: Loss) -> NoiseModel:
+    return loss.base if isinstance(loss, RobustLoss) else loss
+
+
+def loss_code_and_param(loss: Loss) -> tuple[int, float]:
+    if isinstance(loss, RobustLoss):
+        return loss.code, loss.k
+    return LOSS_NONE, 0.0

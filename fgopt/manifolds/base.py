@@ -1,0 +1,237 @@
+"""Manifold traits: how fgopt reads any value type as a point on a manifold.
+
+A *manifold ops* object (the traits idea of miniSAM and SymForce's LieGroupOps) answers, for
+values of one Python type:
+
+- ``dim(x)``: tangent dimension; ``storage_dim(x)``: floats stored;
+- ``to_storage(x)`` -> 1-D float array, ``from_storage(like, data)`` -> value shaped like ``like``;
+- ``retract(x, delta)`` = x (+) delta, ``local(x, y)`` = y (-) x in x's tangent space
+  (so ``retract(x, local(x, y)) == y``);
+- ``batch_kind(x)`` -> a :class:`BatchKind` when values of this type can live in one contiguous
+  ``(n, storage_dim)`` array with numba-batched retract / local (the optimizer's fast path), or
+  ``None`` (the slow path: the optimizer calls the Python methods one value at a time).
+
+Types are found by :func:`ops_for`: registered classes first (:func:`register`), then ``float`` /
+``int`` (1-D vector space), 1-D numpy arrays (R^n), and finally any object with miniSAM-style
+``dim()``, ``local(other)`` and ``retract(vec)`` methods, which works without registering.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import lru_cache
+from typing import Any, Callable, Protocol, runtime_checkable
+
+import numba
+import numpy as np
+
+from ..errors import DimensionMismatchError, ManifoldError
+
+
+@dataclass(frozen=True, eq=False)
+class BatchKind:
+    """A manifold type whose values are stored as rows of one ``(n, storage_dim)`` float array.
+
+    ``retract(x (n, s), delta (n, d)) -> (n, s)`` and ``local(a (n, s), b (n, s)) -> (n, d)`` are
+    batched (numba) functions. ``from_storage(row)`` and ``to_storage(value)`` convert one value.
+    Kinds compare by identity: there is one object per kind (``vector_kind(3)`` is cached).
+    """
+
+    name: str
+    dim: int
+    storage_dim: int
+    retract: Callable[[np.ndarray, np.ndarray], np.ndarray] = field(repr=False)
+    local: Callable[[np.ndarray, np.ndarray], np.ndarray] = field(repr=False)
+    from_storage: Callable[[np.ndarray], Any] = field(repr=False)
+    to_storage: Callable[[Any], np.ndarray] = field(repr=False)
+
+
+@runtime_checkable
+class ManifoldOps(Protocol):
+    """The traits protocol; see the module docstring."""
+
+    def dim(self, x: Any) -> int: ...
+
+    def storage_dim(self, x: Any) -> int: ...
+
+    def to_storage(self, x: Any) -> np.ndarray: ...
+
+    def from_storage(self, like: Any, data: np.ndarray) -> Any: ...
+
+    def retract(self, x: Any, delta: np.ndarray) -> Any: ...
+
+    def local(self, x: Any, y: Any) -> np.ndarray: ...
+
+    def batch_kind(self, x: Any) -> BatchKind | None: ...
+
+
+_registry: dict[type, ManifoldOps] = {}
+
+
+def register(cls: type, ops: ManifoldOps) -> None:
+    """Register ``ops`` as the manifold traits of ``cls`` (and its subclasses)."""
+    missing = [m for m in ("dim", "storage_dim", "to_storage", "from_storage", "retract", "local")
+               if not callable(getattr(ops, m, None))]
+    if missing:
+        raise ManifoldError(f"manifold ops for {cls.__name__} lack {', '.join(missing)}")
+    _registry[cls] = ops
+    _lookup.cache_clear()
+
+
+# ----------------------------------------------------------------------------- vector spaces
+
+
+@numba.njit(cache=True)
+def _vector_retract(x, delta):
+    return x + delta
+
+
+@numba.njit(cache=True)
+def _vector_local(a, b):
+    return b - a
+
+
+@lru_cache(maxsize=None)
+def vector_kind(n: int) -> BatchKind:
+    """The batch kind of R^n values (1-D float arrays of length n)."""
+    return BatchKind(
+        name=f"R{n}",
+        dim=n,
+        storage_dim=n,
+        retract=_vector_retract,
+        local=_vector_local,
+        from_storage=lambda row: np.array(row, dtype=float),
+        to_storage=lambda v: np.asarray(v, dtype=float).reshape(n),
+    )
+
+
+SCALAR_KIND = BatchKind(
+    name="scalar",
+    dim=1,
+    storage_dim=1,
+    retract=_vector_retract,
+    local=_vector_local,
+    from_storage=lambda row: float(row[0]),
+    to_storage=lambda v: np.array([float(v)]),
+)
+
+
+class _ScalarOps:
+    """``float`` as the 1-D vector space."""
+
+    def dim(self, x: Any) -> int:
+        return 1
+
+    def storage_dim(self, x: Any) -> int:
+        return 1
+
+    def to_storage(self, x: Any) -> np.ndarray:
+        return np.array([float(x)])
+
+    def from_storage(self, like: Any, data: np.ndarray) -> float:
+        return float(np.asarray(data).reshape(-1)[0])
+
+    def retract(self, x: Any, delta: np.ndarray) -> float:
+        return float(x) + float(np.asarray(delta).reshape(-1)[0])
+
+    def local(self, x: Any, y: Any) -> np.ndarray:
+        return np.array([float(y) - float(x)])
+
+    def batch_kind(self, x: Any) -> BatchKind:
+        return SCALAR_KIND
+
+
+class _VectorOps:
+    """1-D numpy arrays as R^n."""
+
+    def dim(self, x: Any) -> int:
+        return int(np.shape(x)[0])
+
+    storage_dim = dim
+
+    def to_storage(self, x: Any) -> np.ndarray:
+        return np.asarray(x, dtype=float).copy()
+
+    def from_storage(self, like: Any, data: np.ndarray) -> np.ndarray:
+        return np.array(data, dtype=float).reshape(np.shape(like))
+
+    def retract(self, x: Any, delta: np.ndarray) -> np.ndarray:
+        delta = np.asarray(delta, dtype=float).reshape(-1)
+        if delta.shape[0] != np.shape(x)[0]:
+            raise DimensionMismatchError(
+                f"retract: vector of dim {np.shape(x)[0]} got a delta of dim {delta.shape[0]}")
+        return np.asarray(x, dtype=float) + delta
+
+    def local(self, x: Any, y: Any) -> np.ndarray:
+        return np.asarray(y, dtype=float) - np.asarray(x, dtype=float)
+
+    def batch_kind(self, x: Any) -> BatchKind:
+        return vector_kind(int(np.shape(x)[0]))
+
+
+class _DuckOps:
+    """miniSAM-style Python classes with ``dim()``, ``local(other)``, ``retract(vec)``.
+
+    They have no storage layout, so they always take the optimizer's slow path.
+    """
+
+    def dim(self, x: Any) -> int:
+        return int(x.dim())
+
+    def storage_dim(self, x: Any) -> int:
+        return int(x.dim())
+
+    def to_storage(self, x: Any) -> np.ndarray:
+        raise ManifoldError(f"{type(x).__name__} has no storage layout (it is duck-typed)")
+
+    def from_storage(self, like: Any, data: np.ndarray) -> Any:
+        raise ManifoldError(f"{type(like).__name__} has no storage layout (it is duck-typed)")
+
+    def retract(self, x: Any, delta: np.ndarray) -> Any:
+        return x.retract(np.asarray(delta, dtype=float))
+
+    def local(self, x: Any, y: Any) -> np.ndarray:
+        return np.asarray(x.local(y), dtype=float).reshape(-1)
+
+    def batch_kind(self, x: Any) -> None:
+        return None
+
+
+_SCALAR_OPS = _ScalarOps()
+_VECTOR_OPS = _VectorOps()
+_DUCK_OPS = _DuckOps()
+
+
+@lru_cache(maxsize=256)
+def _lookup(cls: type) -> ManifoldOps | None:
+    for base in cls.__mro__:
+        if base in _registry:
+            return _registry[base]
+    if issubclass(cls, (float, int, np.floating, np.integer)) and not issubclass(cls, bool):
+        return _SCALAR_OPS
+    if all(callable(getattr(cls, m, None)) for m in ("dim", "local", "retract")):
+        return _DUCK_OPS
+    return None
+
+
+def ops_for(x: Any) -> ManifoldOps:
+    """The manifold traits of value ``x``; raises :class:`ManifoldError` if it has none."""
+    if isinstance(x, np.ndarray):
+        if x.ndim == 1 and np.issubdtype(x.dtype, np.number):
+            return _VECTOR_OPS
+        raise ManifoldError(
+            f"a numpy array of shape {x.shape} is not a manifold value: use a 1-D float array")
+    ops = _lookup(type(x))
+    if ops is None:
+        raise ManifoldError(
+            f"{type(x).__name__} is not a manifold: register it with "
+            "fgopt.manifolds.register(cls, ops) or give it dim(), local(other), retract(vec)")
+    return ops
+
+
+def is_manifold_value(x: Any) -> bool:
+    try:
+        ops_for(x)
+    except ManifoldError:
+        return False
+    return True

@@ -1,0 +1,416 @@
+"""The compiled problem: a graph and its variables laid out for fast, repeated linearization.
+
+``Problem(graph, values)`` runs once per optimization (ARCHITECTURE.md, "structure once"):
+
+1. variables of each batch kind live in one ``(n, storage_dim)`` array; duck-typed manifolds
+   stay Python objects (the slow path);
+2. kernel factors are grouped into batches by (kernel, robust loss); Python factors form one
+   fallback list linearized one by one;
+3. a fill-reducing order of the variable graph fixes each variable's tangent offset, and the
+   pattern of H plus the scatter map of every factor block are computed (``structure.py``).
+
+Each iteration then calls ``linearize`` (kernels + numba scatter into H's data array),
+``retract`` (one batched kernel per manifold kind) and ``cost``. A :class:`State` holds the
+variable values; the problem never mutates a state in place, so the caller's values and any
+accepted iterate stay intact.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from . import _assembly as asm
+from .batch import FactorBatch, batch_from_factors
+from .errors import (DimensionMismatchError, EmptyProblemError, FgoptError, KeyNotFoundError,
+                     ManifoldError, NonFiniteError)
+from .factors.base import Factor
+from .factors.noise import base_noise, loss_code_and_param
+from .key import Key, key_str
+from .manifolds.base import BatchKind, ops_for
+from .structure import HessianPattern, build_pattern, fill_reducing_order, scatter_positions
+from .variables import Variables
+
+
+@dataclass(eq=False)
+class State:
+    """Variable values during optimization: one storage array per kind + slow-path objects."""
+
+    storages: list[np.ndarray]
+    objects: dict[int, Any]
+
+
+@dataclass(eq=False)
+class _Batch:
+    kernel: Any
+    source: FactorBatch
+    var_idx: np.ndarray          # (n, k) variable indices
+    kind_ids: tuple[int, ...]    # kind of each argument
+    rows: list[np.ndarray]       # per argument: (n,) rows into that kind's storage
+    sqrt_info: np.ndarray        # (n, r, r) or (1, r, r) identity when unit
+    unit: bool
+    arg_dims: np.ndarray
+    arg_local_off: np.ndarray
+    toff: np.ndarray = field(default=None)  # (n, k) tangent offsets
+    pos: np.ndarray = field(default=None)   # (n, k, k, maxd) scatter map
+    weights: np.ndarray = field(default=None)
+
+    def gather(self, state: State) -> tuple:
+        return tuple(state.storages[kid][rows] for kid, rows in zip(self.kind_ids, self.rows))
+
+
+@dataclass(eq=False)
+class _SlowFactor:
+    factor: Factor
+    var_idx: np.ndarray          # (k,)
+    sqrt_info: np.ndarray        # (1, r, r)
+    unit: bool
+    loss_code: int
+    loss_param: float
+    arg_dims: np.ndarray
+    arg_local_off: np.ndarray
+    toff: np.ndarray = field(default=None)
+    pos: np.ndarray = field(default=None)
+
+
+class _StateView:
+    """``values.at(k)`` over a State, for Python factors (materializes values on demand)."""
+
+    def __init__(self, problem: "Problem", state: State):
+        self._p, self._s, self._cache = problem, state, {}
+
+    def at(self, k: Any) -> Any:
+        try:
+            return self._cache[k]
+        except KeyError:
+            pass
+        v = self._p._var_of_key.get(k)
+        if v is None:
+            return self._p._extra.at(k)
+        value = self._p._value_of(self._s, v)
+        self._cache[k] = value
+        return value
+
+    __getitem__ = at
+
+    def __contains__(self, k: object) -> bool:
+        return k in self._p._var_of_key or k in self._p._extra
+
+
+class Problem:
+    """A graph compiled against initial values; see the module docstring."""
+
+    def __init__(self, graph: Any, values: Variables, ordering: str | None = "amd",
+                 build_structure: bool = True):
+        if len(graph) == 0:
+            raise EmptyProblemError("the factor graph is empty: add factors before optimizing")
+        self.timing = {"linearize": 0.0, "assemble": 0.0, "retract": 0.0, "cost": 0.0}
+        self._collect_variables(graph, values)
+        self._collect_factors(graph)
+        self.pattern: HessianPattern | None = None
+        if build_structure:
+            self._build_structure(ordering or "natural")
+
+    # ----------------------------------------------------------------- compile: variables
+    def _collect_variables(self, graph: Any, values: Variables) -> None:
+        used: dict[int, None] = {}
+        for f in graph.factors:
+            for k in f.keys:
+                if k not in values:
+                    raise KeyNotFoundError(
+                        f"{f.describe()} uses {key_str(k)}, which is not in the initial values: "
+                        f"add it with Variables.add({key_str(k)}, value)")
+                used.setdefault(k, None)
+        for b in graph.batches:
+            for k in dict.fromkeys(b.keys.reshape(-1).tolist()):
+                used.setdefault(k, None)
+        missing = [k for k in used if k not in values]
+        if missing:
+            b, row = self._find_key_row(graph, missing[0])
+            raise KeyNotFoundError(
+                f"{b.kernel.name} (factor {b._where(row)}) uses {key_str(missing[0])}, which is "
+                "not in the initial values")
+        self.kinds: list[BatchKind] = []
+        kind_id: dict[int, int] = {}
+        per_kind: list[list] = []
+        var_keys, var_kind, var_row, var_dim = [], [], [], []
+        self._slow_values: list[Any] = []
+        for k in used:
+            x = values.at(k)
+            ops = ops_for(x)
+            kind = ops.batch_kind(x)
+            if kind is None:
+                var_kind.append(-1)
+                var_row.append(len(self._slow_values))
+                self._slow_values.append(x)
+                var_dim.append(ops.dim(x))
+            else:
+                kid = kind_id.get(id(kind))
+                if kid is None:
+                    kid = kind_id[id(kind)] = len(self.kinds)
+                    self.kinds.append(kind)
+                    per_kind.append([])
+                var_kind.append(kid)
+                var_row.append(len(per_kind[kid]))
+                per_kind[kid].append(kind.to_storage(x))
+                var_dim.append(kind.dim)
+            var_keys.append(k)
+        self._kind_id = kind_id
+        self.var_keys = np.array(var_keys, dtype=np.int64)
+        self.var_kind = np.array(var_kind, dtype=np.int64)
+        self.var_row = np.array(var_row, dtype=np.int64)
+        self.var_dim = np.array(var_dim, dtype=np.int64)
+        self._var_of_key = {Key(k): i for i, k in enumerate(var_keys)}
+        self._initial_storages = [np.array(rows, dtype=float).reshape(len(rows), kd.storage_dim)
+                                  for rows, kd in zip(per_kind, self.kinds)]
+        self._kind_vars = [np.nonzero(self.var_kind == kid)[0] for kid in range(len(self.kinds))]
+        self._slow_vars = np.nonzero(self.var_kind < 0)[0]
+        self._extra = values  # for unused keys and the final Variables
+        self._sorted = np.argsort(self.var_keys)
+
+    @staticmethod
+    def _find_key_row(graph: Any, k: int) -> tuple[FactorBatch, int]:
+        for b in graph.batches:
+            hit = np.nonzero((b.keys == k).any(axis=1))[0]
+            if hit.shape[0]:
+                return b, int(hit[0])
+        raise AssertionError("key not found in batches")
+
+    def _vars_of(self, keys: np.ndarray) -> np.ndarray:
+        at = np.searchsorted(self.var_keys, keys, sorter=self._sorted)
+        return self._sorted[at]
+
+    # ----------------------------------------------------------------- compile: factors
+    def _collect_factors(self, graph: Any) -> None:
+        groups: dict[tuple, list] = {}
+        self._slow: list[_SlowFactor] = []
+        for f in graph.factors:
+            if f.kernel is not None:
+                code, param = loss_code_and_param(f.loss)
+                groups.setdefault((id(f.kernel), code, param), []).append(f)
+            else:
+                self._slow.append(self._make_slow(f))
+        sources = [batch_from_factors(fs[0].kernel, fs) for fs in groups.values()]
+        sources += list(graph.batches)
+        self.batches = [self._make_batch(b) for b in sources]
+
+    def _make_batch(self, b: FactorBatch) -> _Batch:
+        kernel = b.kernel
+        var_idx = self._vars_of(b.keys)
+        kind_ids = []
+        for j, kind in enumerate(kernel.arg_kinds):
+            kid = self._kind_id.get(id(kind), -2)
+            bad = self.var_kind[var_idx[:, j]] != kid
+            if np.any(bad):
+                row = int(np.nonzero(bad)[0][0])
+                k = Key(int(b.keys[row, j]))
+                x = self._extra.at(k)
+                raise ManifoldError(
+                    f"{kernel.name}({', '.join(key_str(Key(int(q))) for q in b.keys[row])}) "
+                    f"(factor {b._where(row)}): argument {j} expects {kind.name}, but "
+                    f"{key_str(k)} is a {type(x).__name__}")
+            kind_ids.append(kid)
+        if var_idx.shape[1] > 1:
+            srt = np.sort(var_idx, axis=1)
+            dup = np.any(srt[:, 1:] == srt[:, :-1], axis=1)
+            if np.any(dup):
+                row = int(np.nonzero(dup)[0][0])
+                raise FgoptError(f"{kernel.name} (factor {b._where(row)}) uses the same key twice")
+        r = kernel.residual_dim
+        unit = b.sqrt_information is None
+        R = np.eye(r)[None] if unit else b.sqrt_information
+        dims = np.array([k.dim for k in kernel.arg_kinds], dtype=np.int64)
+        return _Batch(kernel, b, var_idx, tuple(kind_ids),
+                      [np.ascontiguousarray(self.var_row[var_idx[:, j]])
+                       for j in range(var_idx.shape[1])],
+                      np.ascontiguousarray(R), unit, dims,
+                      np.array(kernel.arg_offsets, dtype=np.int64),
+                      weights=np.ones(len(b)))
+
+    def _make_slow(self, f: Factor) -> _SlowFactor:
+        var_idx = np.array([self._var_of_key[k] for k in f.keys], dtype=np.int64)
+        noise = base_noise(f.loss)
+        code, param = loss_code_and_param(f.loss)
+        dims = self.var_dim[var_idx]
+        return _SlowFactor(f, var_idx, np.ascontiguousarray(noise.sqrt_information)[None],
+                           bool(noise.is_unit), code, param, dims,
+                           np.concatenate([[0], np.cumsum(dims)[:-1]]).astype(np.int64))
+
+    # ----------------------------------------------------------------- compile: structure
+    def _build_structure(self, ordering: str) -> None:
+        pi, pj = [], []
+        for b in self.batches:
+            k = b.var_idx.shape[1]
+            for p in range(k):
+                for q in range(p + 1, k):
+                    pi.append(b.var_idx[:, p])
+                    pj.append(b.var_idx[:, q])
+        for s in self._slow:
+            for p in range(len(s.var_idx)):
+                for q in range(p + 1, len(s.var_idx)):
+                    pi.append(s.var_idx[p:p + 1])
+                    pj.append(s.var_idx[q:q + 1])
+        pi = np.concatenate(pi) if pi else np.zeros(0, np.int64)
+        pj = np.concatenate(pj) if pj else np.zeros(0, np.int64)
+        V = self.var_keys.shape[0]
+        order = fill_reducing_order(V, pi, pj, ordering)
+        self.pattern, lookup = build_pattern(self.var_dim, order, pi, pj)
+        rank = np.empty(V, dtype=np.int64)
+        rank[order] = np.arange(V)
+        off = self.pattern.var_offset
+        for b in self.batches:
+            b.toff = np.ascontiguousarray(off[b.var_idx])
+            b.pos = scatter_positions(lookup, rank, b.var_idx, b.arg_dims)
+        for s in self._slow:
+            s.toff = off[s.var_idx][None]
+            s.pos = scatter_positions(lookup, rank, s.var_idx[None], s.arg_dims)
+        # tangent indices of each kind's variables, row order (for batched retract)
+        self._kind_tangent = []
+        for kid, kind in enumerate(self.kinds):
+            vars_ = self._kind_vars[kid]
+            rows = self.var_row[vars_]
+            order_rows = np.empty_like(vars_)
+            order_rows[rows] = vars_
+            idx = off[order_rows][:, None] + np.arange(kind.dim)[None, :]
+            self._kind_tangent.append(idx)
+        self.H_data = np.zeros(self.pattern.nnz)
+        self.g = np.zeros(self.pattern.size)
+
+    # ----------------------------------------------------------------- iteration API
+    @property
+    def size(self) -> int:
+        """Total tangent dimension N."""
+        return int(self.var_dim.sum())
+
+    @property
+    def num_variables(self) -> int:
+        return int(self.var_keys.shape[0])
+
+    def initial_state(self) -> State:
+        return State([s.copy() for s in self._initial_storages],
+                     {int(v): self._slow_values[self.var_row[v]] for v in self._slow_vars})
+
+    def _value_of(self, state: State, v: int) -> Any:
+        kid = self.var_kind[v]
+        if kid < 0:
+            return state.objects[v]
+        return self.kinds[kid].from_storage(state.storages[kid][self.var_row[v]])
+
+    def cost(self, state: State) -> float:
+        """Total cost ``sum rho_i`` (``0.5 |r|^2`` without robust losses); NaN if not finite."""
+        t0 = time.perf_counter()
+        total = 0.0
+        for b in self.batches:
+            res = b.kernel.residual(b.gather(state), b.source.constants)
+            total += asm.batch_cost(res, b.sqrt_info, b.unit, b.source.loss_code,
+                                    b.source.loss_param)
+        if self._slow:
+            view = _StateView(self, state)
+            for s in self._slow:
+                try:
+                    e = s.factor.checked_error(view)
+                except NonFiniteError:
+                    total = np.nan
+                    continue
+                total += asm.batch_cost(e[None], s.sqrt_info, s.unit, s.loss_code, s.loss_param)
+        self.timing["cost"] += time.perf_counter() - t0
+        return float(total) if np.isfinite(total) else float("nan")
+
+    def linearize(self, state: State) -> float:
+        """Fill ``self.H_data`` (lower CSC of H) and ``self.g`` (J^T W r); return the cost."""
+        if self.pattern is None:
+            raise FgoptError("this Problem was built without structure")
+        H, g = self.H_data, self.g
+        H[:] = 0.0
+        g[:] = 0.0
+        total = 0.0
+        t_lin = t_asm = 0.0
+        for b in self.batches:
+            t0 = time.perf_counter()
+            res, jac = b.kernel.linearize(b.gather(state), b.source.constants)
+            t1 = time.perf_counter()
+            total += asm.scatter_batch(res, jac, b.sqrt_info, b.unit, b.source.loss_code,
+                                       b.source.loss_param, b.arg_dims, b.arg_local_off, b.toff,
+                                       b.pos, H, g, b.weights)
+            t_lin += t1 - t0
+            t_asm += time.perf_counter() - t1
+        if self._slow:
+            t0 = time.perf_counter()
+            view = _StateView(self, state)
+            for s in self._slow:
+                e = s.factor.checked_error(view)
+                Js = s.factor.checked_jacobians(view)
+                J = np.concatenate(Js, axis=1)[None]
+                total += asm.scatter_batch(e[None], J, s.sqrt_info, s.unit, s.loss_code,
+                                           s.loss_param, s.arg_dims, s.arg_local_off, s.toff,
+                                           s.pos, H, g, np.ones(1))
+            t_lin += time.perf_counter() - t0
+        self.timing["linearize"] += t_lin
+        self.timing["assemble"] += t_asm
+        if not (np.isfinite(total) and np.all(np.isfinite(g))):
+            raise NonFiniteError(self.locate_nonfinite(state))
+        return float(total)
+
+    def retract(self, state: State, delta: np.ndarray) -> State:
+        """A new state ``x (+) delta`` (delta in the problem's tangent order)."""
+        t0 = time.perf_counter()
+        storages = []
+        for kid, kind in enumerate(self.kinds):
+            d = np.ascontiguousarray(delta[self._kind_tangent[kid]])
+            storages.append(kind.retract(state.storages[kid], d))
+        objects = {}
+        off = self.pattern.var_offset
+        for v, x in state.objects.items():
+            objects[v] = ops_for(x).retract(x, delta[off[v]:off[v] + self.var_dim[v]])
+        self.timing["retract"] += time.perf_counter() - t0
+        return State(storages, objects)
+
+    def values(self, state: State) -> Variables:
+        """The state as a new ``Variables`` (keys the graph does not use are copied unchanged)."""
+        out = self._extra.copy()
+        for kid, kind in enumerate(self.kinds):
+            S = state.storages[kid]
+            for v in self._kind_vars[kid]:
+                out._values[Key(int(self.var_keys[v]))] = kind.from_storage(S[self.var_row[v]])
+        for v, x in state.objects.items():
+            out._values[Key(int(self.var_keys[v]))] = x
+        return out
+
+    def locate_nonfinite(self, state: State) -> str:
+        """Name the first factor whose residual or Jacobian is not finite."""
+        for b in self.batches:
+            res, jac = b.kernel.linearize(b.gather(state), b.source.constants)
+            for arr, what in ((res, "residual"), (jac, "Jacobian")):
+                row = asm.first_nonfinite_row(arr)
+                if row >= 0:
+                    keys = ", ".join(key_str(Key(int(k))) for k in b.source.keys[row])
+                    return (f"{b.kernel.name}({keys}) (factor {b.source._where(row)}) has a "
+                            f"non-finite {what}: check its measurement and variables")
+        view = _StateView(self, state)
+        for s in self._slow:
+            try:
+                s.factor.checked_error(view)
+                s.factor.checked_jacobians(view)
+            except NonFiniteError as e:
+                return str(e)
+        return "a residual or Jacobian is not finite"
+
+    def gradient_norm(self) -> float:
+        return float(np.abs(self.g).max(initial=0.0))
+
+    def __repr__(self) -> str:
+        kinds = ", ".join(f"{len(v)} {k.name}" for k, v in zip(self.kinds, self._kind_vars))
+        if len(self._slow_vars):
+            kinds += f", {len(self._slow_vars)} Python-manifold"
+        lines = [f"Problem({self.num_variables} variables: {kinds}; tangent dim {self.size})"]
+        for b in self.batches:
+            lines.append(f"  batch {b.kernel.name}: {len(b.source)} factors")
+        if self._slow:
+            lines.append(f"  Python factors (slow path): {len(self._slow)}")
+        if self.pattern is not None:
+            lines.append(f"  H: {self.pattern.size}x{self.pattern.size}, "
+                         f"{self.pattern.nnz} stored (lower) entries")
+        return "\n".join(lines)

@@ -1,0 +1,63 @@
+"""Nonlinear optimizers (LM, Gauss-Newton, Dogleg) over a compiled problem, and ``optimize``."""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from ..errors import FgoptError
+from .dogleg import Dogleg as Dogleg
+from .gauss_newton import GaussNewton as GaussNewton
+from .linear.base import LinearSolver as LinearSolver
+from .linear.base import make_linear_solver as make_linear_solver
+from .lm import LevenbergMarquardt as LevenbergMarquardt
+from .params import DoglegParams as DoglegParams
+from .params import GaussNewtonParams as GaussNewtonParams
+from .params import LMParams as LMParams
+from .params import TerminationParams as TerminationParams
+from .result import IterationRecord as IterationRecord
+from .result import Result as Result
+from .result import Status as Status
+
+_METHODS = {"lm": (LevenbergMarquardt, LMParams), "gn": (GaussNewton, GaussNewtonParams),
+            "dogleg": (Dogleg, DoglegParams)}
+
+
+def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = "cholmod",
+             max_iterations: int | None = None, verbose: bool | None = None, callback: Any = None,
+             params: Any = None, **options: Any) -> Result:
+    """Minimize ``graph.error`` from ``initial``; returns a :class:`Result` (``initial`` untouched).
+
+    Args:
+        graph: the :class:`~fgopt.FactorGraph`.
+        initial: :class:`~fgopt.Variables` with a value for every key the graph uses.
+        method: ``"lm"`` (Levenberg-Marquardt), ``"gn"`` (Gauss-Newton) or ``"dogleg"``.
+        linear_solver: ``"cholmod" | "ldlt" | "pcg" | "dense"`` or a solver object.
+        max_iterations: iteration limit (every linear solve counts; default 100).
+        verbose: print the per-iteration table (default False).
+        callback: ``f(record: IterationRecord)``; return True to stop.
+        params: a parameter dataclass (``LMParams`` ...) overriding the defaults; other keyword
+            ``options`` (e.g. ``relative_tolerance=1e-8``) replace its fields.
+    """
+    if method not in _METHODS:
+        raise FgoptError(f"unknown method {method!r}: choose one of {', '.join(_METHODS)}")
+    cls, params_cls = _METHODS[method]
+    if params is None:
+        params = params_cls()
+    fields = {f.name for f in dataclasses.fields(params)}
+    unknown = set(options) - fields
+    if unknown:
+        raise FgoptError(f"unknown option(s) {sorted(unknown)} for method {method!r}; "
+                         f"valid: {sorted(fields)}")
+    overrides = dict(options)
+    if max_iterations is not None:
+        overrides["max_iterations"] = int(max_iterations)
+    if verbose is not None:
+        overrides["verbose"] = bool(verbose)
+    if isinstance(linear_solver, str):
+        overrides["linear_solver"] = linear_solver
+        solver_obj = None
+    else:
+        solver_obj = linear_solver
+    params = dataclasses.replace(params, **overrides)
+    return cls(params, solver_obj).optimize(graph, initial, callback=callback)

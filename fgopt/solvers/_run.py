@@ -1,0 +1,117 @@
+"""Bookkeeping shared by the optimizers: set-up, records, callbacks, timing, the Result."""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, Callable
+
+import numpy as np
+
+from ..errors import FgoptError, NonFiniteError
+from ..problem import Problem, State
+from ..variables import Variables
+from .linear.base import make_linear_solver
+from .result import IterationRecord, Result, Status
+
+Callback = Callable[[IterationRecord], "bool | None"]
+
+
+class Run:
+    """One optimization: the compiled problem, linear solver, current iterate and history."""
+
+    def __init__(self, graph: Any, initial: Variables, params: Any, method: str,
+                 callback: Callback | None, linear_solver: Any = None):
+        if not isinstance(initial, Variables):
+            raise FgoptError(f"initial values must be fgopt.Variables, got {type(initial).__name__}")
+        self.t0 = time.perf_counter()
+        self.params = params
+        self.method = method
+        self.callback = callback
+        self.verbose = bool(getattr(params, "verbose", False))
+        self.problem = Problem(graph, initial, ordering=params.ordering)
+        self.solver = make_linear_solver(linear_solver if linear_solver is not None
+                                         else params.linear_solver)
+        self.solver.analyze(self.problem.pattern)
+        self.t_setup = time.perf_counter() - self.t0
+        self.t_solve = 0.0
+        self.state: State = self.problem.initial_state()
+        self.cost = self.problem.linearize(self.state)  # raises NonFiniteError naming the factor
+        self.initial_cost = self.cost
+        self.history = [self.cost]
+        self.records: list[IterationRecord] = []
+        if self.verbose:
+            print(f"{method}: {self.problem.num_variables} variables, {len(graph)} factors, "
+                  f"initial cost {self.cost:.6e}")
+            print(IterationRecord.HEADER)
+
+    # -- linear algebra with timing
+    def solve(self, H_data: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+        t = time.perf_counter()
+        try:
+            self.solver.factorize(H_data)
+            return self.solver.solve(rhs)
+        finally:
+            self.t_solve += time.perf_counter() - t
+
+    def state_norm(self) -> float:
+        return math.sqrt(sum(float(np.sum(s * s)) for s in self.state.storages))
+
+    def relinearize(self) -> None:
+        try:
+            self.cost = self.problem.linearize(self.state)
+        except NonFiniteError:
+            raise
+
+    def record(self, iteration: int, candidate_cost: float, lam: float, step_norm: float,
+               accepted: bool, previous_cost: float) -> bool:
+        """Log one iteration; returns True when the callback asks to stop."""
+        rel = (previous_cost - candidate_cost) / previous_cost if previous_cost > 0 else 0.0
+        rec = IterationRecord(iteration, self.cost, candidate_cost, rel if math.isfinite(rel)
+                              else float("nan"), lam, step_norm, self.problem.gradient_norm(),
+                              accepted, time.perf_counter() - self.t0)
+        self.records.append(rec)
+        if accepted:
+            self.history.append(self.cost)
+        if self.verbose:
+            print(rec.row(), flush=True)
+        if self.callback is not None:
+            return bool(self.callback(rec))
+        return False
+
+    def converged_by_decrease(self, old: float, new: float) -> str | None:
+        p = self.params
+        dec = old - new
+        if dec < p.absolute_tolerance:
+            return f"absolute cost decrease {dec:.3g} < {p.absolute_tolerance:g}"
+        if old > 0 and dec / old < p.relative_tolerance:
+            return f"relative cost decrease {dec / old:.3g} < {p.relative_tolerance:g}"
+        return None
+
+    def converged_by_gradient(self) -> str | None:
+        gn = self.problem.gradient_norm()
+        if gn <= self.params.gradient_tolerance:
+            return f"gradient norm {gn:.3g} <= {self.params.gradient_tolerance:g}"
+        return None
+
+    def converged_by_step(self, step_norm: float) -> str | None:
+        tol = self.params.step_tolerance
+        if step_norm <= tol * (self.state_norm() + tol):
+            return f"step norm {step_norm:.3g} below step_tolerance"
+        return None
+
+    def finish(self, status: Status, message: str) -> Result:
+        total = time.perf_counter() - self.t0
+        t = self.problem.timing
+        timing = {"setup": self.t_setup, "linearize": t["linearize"], "assemble": t["assemble"],
+                  "factorize+solve": self.t_solve, "retract": t["retract"], "cost": t["cost"],
+                  "total": total}
+        if self.verbose:
+            print(f"{status.value}: {message}; cost {self.initial_cost:.6e} -> {self.cost:.6e} "
+                  f"in {len(self.records)} iterations, {total:.3f} s")
+        return Result(values=self.problem.values(self.state), status=status, message=message,
+                      iterations=len(self.records), initial_cost=self.initial_cost,
+                      final_cost=self.cost, cost_history=self.history,
+                      iteration_records=self.records, timing=timing, method=self.method,
+                      linear_solver=getattr(self.solver, "name", type(self.solver).__name__),
+                      problem=self.problem)

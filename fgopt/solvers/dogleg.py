@@ -1,0 +1,99 @@
+"""Powell's dogleg trust-region method.
+
+Per linearization: the Gauss-Newton step ``h_gn = -H^-1 g`` (one factorization, reused while the
+radius shrinks) and the Cauchy step ``h_sd = -alpha g`` with ``alpha = g.g / g.H.g``. The step is
+``h_gn`` if it fits the radius ``Delta``, else the scaled gradient step if even ``h_sd`` does not,
+else the point where the segment ``h_sd -> h_gn`` leaves the trust region. The radius grows
+(to ``max(Delta, 3|h|)``) when the gain ratio exceeds 0.75 and halves below 0.25.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from ..errors import NotPositiveDefiniteError
+from ..variables import Variables
+from ._run import Callback, Run
+from .params import DoglegParams
+from .result import Result, Status
+
+
+def dogleg_step(h_gn: np.ndarray, h_sd: np.ndarray, g: np.ndarray, radius: float) -> np.ndarray:
+    n_gn = float(np.linalg.norm(h_gn))
+    if n_gn <= radius:
+        return h_gn
+    n_sd = float(np.linalg.norm(h_sd))
+    if n_sd >= radius:
+        return -(radius / float(np.linalg.norm(g))) * g
+    # solve |h_sd + beta (h_gn - h_sd)| = radius for beta in [0, 1]
+    d = h_gn - h_sd
+    a, b, c = float(d @ d), 2.0 * float(h_sd @ d), n_sd * n_sd - radius * radius
+    beta = (-b + math.sqrt(max(b * b - 4 * a * c, 0.0))) / (2 * a)
+    return h_sd + beta * d
+
+
+class Dogleg:
+    def __init__(self, params: DoglegParams | None = None, linear_solver: Any = None):
+        self.params = params or DoglegParams()
+        self.linear_solver = linear_solver
+
+    def optimize(self, graph: Any, initial: Variables, callback: Callback | None = None) -> Result:
+        p = self.params
+        run = Run(graph, initial, p, "dogleg", callback, self.linear_solver)
+        problem = run.problem
+        pattern = problem.pattern
+        radius = p.initial_radius
+        msg = run.converged_by_gradient()
+        if msg is not None:
+            return run.finish(Status.CONVERGED, msg)
+        h_gn = h_sd = None
+        it = 0
+        while it < p.max_iterations:
+            H, g = problem.H_data, problem.g
+            if h_gn is None:
+                Hr = H.copy()
+                Hr[pattern.diag_pos] += p.regularization * np.maximum(H[pattern.diag_pos], 1e-6)
+                try:
+                    h_gn = run.solve(Hr, -g)
+                except NotPositiveDefiniteError:
+                    return run.finish(Status.FAILED, "H is not positive definite")
+                gHg = float(g @ pattern.matvec(H, g))
+                h_sd = -(float(g @ g) / gHg) * g if gHg > 0 else -g
+            it += 1
+            old = run.cost
+            h = dogleg_step(h_gn, h_sd, g, radius)
+            step_norm = float(np.linalg.norm(h))
+            predicted = -float(g @ h) - 0.5 * float(h @ pattern.matvec(H, h))
+            candidate = problem.retract(run.state, h)
+            new_cost = problem.cost(candidate)
+            rho = (old - new_cost) / predicted if predicted > 0 else -math.inf
+            used_radius = radius
+            if rho > 0.75:
+                radius = max(radius, 3.0 * step_norm)
+            elif rho < 0.25:
+                radius = 0.5 * radius
+            if math.isfinite(new_cost) and rho > 0:
+                run.state = candidate
+                done = run.converged_by_decrease(old, new_cost)
+                if done is None:
+                    run.relinearize()
+                    done = run.converged_by_gradient()
+                else:
+                    run.cost = new_cost
+                h_gn = None
+                stop = run.record(it, new_cost, used_radius, step_norm, True, old)
+                if done is not None:
+                    return run.finish(Status.CONVERGED, done)
+            else:
+                stop = run.record(it, new_cost, used_radius, step_norm, False, old)
+                if radius < p.min_radius:
+                    return run.finish(Status.CONVERGED, "trust region collapsed: no further decrease")
+            done = run.converged_by_step(step_norm)
+            if done is not None:
+                return run.finish(Status.CONVERGED, done)
+            if stop:
+                return run.finish(Status.STOPPED, "callback asked to stop")
+        return run.finish(Status.MAX_ITERATIONS, f"reached max_iterations={p.max_iterations}")

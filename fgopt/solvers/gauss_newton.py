@@ -1,0 +1,61 @@
+"""Gauss-Newton: solve ``H delta = -g`` and take the full step.
+
+Without damping, H must be positive definite: fix the gauge with a prior (a pose graph without
+one is singular). A step that increases the cost ends the run with the last good values.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from ..errors import NotPositiveDefiniteError
+from ..variables import Variables
+from ._run import Callback, Run
+from .params import GaussNewtonParams
+from .result import Result, Status
+
+
+class GaussNewton:
+    def __init__(self, params: GaussNewtonParams | None = None, linear_solver: Any = None):
+        self.params = params or GaussNewtonParams()
+        self.linear_solver = linear_solver
+
+    def optimize(self, graph: Any, initial: Variables, callback: Callback | None = None) -> Result:
+        p = self.params
+        run = Run(graph, initial, p, "gn", callback, self.linear_solver)
+        problem = run.problem
+        msg = run.converged_by_gradient()
+        if msg is not None:
+            return run.finish(Status.CONVERGED, msg)
+        for it in range(1, p.max_iterations + 1):
+            old = run.cost
+            try:
+                delta = run.solve(problem.H_data.copy(), -problem.g)
+            except NotPositiveDefiniteError:
+                return run.finish(Status.FAILED, "H is not positive definite: add a prior to fix "
+                                  "the gauge, or use method='lm'")
+            if not np.all(np.isfinite(delta)):
+                return run.finish(Status.FAILED, "the Gauss-Newton step is not finite")
+            step_norm = float(np.linalg.norm(delta))
+            candidate = problem.retract(run.state, delta)
+            new_cost = problem.cost(candidate)
+            if not math.isfinite(new_cost) or new_cost > old:
+                run.record(it, new_cost, 0.0, step_norm, False, old)
+                return run.finish(Status.FAILED, f"the step increased the cost ({old:.6g} -> "
+                                  f"{new_cost:.6g}); kept the last good values; try method='lm'")
+            run.state = candidate
+            done = run.converged_by_decrease(old, new_cost)
+            if done is None:
+                run.relinearize()
+                done = run.converged_by_gradient() or run.converged_by_step(step_norm)
+            else:
+                run.cost = new_cost
+            stop = run.record(it, new_cost, 0.0, step_norm, True, old)
+            if done is not None:
+                return run.finish(Status.CONVERGED, done)
+            if stop:
+                return run.finish(Status.STOPPED, "callback asked to stop")
+        return run.finish(Status.MAX_ITERATIONS, f"reached max_iterations={p.max_iterations}")

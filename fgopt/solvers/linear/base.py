@@ -1,0 +1,54 @@
+"""The ``LinearSolver`` protocol: analyze the pattern once, then factorize and solve each step.
+
+Solvers receive H as the data array of the lower-triangular CSC pattern
+(:class:`fgopt.structure.HessianPattern`); damping is already added to its diagonal.
+``factorize`` raises :class:`~fgopt.errors.NotPositiveDefiniteError` when H (+ damping) is not
+positive definite, which LM answers by raising its damping.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from ...errors import FgoptError
+from ...structure import HessianPattern
+
+
+@runtime_checkable
+class LinearSolver(Protocol):
+    name: str
+
+    def analyze(self, pattern: HessianPattern) -> None:
+        """Symbolic work that depends only on the pattern (orderings, elimination trees)."""
+
+    def factorize(self, H_data: np.ndarray) -> None:
+        """Numeric factorization of H with this pattern."""
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        """Solve ``H x = rhs`` with the last factorization."""
+
+
+def make_linear_solver(name: "str | LinearSolver", **options) -> LinearSolver:
+    """``"cholmod" | "ldlt" | "pcg" | "dense"`` (or a solver object, returned as is)."""
+    if not isinstance(name, str):
+        return name
+    if name == "cholmod":
+        from .cholmod import CholmodSolver
+
+        return CholmodSolver(**options)
+    if name in ("ldlt", "qdldl"):
+        from .ldlt import LDLTSolver
+
+        return LDLTSolver(**options)
+    if name in ("pcg", "cg"):
+        from .pcg import PCGSolver
+
+        return PCGSolver(**options)
+    if name == "dense":
+        from .dense import DenseCholeskySolver
+
+        return DenseCholeskySolver(**options)
+    raise FgoptError(
+        f"unknown linear solver {name!r}: choose 'cholmod', 'ldlt', 'pcg' or 'dense'")

@@ -1,0 +1,92 @@
+"""Levenberg-Marquardt with diagonal damping and a gain-ratio lambda policy.
+
+Each iteration solves ``(H + lambda D) delta = -g`` with ``D = clip(diag H, min, max)`` (Ceres'
+and GTSAM's "diagonal damping"), predicts the decrease of the quadratic model
+``L(delta) = 0.5 |J delta + r|^2``, and accepts when ``rho = actual / predicted`` exceeds
+``min_relative_decrease``. On success lambda shrinks by ``max(1/3, 1 - (2 rho - 1)^3)``
+(Nielsen, as Ceres); on failure it grows by a factor ``nu`` that doubles each consecutive
+failure. Damping changes only H's diagonal, so the linear solver's analysis is reused.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from ..errors import NotPositiveDefiniteError
+from ..variables import Variables
+from ._run import Callback, Run
+from .params import LMParams
+from .result import Result, Status
+
+
+class LevenbergMarquardt:
+    """``LevenbergMarquardt(LMParams(...)).optimize(graph, initial)`` -> :class:`Result`."""
+
+    def __init__(self, params: LMParams | None = None, linear_solver: Any = None):
+        self.params = params or LMParams()
+        self.linear_solver = linear_solver
+
+    def optimize(self, graph: Any, initial: Variables, callback: Callback | None = None) -> Result:
+        p = self.params
+        run = Run(graph, initial, p, "lm", callback, self.linear_solver)
+        problem = run.problem
+        diag_pos = problem.pattern.diag_pos
+        lam, nu = p.initial_lambda, 2.0
+        msg = run.converged_by_gradient()
+        if msg is not None:
+            return run.finish(Status.CONVERGED, msg)
+        for it in range(1, p.max_iterations + 1):
+            H, g = problem.H_data, problem.g
+            D = np.clip(H[diag_pos], p.min_diagonal, p.max_diagonal)
+            Hd = H.copy()
+            Hd[diag_pos] += lam * D
+            old = run.cost
+            try:
+                delta = run.solve(Hd, -g)
+                ok = bool(np.all(np.isfinite(delta)))
+            except NotPositiveDefiniteError:
+                ok, delta = False, None
+            if not ok:
+                stop = run.record(it, math.nan, lam, math.nan, False, old)
+                lam, nu = lam * nu, nu * 2
+                if lam > p.max_lambda:
+                    return run.finish(Status.FAILED, "damping exceeded max_lambda: the linear "
+                                      "system stays singular (is a variable unconstrained?)")
+                if stop:
+                    return run.finish(Status.STOPPED, "callback asked to stop")
+                continue
+            step_norm = float(np.linalg.norm(delta))
+            # predicted decrease of the model: -(g.d + 0.5 d.H.d) with (H + lam D) d = -g
+            predicted = 0.5 * float(delta @ (lam * D * delta) - g @ delta)
+            candidate = problem.retract(run.state, delta)
+            new_cost = problem.cost(candidate)
+            rho = (old - new_cost) / predicted if predicted > 0 else -math.inf
+            accepted = math.isfinite(new_cost) and rho > p.min_relative_decrease
+            if accepted:
+                run.state = candidate
+                lam = max(p.min_lambda, lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3))
+                nu = 2.0
+                done = run.converged_by_decrease(old, new_cost)
+                if done is None:
+                    run.relinearize()
+                    done = run.converged_by_gradient()
+                else:
+                    run.cost = new_cost
+                stop = run.record(it, new_cost, lam, step_norm, True, old)
+                if done is not None:
+                    return run.finish(Status.CONVERGED, done)
+            else:
+                stop = run.record(it, new_cost, lam, step_norm, False, old)
+                lam, nu = lam * nu, nu * 2
+                if lam > p.max_lambda:
+                    return run.finish(Status.CONVERGED if step_norm < 1e-8 else Status.FAILED,
+                                      "no step decreases the cost (damping exceeded max_lambda)")
+            done = run.converged_by_step(step_norm)
+            if done is not None:
+                return run.finish(Status.CONVERGED, done)
+            if stop:
+                return run.finish(Status.STOPPED, "callback asked to stop")
+        return run.finish(Status.MAX_ITERATIONS, f"reached max_iterations={p.max_iterations}")

@@ -1,0 +1,55 @@
+"""Optimizer parameters: frozen dataclasses with the defaults GTSAM/Ceres users expect."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class TerminationParams:
+    max_iterations: int = 100
+    """Upper bound on iterations (each linear solve counts, accepted or not)."""
+    relative_tolerance: float = 1e-5
+    """Stop when an accepted step decreases the cost by less than this fraction (GTSAM's)."""
+    absolute_tolerance: float = 1e-5
+    """Stop when an accepted step decreases the cost by less than this amount (GTSAM's)."""
+    gradient_tolerance: float = 1e-10
+    """Stop when max |J^T W r| falls below this (Ceres' gradient_tolerance)."""
+    step_tolerance: float = 1e-10
+    """Stop when |delta| <= step_tolerance * (|x| + step_tolerance) (Ceres' parameter tolerance)."""
+
+
+@dataclass(frozen=True)
+class LMParams(TerminationParams):
+    initial_lambda: float = 1e-5
+    """Initial damping; H + lambda * D with D = clip(diag(H), min_diagonal, max_diagonal)."""
+    min_lambda: float = 1e-12
+    max_lambda: float = 1e12
+    """Give up (no decrease possible) when the damping exceeds this."""
+    min_diagonal: float = 1e-6
+    max_diagonal: float = 1e32
+    min_relative_decrease: float = 1e-3
+    """A step is accepted when actual/predicted decrease exceeds this (Ceres' default)."""
+    linear_solver: str = "cholmod"
+    ordering: str = "amd"
+    """Fill-reducing order of the variable graph: amd | metis | nesdis | colamd | natural."""
+    verbose: bool = False
+
+
+@dataclass(frozen=True)
+class GaussNewtonParams(TerminationParams):
+    linear_solver: str = "cholmod"
+    ordering: str = "amd"
+    verbose: bool = False
+
+
+@dataclass(frozen=True)
+class DoglegParams(TerminationParams):
+    initial_radius: float = 1.0
+    """Initial trust-region radius (GTSAM's deltaInitial)."""
+    min_radius: float = 1e-12
+    regularization: float = 1e-9
+    """Tiny diagonal damping so gauge-free problems (no prior) still factor."""
+    linear_solver: str = "cholmod"
+    ordering: str = "amd"
+    verbose: bool = False

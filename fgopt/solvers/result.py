@@ -1,0 +1,91 @@
+"""``Result``, ``Status`` and per-iteration records of an optimization."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, field
+
+from ..variables import Variables
+
+
+class Status(enum.Enum):
+    CONVERGED = "converged"
+    MAX_ITERATIONS = "max iterations"
+    FAILED = "failed"
+    STOPPED = "stopped by callback"
+
+    def __repr__(self) -> str:
+        return f"Status.{self.name}"
+
+
+@dataclass(frozen=True)
+class IterationRecord:
+    iteration: int
+    cost: float
+    """Cost after this iteration (the accepted iterate's)."""
+    candidate_cost: float
+    """Cost of the step tried this iteration (NaN if not evaluated)."""
+    relative_decrease: float
+    lam: float
+    """Damping (LM) or trust-region radius (dogleg) used for this step."""
+    step_norm: float
+    gradient_norm: float
+    accepted: bool
+    time: float
+    """Seconds since the optimization started."""
+
+    HEADER = (" iter        cost      rel.decr     lambda   |step|     |grad|   time(s)")
+
+    def row(self) -> str:
+        mark = "" if self.accepted else "  (rejected)"
+        return (f"{self.iteration:5d} {self.cost:12.6e} {self.relative_decrease:10.3e} "
+                f"{self.lam:9.2e} {self.step_norm:9.2e} {self.gradient_norm:9.2e} "
+                f"{self.time:8.3f}{mark}")
+
+
+@dataclass
+class Result:
+    values: Variables
+    status: Status
+    message: str
+    iterations: int
+    initial_cost: float
+    final_cost: float
+    cost_history: list[float]
+    iteration_records: list[IterationRecord] = field(default_factory=list)
+    timing: dict[str, float] = field(default_factory=dict)
+    method: str = ""
+    linear_solver: str = ""
+    problem: object = field(default=None, repr=False)
+    """The compiled problem (for marginals); holds the last factorization."""
+
+    @property
+    def success(self) -> bool:
+        return self.status is Status.CONVERGED
+
+    def __repr__(self) -> str:
+        t = self.timing
+        lines = [
+            f"Result({self.method}/{self.linear_solver}: {self.status.value} after "
+            f"{self.iterations} iterations — {self.message})",
+            f"  cost: {self.initial_cost:.6g} -> {self.final_cost:.6g}",
+        ]
+        if t:
+            parts = ", ".join(f"{k} {v:.3f}s" for k, v in t.items())
+            lines.append(f"  time: {parts}")
+        return "\n".join(lines)
+
+    def table(self) -> str:
+        return "\n".join([IterationRecord.HEADER] + [r.row() for r in self.iteration_records])
+
+    def _repr_html_(self) -> str:
+        rows = "".join(
+            f"<tr><td>{r.iteration}</td><td>{r.cost:.6e}</td><td>{r.relative_decrease:.2e}</td>"
+            f"<td>{r.lam:.1e}</td><td>{r.step_norm:.2e}</td><td>{'yes' if r.accepted else 'no'}"
+            f"</td><td>{r.time:.3f}</td></tr>" for r in self.iteration_records[:50])
+        t = ", ".join(f"{k} {v:.3f}s" for k, v in self.timing.items())
+        return (f"<b>Result</b> ({self.method}/{self.linear_solver}): <b>{self.status.value}</b> "
+                f"after {self.iterations} iterations — {self.message}<br>"
+                f"cost {self.initial_cost:.6g} &rarr; {self.final_cost:.6g}<br><small>{t}</small>"
+                "<table><tr><th>iter</th><th>cost</th><th>rel. decrease</th><th>lambda</th>"
+                f"<th>|step|</th><th>accepted</th><th>time</th></tr>{rows}</table>")

@@ -1,0 +1,29 @@
+"""Shared fixtures: the real-data folder (skips with a reason when it is absent)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def data_dir() -> Path:
+    return Path(os.environ.get("FGOPT_DATA", REPO.parent / "shared" / "data"))
+
+
+@pytest.fixture(scope="session")
+def data():
+    d = data_dir()
+    if not d.is_dir():
+        pytest.skip(f"benchmark data folder {d} is absent (set FGOPT_DATA to ../shared/data)")
+    return d
+
+
+def data_file(relpath: str) -> Path:
+    p = data_dir() / relpath
+    if not p.is_file():
+        pytest.skip(f"data file {p} is absent (set FGOPT_DATA to the shared data folder)")
+    return p

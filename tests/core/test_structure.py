@@ -1,0 +1,71 @@
+"""The Hessian pattern and scatter map: assembling blocks through them equals dense J^T J."""
+
+import numpy as np
+import pytest
+
+from fgopt import _assembly as asm
+from fgopt.structure import build_pattern, fill_reducing_order, scatter_positions
+
+
+@pytest.mark.parametrize("ordering", ["natural", "amd", "metis", "colamd"])
+def test_scatter_equals_dense_normal_equations(ordering):
+    """Random factors over mixed-size variables: scattered lower H equals the dense J^T J."""
+    rng = np.random.default_rng(0)
+    var_dim = np.array([3, 6, 2, 6, 1, 3, 3, 6], dtype=np.int64)
+    V = var_dim.shape[0]
+    pairs = np.array([(0, 1), (1, 2), (2, 3), (3, 4), (4, 5), (5, 6), (6, 7), (7, 0), (1, 5)])
+    order = fill_reducing_order(V, pairs[:, 0], pairs[:, 1], ordering)
+    assert sorted(order) == list(range(V))
+    pattern, lookup = build_pattern(var_dim, order, pairs[:, 0], pairs[:, 1])
+    rank = np.empty(V, dtype=np.int64)
+    rank[order] = np.arange(V)
+    N = int(var_dim.sum())
+    H_dense = np.zeros((N, N))
+    g_dense = np.zeros(N)
+    H_data = np.zeros(pattern.nnz)
+    g = np.zeros(N)
+    off = pattern.var_offset
+    for i, j in pairs:  # one 2-variable factor per pair, residual dim 4, both orders of args
+        for var_idx in (np.array([[i, j]]), np.array([[j, i]])):
+            dims = var_dim[var_idx[0]]
+            D = int(dims.sum())
+            res = rng.normal(size=(1, 4))
+            jac = rng.normal(size=(1, 4, D))
+            pos = scatter_positions(lookup, rank, var_idx, dims)
+            toff = off[var_idx]
+            cost = asm.scatter_batch(res, jac, np.eye(4)[None], True, 0, 0.0, dims,
+                                     np.array([0, dims[0]]), toff, pos, H_data, g, np.ones(1))
+            assert np.isclose(cost, 0.5 * res[0] @ res[0])
+            cols = np.concatenate([np.arange(off[v], off[v] + var_dim[v]) for v in var_idx[0]])
+            H_dense[np.ix_(cols, cols)] += jac[0].T @ jac[0]
+            g_dense[cols] += jac[0].T @ res[0]
+    assert np.allclose(pattern.full(H_data).toarray(), H_dense)
+    assert np.allclose(g, g_dense)
+    x = rng.normal(size=N)
+    assert np.allclose(pattern.matvec(H_data, x), H_dense @ x)
+    # the pattern is exactly the lower triangle of the block structure (no missing entries)
+    L = pattern.matrix(H_data).toarray()
+    assert np.allclose(np.tril(H_dense), L)
+
+
+def test_whitening_and_robust_weights():
+    """Whitened + Huber-weighted scatter equals w (RJ)^T (RJ) with w from the Huber loss."""
+    rng = np.random.default_rng(1)
+    var_dim = np.array([2], dtype=np.int64)
+    pattern, lookup = build_pattern(var_dim, np.array([0]), np.zeros(0, int), np.zeros(0, int))
+    R = np.triu(rng.normal(size=(2, 2))) + 3 * np.eye(2)
+    e = np.array([[2.0, -1.0]])
+    J = rng.normal(size=(1, 2, 2))
+    H_data, g, w = np.zeros(pattern.nnz), np.zeros(2), np.ones(1)
+    pos = scatter_positions(lookup, np.array([0]), np.array([[0]]), var_dim)
+    k = 0.5
+    cost = asm.scatter_batch(e, J, R[None], False, 1, k, var_dim, np.array([0]),
+                             np.array([[0]]), pos, H_data, g, w)
+    r = R @ e[0]
+    t = np.linalg.norm(r)
+    assert t > k
+    assert np.isclose(cost, k * t - 0.5 * k * k)
+    assert np.isclose(w[0], k / t)
+    RJ = R @ J[0]
+    assert np.allclose(pattern.full(H_data).toarray(), w[0] * RJ.T @ RJ)
+    assert np.allclose(g, w[0] * RJ.T @ r)
