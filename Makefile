@@ -7,16 +7,19 @@ PY      := $(VENV)/bin/python
 STAMP   := $(VENV)/.fgopt-installed
 SUDO    := $(shell [ "$$(id -u)" = "0" ] || echo sudo)
 export FGOPT_DATA ?= $(abspath ../shared/data)
+# CHOLMOD's supernodal factorization runs on the system BLAS: Debian's default is the reference
+# BLAS; OpenBLAS makes it 3-4x faster on 3D pose graphs (measured on sphere2500).
+APT_PACKAGES := libsuitesparse-dev libopenblas0-pthread
 
 .PHONY: setup demo test bench clean
 
 setup: $(STAMP)
 
 $(STAMP): pyproject.toml
-	@if [ ! -f /usr/include/suitesparse/cholmod.h ]; then \
-	  echo "==> installing libsuitesparse-dev (CHOLMOD headers for scikit-sparse)"; \
-	  $(SUDO) apt-get install -y -q libsuitesparse-dev >/dev/null 2>&1 || \
-	  { $(SUDO) apt-get update -q >/dev/null && $(SUDO) apt-get install -y -q libsuitesparse-dev >/dev/null; }; \
+	@if ! dpkg -s $(APT_PACKAGES) >/dev/null 2>&1; then \
+	  echo "==> installing $(APT_PACKAGES) (CHOLMOD for scikit-sparse, OpenBLAS for CHOLMOD)"; \
+	  $(SUDO) apt-get install -y -q $(APT_PACKAGES) >/dev/null 2>&1 || \
+	  { $(SUDO) apt-get update -q >/dev/null && $(SUDO) apt-get install -y -q $(APT_PACKAGES) >/dev/null; }; \
 	fi
 	@test -x $(PY) || { echo "==> creating $(VENV)"; python3 -m venv $(VENV); }
 	@echo "==> installing fgopt and its dependencies into $(VENV)"
