@@ -18,6 +18,11 @@ from .factors import PriorFactor as PriorFactor
 from .graph import FactorGraph as FactorGraph
 from .key import Key as Key
 from .key import key as key
+from .manifolds import SE2 as SE2
+from .manifolds import SE3 as SE3
+from .manifolds import SO2 as SO2
+from .manifolds import SO3 as SO3
+from .manifolds import Sim3 as Sim3
 from .problem import Problem as Problem
 from .solvers import optimize as optimize
 from .solvers.result import Result as Result

@@ -111,6 +111,15 @@ class FactorGraph:
         problem = Problem(self, values, ordering=None, build_structure=False)
         return problem.cost(problem.initial_state())
 
+    def compile(self, values: Any, ordering: str = "amd"):
+        """Compile against ``values`` once: batches, storage arrays, H's pattern, scatter map.
+
+        Returns a :class:`fgopt.problem.Problem`; ``optimize`` does this itself.
+        """
+        from .problem import Problem
+
+        return Problem(self, values, ordering=ordering)
+
     def errors(self, values: Any) -> list[float]:
         """Per-factor cost, in the order the factors were added (slow; for inspection)."""
         return [f.cost(values) for f in self]

@@ -22,8 +22,14 @@ def data():
     return d
 
 
-def data_file(relpath: str) -> Path:
+def _data_file(relpath: str) -> Path:
     p = data_dir() / relpath
     if not p.is_file():
         pytest.skip(f"data file {p} is absent (set FGOPT_DATA to the shared data folder)")
     return p
+
+
+@pytest.fixture(scope="session")
+def data_file():
+    """``data_file("pose2d/intel.g2o")`` -> path, or skip the test with a reason."""
+    return _data_file
