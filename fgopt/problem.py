@@ -124,48 +124,60 @@ class Problem:
                         f"{f.describe()} uses {key_str(k)}, which is not in the initial values: "
                         f"add it with Variables.add({key_str(k)}, value)")
                 used.setdefault(k, None)
-        for b in graph.batches:
-            for k in dict.fromkeys(b.keys.reshape(-1).tolist()):
+        if graph.batches:
+            batch_keys = np.unique(np.concatenate([b.keys.reshape(-1) for b in graph.batches]))
+            for k in batch_keys.tolist():
                 used.setdefault(k, None)
-        missing = [k for k in used if k not in values]
-        if missing:
-            b, row = self._find_key_row(graph, missing[0])
-            raise KeyNotFoundError(
-                f"{b.kernel.name} (factor {b._where(row)}) uses {key_str(missing[0])}, which is "
-                "not in the initial values")
         self.kinds: list[BatchKind] = []
         kind_id: dict[int, int] = {}
         per_kind: list[list] = []
-        var_keys, var_kind, var_row, var_dim = [], [], [], []
+        var_keys = list(used)
+        V = len(var_keys)
+        var_kind = [0] * V
+        var_row = [0] * V
+        var_dim = [0] * V
         self._slow_values: list[Any] = []
-        for k in used:
-            x = values.at(k)
-            ops = ops_for(x)
-            kind = ops.batch_kind(x)
+        # (type, shape) -> (ops, kind): look traits up once per type, not once per value
+        traits: dict[tuple, tuple] = {}
+        value_of = values._values
+        for i, k in enumerate(var_keys):
+            x = value_of.get(k)
+            if x is None:
+                b, row = self._find_key_row(graph, k)
+                raise KeyNotFoundError(
+                    f"{b.kernel.name} (factor {b._where(row)}) uses {key_str(Key(k))}, which is "
+                    "not in the initial values")
+            t = type(x)
+            tkey = (t, x.shape) if t is np.ndarray else t
+            hit = traits.get(tkey)
+            if hit is None:
+                ops = ops_for(x)
+                hit = traits[tkey] = (ops, ops.batch_kind(x))
+            ops, kind = hit
             if kind is None:
-                var_kind.append(-1)
-                var_row.append(len(self._slow_values))
+                var_kind[i] = -1
+                var_row[i] = len(self._slow_values)
                 self._slow_values.append(x)
-                var_dim.append(ops.dim(x))
-            else:
-                kid = kind_id.get(id(kind))
-                if kid is None:
-                    kid = kind_id[id(kind)] = len(self.kinds)
-                    self.kinds.append(kind)
-                    per_kind.append([])
-                var_kind.append(kid)
-                var_row.append(len(per_kind[kid]))
-                per_kind[kid].append(kind.to_storage(x))
-                var_dim.append(kind.dim)
-            var_keys.append(k)
+                var_dim[i] = ops.dim(x)
+                continue
+            kid = kind_id.get(id(kind))
+            if kid is None:
+                kid = kind_id[id(kind)] = len(self.kinds)
+                self.kinds.append(kind)
+                per_kind.append([])
+            var_kind[i] = kid
+            var_row[i] = len(per_kind[kid])
+            per_kind[kid].append(x)
+            var_dim[i] = kind.dim
         self._kind_id = kind_id
         self.var_keys = np.array(var_keys, dtype=np.int64)
         self.var_kind = np.array(var_kind, dtype=np.int64)
         self.var_row = np.array(var_row, dtype=np.int64)
         self.var_dim = np.array(var_dim, dtype=np.int64)
         self._var_of_key = {Key(k): i for i, k in enumerate(var_keys)}
-        self._initial_storages = [np.array(rows, dtype=float).reshape(len(rows), kd.storage_dim)
-                                  for rows, kd in zip(per_kind, self.kinds)]
+        self._initial_storages = [
+            np.array([kd.to_storage(x) for x in xs], dtype=float).reshape(len(xs), kd.storage_dim)
+            for xs, kd in zip(per_kind, self.kinds)]
         self._kind_vars = [np.nonzero(self.var_kind == kid)[0] for kid in range(len(self.kinds))]
         self._slow_vars = np.nonzero(self.var_kind < 0)[0]
         self._extra = values  # for unused keys and the final Variables

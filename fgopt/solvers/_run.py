@@ -109,9 +109,9 @@ class Run:
         if self.verbose:
             print(f"{status.value}: {message}; cost {self.initial_cost:.6e} -> {self.cost:.6e} "
                   f"in {len(self.records)} iterations, {total:.3f} s")
-        return Result(values=self.problem.values(self.state), status=status, message=message,
+        return Result(None, status=status, message=message,
                       iterations=len(self.records), initial_cost=self.initial_cost,
                       final_cost=self.cost, cost_history=self.history,
                       iteration_records=self.records, timing=timing, method=self.method,
                       linear_solver=getattr(self.solver, "name", type(self.solver).__name__),
-                      problem=self.problem)
+                      problem=self.problem, state=self.state)

@@ -45,7 +45,9 @@ class IterationRecord:
 
 @dataclass
 class Result:
-    values: Variables
+    """What an optimizer returns. ``values`` are built on first access from the final state."""
+
+    _values: "Variables | None"
     status: Status
     message: str
     iterations: int
@@ -57,7 +59,16 @@ class Result:
     method: str = ""
     linear_solver: str = ""
     problem: object = field(default=None, repr=False)
-    """The compiled problem (for marginals); holds the last factorization."""
+    """The compiled problem (for marginals)."""
+    state: object = field(default=None, repr=False)
+    """The final :class:`fgopt.problem.State` (storage arrays)."""
+
+    @property
+    def values(self) -> Variables:
+        """The optimized values as a new ``Variables`` (the caller's initial is untouched)."""
+        if self._values is None:
+            self._values = self.problem.values(self.state)
+        return self._values
 
     @property
     def success(self) -> bool:

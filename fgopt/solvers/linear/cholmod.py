@@ -3,7 +3,9 @@
 The problem already orders variables with a fill-reducing order of the block graph, so CHOLMOD
 is told ``ordering_method="natural"`` by default; ``"amd"``, ``"metis"``... let CHOLMOD order the
 scalar matrix instead. ``mode`` picks supernodal or simplicial factorization (``"auto"``: CHOLMOD's
-own choice by flop count).
+own choice by flop count) is replaced by a measured rule: simplicial for problems whose variables
+have at most 3 tangent dimensions on average (2D pose graphs: M3500 factors in 8.8 ms simplicial vs
+14 ms supernodal), supernodal otherwise (sphere2500: 196 ms vs 646 ms, with OpenBLAS).
 """
 
 from __future__ import annotations
@@ -35,10 +37,13 @@ class CholmodSolver:
         from sksparse.cholmod import analyze
 
         self._pattern = pattern
+        mode = self.mode
+        if mode == "auto":
+            mode = "simplicial" if float(np.mean(pattern.var_dim)) <= 3.0 else "supernodal"
         A = pattern.matrix(np.ones(pattern.nnz))
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            self._factor = analyze(A, mode=self.mode, ordering_method=self.ordering_method)
+            self._factor = analyze(A, mode=mode, ordering_method=self.ordering_method)
 
     def factorize(self, H_data: np.ndarray) -> None:
         from sksparse.cholmod import CholmodNotPositiveDefiniteError

@@ -1,0 +1,216 @@
+"""Symbolic analysis for the block supernodal Cholesky (numba kernels, run once per pattern).
+
+Works on the *variable* (block) graph of H: ``rank`` numbers the variables in the pattern's
+elimination order (offset order). The steps follow the classic supernodal set-up (Liu's
+elimination tree, symbolic factorization by merging children's structures, fundamental
+supernodes, relaxed amalgamation), at block granularity: one block column per variable.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def block_graph(var_off_r, indptr, indices, col2rank):
+    """Lower adjacency of the block graph: for rank ``k`` the ranks ``> k`` coupled to it.
+
+    Every coupled block of H is stored dense, so the first scalar column of a variable lists
+    all its lower row variables.
+    """
+    n = var_off_r.shape[0]
+    ap = np.zeros(n + 1, np.int64)
+    ai = np.empty(indices.shape[0], np.int64)
+    nt = 0
+    for k in range(n):
+        c = var_off_r[k]
+        last = k
+        for p in range(indptr[c], indptr[c + 1]):
+            v = col2rank[indices[p]]
+            if v != last:
+                ai[nt] = v
+                nt += 1
+                last = v
+        ap[k + 1] = nt
+    return ap, ai[:nt].copy()
+
+
+@njit(cache=True)
+def etree(n, ap, ai):
+    """Elimination tree of a symmetric pattern given by its strict lower adjacency."""
+    # transpose: for each k the columns j < k with an entry in row k
+    tp = np.zeros(n + 1, np.int64)
+    for p in range(ap[n]):
+        tp[ai[p] + 1] += 1
+    for k in range(n):
+        tp[k + 1] += tp[k]
+    tj = np.empty(ap[n], np.int64)
+    fill = tp[:n].copy()
+    for j in range(n):
+        for p in range(ap[j], ap[j + 1]):
+            i = ai[p]
+            tj[fill[i]] = j
+            fill[i] += 1
+    parent = np.full(n, -1, np.int64)
+    anc = np.full(n, -1, np.int64)
+    for k in range(n):
+        for p in range(tp[k], tp[k + 1]):
+            i = tj[p]
+            while i != -1 and i != k:  # walk to the root, compressing the path to k
+                nxt = anc[i]
+                anc[i] = k
+                if nxt == -1:
+                    parent[i] = k
+                i = nxt
+    return parent
+
+
+@njit(cache=True)
+def symbolic_columns(n, ap, ai, parent):
+    """Block structure of every column of L (strictly below the diagonal), CSR-like.
+
+    ``struct(j) = adj(j) | union of struct(c) - {j}`` over the children ``c`` of ``j``;
+    children precede parents (``parent[j] > j``), so one pass in rank order suffices.
+    """
+    # child lists
+    head = np.full(n, -1, np.int64)
+    nxt = np.full(n, -1, np.int64)
+    for j in range(n - 1, -1, -1):
+        p = parent[j]
+        if p >= 0:
+            nxt[j] = head[p]
+            head[p] = j
+    cap = max(16, 2 * ap[n])
+    lp = np.zeros(n + 1, np.int64)
+    li = np.empty(cap, np.int64)
+    mark = np.full(n, -1, np.int64)
+    buf = np.empty(n, np.int64)
+    for j in range(n):
+        cnt = 0
+        mark[j] = j
+        for p in range(ap[j], ap[j + 1]):
+            i = ai[p]
+            if mark[i] != j:
+                mark[i] = j
+                buf[cnt] = i
+                cnt += 1
+        c = head[j]
+        while c != -1:
+            for p in range(lp[c], lp[c + 1]):
+                i = li[p]
+                if mark[i] != j:
+                    mark[i] = j
+                    buf[cnt] = i
+                    cnt += 1
+            c = nxt[c]
+        if lp[j] + cnt > cap:
+            cap = 2 * (lp[j] + cnt)
+            new = np.empty(cap, np.int64)
+            new[:lp[j]] = li[:lp[j]]
+            li = new
+        srt = np.sort(buf[:cnt])
+        li[lp[j]:lp[j] + cnt] = srt
+        lp[j + 1] = lp[j] + cnt
+    return lp, li[:lp[n]].copy()
+
+
+@njit(cache=True)
+def postorder(n, parent, weight):
+    """Postorder of a forest; children (and roots) visited in increasing ``weight``."""
+    order = np.argsort(weight, kind="mergesort")
+    head = np.full(n, -1, np.int64)
+    nxt = np.full(n, -1, np.int64)
+    for t in range(n - 1, -1, -1):   # push heaviest first: lists run lightest -> heaviest
+        j = order[t]
+        p = parent[j]
+        if p >= 0:
+            nxt[j] = head[p]
+            head[p] = j
+    post = np.empty(n, np.int64)
+    stack = np.empty(n, np.int64)
+    k = 0
+    for t in range(n):
+        r = order[t]
+        if parent[r] != -1:
+            continue
+        top = 0
+        stack[0] = r
+        while top >= 0:
+            j = stack[top]
+            c = head[j]
+            if c == -1:
+                top -= 1
+                post[k] = j
+                k += 1
+            else:
+                head[j] = nxt[c]
+                top += 1
+                stack[top] = c
+    return post
+
+
+@njit(cache=True)
+def supernode_partition(n, parent, cnt, dim, below, relax_cols, relax_zeros):
+    """Column partition into supernodes, in postorder numbering (``parent[j] > j``).
+
+    Fundamental step: ``j`` joins ``j + 1`` when ``parent[j] == j + 1`` and ``cnt[j] ==
+    cnt[j + 1] + 1`` (block counts below the diagonal), i.e. the structures nest exactly.
+    Relaxed amalgamation then merges a supernode into the group of supernodes that follows it
+    when that group holds its parent, if the fraction of explicit zeros of the merged panel is
+    below ``relax_zeros[t]`` for the first ``t`` with ``width <= relax_cols[t]``.
+    ``below[j]``: scalar rows of column ``j``'s structure below its diagonal block.
+    Returns the first column of every supernode (plus ``n``).
+    """
+    first = np.empty(n + 1, np.int64)
+    nsn = 0
+    for j in range(n):
+        if j == 0 or not (parent[j - 1] == j and cnt[j - 1] == cnt[j] + 1):
+            first[nsn] = j
+            nsn += 1
+    first[nsn] = n
+    sn_of = np.empty(n, np.int64)
+    w = np.zeros(nsn, np.int64)
+    sparent = np.full(nsn, -1, np.int64)
+    for s in range(nsn):
+        for j in range(first[s], first[s + 1]):
+            sn_of[j] = s
+            w[s] += dim[j]
+    m = np.empty(nsn, np.int64)
+    for s in range(nsn):
+        top = first[s + 1] - 1
+        m[s] = w[s] + below[top]
+        if parent[top] >= 0:
+            sparent[s] = sn_of[parent[top]]
+    # amalgamate, scanning supernodes from the last one down
+    keep = np.zeros(nsn + 1, np.bool_)
+    keep[nsn] = True
+    cs, ce = nsn - 1, nsn            # current group [cs, ce)
+    cw, cm, cz = w[nsn - 1], m[nsn - 1], 0.0
+    zs = 0.0
+    for s in range(nsn - 2, -1, -1):
+        ps = sparent[s]
+        merged = False
+        if ps >= cs and ps < ce:
+            wn = w[s] + cw
+            mn = w[s] + cm
+            zn = cz + w[s] * (w[s] + cm - m[s])
+            total = wn * mn - wn * (wn - 1) // 2
+            frac = zn / total
+            for t in range(relax_cols.shape[0]):
+                if wn <= relax_cols[t]:
+                    merged = frac <= relax_zeros[t]
+                    break
+            if merged:
+                cs, cw, cm, cz = s, wn, mn, zn
+        if not merged:
+            keep[cs] = True
+            cs, ce, cw, cm, cz = s, cs, w[s], m[s], 0.0
+    keep[cs] = True
+    out = np.empty(nsn + 1, np.int64)
+    k = 0
+    for s in range(nsn + 1):
+        if keep[s]:
+            out[k] = first[s]
+            k += 1
+    return out[:k].copy()
