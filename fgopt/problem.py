@@ -270,6 +270,8 @@ class Problem:
         V = self.var_keys.shape[0]
         order = fill_reducing_order(V, pi, pj, ordering)
         self.pattern, lookup = build_pattern(self.var_dim, order, pi, pj)
+        self.pattern.var_kind = self.var_kind
+        self.pattern.kind_names = tuple(k.name for k in self.kinds)
         rank = np.empty(V, dtype=np.int64)
         rank[order] = np.arange(V)
         off = self.pattern.var_offset

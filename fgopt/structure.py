@@ -31,6 +31,8 @@ class HessianPattern:
     diag_pos: np.ndarray      # (N,) data index of each diagonal entry
     var_offset: np.ndarray    # (V,) tangent offset of each variable
     var_dim: np.ndarray       # (V,) tangent dim of each variable
+    var_kind: np.ndarray | None = None  # (V,) manifold kind id (-1: Python manifold), if known
+    kind_names: tuple[str, ...] = ()    # names of the kind ids
 
     @property
     def nnz(self) -> int:
