@@ -171,7 +171,7 @@ def _sym_from_upper(vals: np.ndarray, d: int) -> np.ndarray:
     return out
 
 
-def clip_information(info: np.ndarray, rel_floor: float = 1e-9) -> tuple[np.ndarray, int]:
+def clip_information(info: np.ndarray, rel_floor: float = 1e-6) -> tuple[np.ndarray, int]:
     """Make information matrices positive definite by clipping eigenvalues.
 
     Eigenvalues below ``rel_floor * max(eigenvalue)`` are raised to it (symmetric eigen-

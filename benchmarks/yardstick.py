@@ -11,7 +11,7 @@ file's edges (checked in ``benchmarks/tests/test_yardstick.py``):
 * BAL: the Snavely model (``P = R(aa) X + t``, ``p = -P_xy / P_z``, ``f (1 + k1 r^2 + k2 r^4) p``
   minus the observation), unit noise, **every** observation counted (also points behind the
   camera, which GTSAM's factor silently zeroes).
-* Robot localization: bearing (wrapped angle difference) and range, plus Pose2 odometry.
+* Robot localization: bearing (wrapped angle difference) and range, plus Pose2 odometry (Log).
 """
 
 from __future__ import annotations
@@ -171,7 +171,8 @@ def robot_residuals(p: RobotLoc, poses: np.ndarray) -> np.ndarray:
     lx, ly = c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]
     eb = wrap(np.arctan2(ly, lx) - p.br_meas[:, 0]) / p.br_sigmas[0]
     er = (np.hypot(lx, ly) - p.br_meas[:, 1]) / p.br_sigmas[1]
-    odo = pose2_between(p.odom_meas, pose2_between(poses[:-1], poses[1:])) / p.odom_sigmas
+    odo = pose2_logmap(pose2_between(p.odom_meas, pose2_between(poses[:-1], poses[1:])))
+    odo = odo / p.odom_sigmas
     return np.concatenate([eb, er, odo.ravel()])
 
 
