@@ -1,10 +1,17 @@
 """Read and write factor-graph files: g2o / TORO pose graphs and BAL bundle adjustment.
 
-``read(path)`` picks the reader by content (and extension); ``read_g2o`` / ``write_g2o``,
-``read_bal`` / ``write_bal`` are the specific entries. Errors are :class:`fgopt.errors.FileFormatError`
-naming the file and line.
+``read(path)`` picks the reader by content (and extension); ``read_g2o`` / ``write_g2o`` and
+``read_bal`` / ``write_bal`` are the specific entries. Malformed input raises
+:class:`fgopt.errors.FileFormatError` naming the file and line. Log messages (initial guesses,
+repairs, skipped lines) go to the ``fgopt.io`` logger.
 """
 
+from .bal import read_bal as read_bal
+from .bal import reprojection_kernel as reprojection_kernel
+from .bal import write_bal as write_bal
+from .dispatch import detect_format as detect_format
+from .dispatch import read as read
 from .g2o import FIX_SIGMA as FIX_SIGMA
+from .g2o import add_gauge_prior as add_gauge_prior
 from .g2o import read_g2o as read_g2o
 from .g2o_write import write_g2o as write_g2o

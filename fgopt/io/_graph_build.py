@@ -240,7 +240,7 @@ def _checked_sqrt_information(rd, edges: list[_Edges], repair: str | None,
 
 def build_graph(rd, dim: int, add_prior: bool, repair: str | None,
                 floor: float) -> tuple[FactorGraph, Variables]:
-    from ..factors.library.lie_kernels import between_kernel, prior_kernel
+    from ..factors.library.lie_kernels import between_kernel
     from ..factors.library.pose_point import pose_point_kernel
     kind = pose_kind(dim)
     groups = sorted(rd.groups.values(), key=lambda g: int(g.lines[0]))
@@ -269,21 +269,48 @@ def build_graph(rd, dim: int, add_prior: bool, repair: str | None,
         origin = [f"{rd.path}:{n}" for n in e.group.lines.tolist()]
         graph.add_batch(kern, keys, e.meas, R, origin=origin)
     fixed = _fixed_keys(rd, v, vkeys)
-    if add_prior and not fixed and (~v.is_point).any():
-        fixed = [int(vkeys[~v.is_point].min())]
-    for is_pt in (False, True):
-        ks = [k for k in fixed if (k >> 56 == lb >> 56) == is_pt]
-        if ks:
-            kk = pkind if is_pt else kind
-            rows = np.array([kk.to_storage(values.at(k)) for k in ks])
-            R = np.eye(kk.dim) / FIX_SIGMA
-            graph.add_batch(prior_kernel(kk), np.array(ks)[:, None], rows,
-                            np.broadcast_to(R, (len(ks), kk.dim, kk.dim)),
-                            origin=[f"{rd.path}: FIX {key_str(k)}" for k in ks])
+    add_fixing_priors(graph, values, fixed, f"{rd.path}: FIX")
+    if add_prior:
+        add_gauge_prior(graph, values)
     if "EQUIV" in rd.groups:
         log.warning("%s: skipped %d EQUIV lines (TORO vertex equivalences are not supported)",
                     rd.path, rd.groups["EQUIV"].data.shape[0])
     return graph, values
+
+
+def add_fixing_priors(graph: FactorGraph, values: Variables, keys: list[int], label: str) -> None:
+    """Tight priors (sigma ``FIX_SIGMA``) holding ``keys`` at their ``values``."""
+    from ..factors.library.lie_kernels import prior_kernel
+    from ..manifolds.base import ops_for
+
+    by_kind: dict = {}
+    for k in keys:
+        x = values.at(k)
+        by_kind.setdefault(ops_for(x).batch_kind(x), []).append(k)
+    for kind, ks in by_kind.items():
+        rows = np.array([kind.to_storage(values.at(k)) for k in ks], dtype=float)
+        R = np.broadcast_to(np.eye(kind.dim) / FIX_SIGMA, (len(ks), kind.dim, kind.dim))
+        graph.add_batch(prior_kernel(kind), np.array(ks, dtype=np.int64)[:, None], rows, R,
+                        origin=[f"{label} {key_str(k)}" for k in ks])
+
+
+def add_gauge_prior(graph: FactorGraph, values: Variables) -> int | None:
+    """Fix the gauge GTSAM-style: a tight prior (sigma ``FIX_SIGMA``) on the SE2 / SE3 pose
+    with the lowest key, unless some factor already is a pose prior. Returns the key or None."""
+    from ..factors.library.lie_kernels import prior_kernel
+    from ..manifolds.base import ops_for
+
+    kinds = {pose_kind(2), pose_kind(3)}
+    priors = {prior_kernel(k) for k in kinds}
+    if any(b.kernel in priors for b in graph.batches) or any(
+            f.kernel in priors for f in graph.factors):
+        return None
+    poses = [k for k in values.keys() if ops_for(values.at(k)).batch_kind(values.at(k)) in kinds]
+    if not poses:
+        return None
+    k = min(poses)
+    add_fixing_priors(graph, values, [k], "gauge prior on")
+    return k
 
 
 def _fixed_keys(rd, v: _Vertices, vkeys: np.ndarray) -> list[int]:

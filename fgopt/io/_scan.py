@@ -355,6 +355,15 @@ def read_bytes(path: str | os.PathLike) -> bytes:
         raise FileFormatError(f"cannot read: {exc}", p) from None
 
 
+def write_text(path: str | os.PathLike, text: str) -> None:
+    """Write ``text``; ``.gz`` / ``.bz2`` paths are compressed."""
+    p = os.fspath(path)
+    data = text.encode("utf-8")
+    opener = bz2.open if p.endswith(".bz2") else gzip.open if p.endswith(".gz") else open
+    with opener(p, "wb") as f:
+        f.write(data)
+
+
 def scan(path: str | os.PathLike, data: bytes | None = None, has_tag: bool = True,
          comment: str | None = "#") -> Scan:
     """Tokenize ``path`` (or ``data``, its bytes); see the module docstring."""

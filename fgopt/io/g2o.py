@@ -34,6 +34,7 @@ from ..graph import FactorGraph
 from ..variables import Variables
 from . import _information as info_mod
 from ._graph_build import FIX_SIGMA as FIX_SIGMA
+from ._graph_build import add_gauge_prior as add_gauge_prior
 from ._graph_build import build_graph
 from ._scan import Scan, scan
 
@@ -131,7 +132,9 @@ class _Reader:
         ok |= np.isnan(v)  # padding of variable-length records
         if not ok.all():
             row, col = (int(a[0]) for a in np.nonzero(~ok))
-            raise self.sc.error(f"{g.tag}: id {v[row, col]!r} is not a non-negative integer",
+            col = np.arange(g.data.shape[1])[cols][col]
+            tok = self.sc.token(int(self.sc.first[g.rec[row]]) + int(col))
+            raise self.sc.error(f"{g.tag}: id {tok!r} is not a non-negative integer",
                                 g.lines[row])
         return np.where(np.isnan(v), -1, v).astype(np.int64)
 
@@ -147,7 +150,7 @@ def read_g2o(path: str | os.PathLike, add_prior: bool = False, skip_unknown: boo
     Args:
         path: the file (``.gz`` / ``.bz2`` are decompressed).
         add_prior: add a tight prior (sigma ``FIX_SIGMA``) on the lowest-id pose to fix the gauge,
-            unless the file has ``FIX`` lines (which already do).
+            unless the file has ``FIX`` lines (which already do); see :func:`add_gauge_prior`.
         skip_unknown: skip records with unknown tags (counted in a warning) instead of failing.
         repair_information: ``None`` refuses information matrices that are not positive definite;
             ``"clip"`` clips their eigenvalues to ``repair_floor`` times the largest one.

@@ -26,6 +26,7 @@ from ..manifolds.base import ops_for, vector_kind
 from . import _information as im
 from ._graph_build import FIX_SIGMA, pose_kind
 from ._poses import se2_file, se3_file
+from ._scan import write_text
 
 log = logging.getLogger("fgopt.io")
 
@@ -164,5 +165,4 @@ def write_g2o(path: str | os.PathLike, graph: Any, values: Any) -> None:
     if fixed:
         out.append("FIX " + " ".join(map(str, dict.fromkeys(fixed))))
     out += edge_lines
-    with open(os.fspath(path), "w") as f:
-        f.write("\n".join(out) + "\n")
+    write_text(path, "\n".join(out) + "\n")

@@ -1,0 +1,164 @@
+"""Read and write Bundle Adjustment in the Large (BAL) problems.
+
+Format (Agarwal, Snavely, Seitz, Szeliski, ECCV 2010)::
+
+    num_cameras num_points num_observations
+    camera_index point_index x y          (num_observations lines)
+    9 numbers per camera: angle-axis r (3), t (3), f, k1, k2
+    3 numbers per point
+
+Parameters may be split over lines in any way (one per line in the original files; GTSAM's
+copies add blank lines between sections). ``.bz2`` and ``.gz`` files are decompressed.
+
+The graph holds one batch of reprojection factors with unit noise, so its cost is the standard
+BAL cost ``0.5 * sum |e|^2`` in pixels; cameras are ``key('c', i)`` (R^9 vectors), points
+``key('p', j)`` (R^3). Parsing is one vectorized pass (:mod:`fgopt.io._scan`).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from ..errors import FgoptError, FileFormatError
+from ..graph import FactorGraph
+from ..key import key, key_str
+from ..variables import Variables
+from ._scan import scan, write_text
+
+
+def reprojection_kernel():
+    """The kernel used for BAL observations.
+
+    The symbolic ``bal_reprojection`` factor (``fgopt/factors/library/reprojection.py``) when it
+    exists, else the hand-written numba kernel of :mod:`fgopt.factors.library.bal_kernel`.
+    """
+    try:
+        from ..factors.library.reprojection import bal_reprojection
+    except ImportError:
+        bal_reprojection = None
+    kernel = getattr(bal_reprojection, "kernel", None)
+    if kernel is not None:
+        return kernel
+    from ..factors.library.bal_kernel import bal_kernel
+
+    return bal_kernel()
+
+
+def _is_bal_kernel(kernel: Any) -> bool:
+    from ..factors.library.bal_kernel import bal_kernel
+
+    return kernel is bal_kernel() or kernel is reprojection_kernel()
+
+
+def read_bal(path: str | os.PathLike, data: bytes | None = None) -> tuple[FactorGraph, Variables]:
+    """Read a BAL file; returns ``(graph, initial)`` (see the module docstring).
+
+    Raises:
+        FileFormatError: malformed input; the message names the file and line.
+    """
+    p = os.fspath(path)
+    sc = scan(p, data=data, has_tag=False, comment=None)
+    nrec = sc.line.shape[0]
+    if nrec == 0:
+        raise FileFormatError("the file is empty; a BAL file starts with 'num_cameras "
+                              "num_points num_observations'", p)
+    if sc.count[0] != 3:
+        raise sc.error(f"the BAL header needs 3 numbers (cameras, points, observations), found "
+                       f"{sc.count[0]}", sc.line[0])
+    sc.check_values()
+    header = sc.values[:3]
+    if not (np.all(np.isfinite(header)) and np.all(header == np.floor(header))
+            and header[0] >= 1 and header[1] >= 1 and header[2] >= 1 and header.max() < 2 ** 40):
+        raise sc.error("the BAL header must be three positive integers (cameras, points, "
+                       f"observations), found {' '.join(sc.token(i) for i in range(3))}",
+                       sc.line[0])
+    nc, npt, nobs = (int(x) for x in header)
+    obs_rec = np.arange(1, min(1 + nobs, nrec))
+    if obs_rec.shape[0] < nobs:
+        raise sc.error(f"the header announces {nobs} observations, the file has "
+                       f"{obs_rec.shape[0]} more lines", sc.line[-1])
+    short = np.nonzero(sc.count[obs_rec] != 4)[0]
+    if short.shape[0] > 0:
+        r = int(obs_rec[short[0]])
+        raise sc.error(f"observation {r - 1} needs 4 numbers (camera point x y), found "
+                       f"{sc.count[r]}", sc.line[r])
+    obs = sc.values[3:3 + 4 * nobs].reshape(nobs, 4)
+    obs_lines = sc.line[obs_rec]
+    sc.check_finite(np.arange(3, 3 + 4 * nobs))
+    ci, pj = obs[:, 0], obs[:, 1]
+    for what, idx, limit in (("camera", ci, nc), ("point", pj, npt)):
+        bad = (idx != np.floor(idx)) | (idx < 0) | (idx >= limit)
+        if bad.any():
+            r = int(np.nonzero(bad)[0][0])
+            raise sc.error(f"{what} index {sc.token(3 + 4 * r + (0 if what == 'camera' else 1))}"
+                           f" is out of range (the header says {limit} {what}s)", obs_lines[r])
+    start = 3 + 4 * nobs
+    need = 9 * nc + 3 * npt
+    have = sc.values.shape[0] - start
+    if have < need:
+        raise sc.error(f"expected {need} camera and point parameters after the observations "
+                       f"(9 x {nc} + 3 x {npt}), found {have}", sc.line[-1])
+    if have > need:
+        raise sc.error(f"unexpected extra number {sc.token(start + need)!r} after the "
+                       f"{need} camera and point parameters", sc.line_of_value(start + need))
+    sc.check_finite(np.arange(start, start + need))
+    cams = sc.values[start:start + 9 * nc].reshape(nc, 9)
+    pts = sc.values[start + 9 * nc:].reshape(npt, 3)
+    cb, pb = int(key("c", 0)), int(key("p", 0))
+    values = Variables()
+    for i, row in enumerate(cams):
+        values.add(cb + i, row)
+    for j, row in enumerate(pts):
+        values.add(pb + j, row)
+    graph = FactorGraph()
+    keys = np.column_stack([cb + ci.astype(np.int64), pb + pj.astype(np.int64)])
+    origin = [f"{p}:{n}" for n in obs_lines.tolist()]
+    graph.add_batch(reprojection_kernel(), keys, obs[:, 2:4], None, origin=origin)
+    return graph, values
+
+
+def write_bal(path: str | os.PathLike, graph: Any, values: Any) -> None:
+    """Write the reprojection factors of ``graph`` and their cameras / points as a BAL file.
+
+    Cameras and points are numbered in key order (``c0, c1, ...`` -> ``0, 1, ...``); every
+    camera must be an R^9 vector and every point an R^3 vector.
+    """
+    keys_l, meas_l = [], []
+    for b in graph.batches:
+        if _is_bal_kernel(b.kernel):
+            if b.sqrt_information is not None or b.loss_code != 0:
+                raise FgoptError("write_bal: BAL files have unit noise and no robust loss; "
+                                 f"batch {b.kernel.name} has a noise model or loss")
+            keys_l.append(b.keys)
+            meas_l.append(b.constants)
+    for f in graph.factors:
+        if f.kernel is not None and _is_bal_kernel(f.kernel):
+            keys_l.append(np.array([[int(k) for k in f.keys]], dtype=np.int64))
+            meas_l.append(np.asarray(f.constants).reshape(1, 2))
+    if not keys_l:
+        raise FgoptError("write_bal: the graph has no BAL reprojection factors")
+    keys = np.concatenate(keys_l)
+    meas = np.concatenate(meas_l)
+    cam_keys = np.unique(keys[:, 0])
+    pt_keys = np.unique(keys[:, 1])
+    rows = []
+    for ks, dim, what in ((cam_keys, 9, "camera"), (pt_keys, 3, "point")):
+        block = []
+        for k in ks.tolist():
+            v = np.asarray(values.at(k), dtype=float)
+            if v.shape != (dim,):
+                raise FgoptError(f"write_bal: {what} {key_str(k)} must be an R^{dim} vector, got "
+                                 f"shape {v.shape}")
+            block.append(v)
+        rows.append(np.array(block))
+    ci = np.searchsorted(cam_keys, keys[:, 0])
+    pj = np.searchsorted(pt_keys, keys[:, 1])
+    out = [f"{cam_keys.shape[0]} {pt_keys.shape[0]} {keys.shape[0]}"]
+    out += [f"{c} {q} {x!r} {y!r}" for c, q, (x, y) in zip(ci.tolist(), pj.tolist(),
+                                                           meas.tolist())]
+    out += list(map(repr, rows[0].reshape(-1).tolist()))
+    out += list(map(repr, rows[1].reshape(-1).tolist()))
+    write_text(path, "\n".join(out) + "\n")

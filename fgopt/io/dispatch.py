@@ -1,0 +1,73 @@
+"""``read(path)``: pick the reader from the file's content (and extension).
+
+A file whose first token is a number is BAL (its header ``cameras points observations``);
+a file whose first token is a record tag (``VERTEX_SE2``, ``EDGE2``, ...) is g2o / TORO.
+``.gz`` / ``.bz2`` files are decompressed first.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+
+from ..errors import FgoptError, FileFormatError
+from ..graph import FactorGraph
+from ..variables import Variables
+from ._scan import read_bytes
+
+FORMATS = ("g2o", "bal")
+_FIRST_TOKEN = re.compile(rb"^[ \t\r\f\v]*([^\s#]+)", re.MULTILINE)
+_G2O_EXT = (".g2o", ".graph")
+
+
+def detect_format(path: str | os.PathLike, data: bytes | None = None) -> str:
+    """``"g2o"`` or ``"bal"``; raises :class:`FileFormatError` when neither fits."""
+    p = os.fspath(path)
+    if data is None:
+        data = read_bytes(p)
+    m = _FIRST_TOKEN.search(data[:1 << 16])
+    if m is None:
+        raise FileFormatError("the file is empty (no records)", p)
+    tok = m.group(1)
+    line = data[:m.start(1)].count(b"\n") + 1
+    if re.fullmatch(rb"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", tok):
+        return "bal"
+    if re.fullmatch(rb"[A-Za-z_][A-Za-z0-9_:]*", tok):
+        return "g2o"
+    raise FileFormatError(f"cannot tell the format from the first token {tok[:40]!r}: expected "
+                          "a g2o / TORO tag or a BAL header", p, line)
+
+
+def read(path: str | os.PathLike, *, format: str | None = None, add_prior: bool = False,
+         skip_unknown: bool = False, repair_information: str | None = None
+         ) -> tuple[FactorGraph, Variables]:
+    """Read any supported file; returns ``(graph, initial)``.
+
+    Args:
+        path: a g2o / TORO pose graph (``.g2o``, ``.graph``, ``.txt``) or a BAL problem,
+            optionally ``.gz`` / ``.bz2`` compressed.
+        format: ``"g2o"`` or ``"bal"`` to skip detection.
+        add_prior, skip_unknown, repair_information: g2o options, see :func:`read_g2o`
+            (BAL files have no gauge prior, unknown tags or information matrices; passing a
+            non-default value for one is an error).
+    """
+    from .bal import read_bal
+    from .g2o import read_g2o
+
+    p = os.fspath(path)
+    data = read_bytes(p)
+    if format is None:
+        format = detect_format(p, data)
+        base = p[:-4] if p.endswith(".bz2") else p[:-3] if p.endswith(".gz") else p
+        if format == "bal" and base.endswith(_G2O_EXT):
+            raise FileFormatError("the extension says g2o but the file starts with a number; "
+                                  "pass format='bal' if it is a BAL file", p, 1)
+    if format == "g2o":
+        return read_g2o(p, add_prior=add_prior, skip_unknown=skip_unknown,
+                        repair_information=repair_information, data=data)
+    if format == "bal":
+        if add_prior or skip_unknown or repair_information is not None:
+            raise FgoptError("read: add_prior, skip_unknown and repair_information apply to g2o "
+                             f"files; {p} is a BAL file")
+        return read_bal(p, data=data)
+    raise FgoptError(f"read: unknown format {format!r}; choose one of {', '.join(FORMATS)}")

@@ -1,0 +1,197 @@
+"""g2o / TORO reading and writing on small synthetic files."""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+import pytest
+
+from fgopt import FactorGraph, Variables, key
+from fgopt.errors import FgoptError, FileFormatError
+from fgopt.factors.library.pose_point import PosePointFactor
+from fgopt.factors.library.prior_between import BetweenFactor
+from fgopt.factors.noise import Gaussian
+from fgopt.io import FIX_SIGMA, read, read_g2o, write_g2o
+from fgopt.manifolds import SE2, SE3
+
+POSE2 = """# a comment
+VERTEX_SE2 10 0 0 0
+VERTEX_SE2 3 1 0 0.1   # ids need not be contiguous
+VERTEX_XY 7 1 1
+
+EDGE_SE2 10 3 1 0 0.1 10 1 2 20 3 30
+EDGE_SE2_XY 3 7 0.1 1 5 1 6
+"""
+
+POSE3 = """VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1
+VERTEX_SE3:QUAT 1 1 0 0 0 0 0.04997916927067833 0.9987502603949663
+VERTEX_TRACKXYZ 5 1 1 1
+EDGE_SE3:QUAT 0 1 1 0 0 0 0 0.04997916927067833 0.9987502603949663 1 0 0 0 0 0 2 0 0 0 0 3 0 0 0 4 0 0 5 0 6
+EDGE_SE3_TRACKXYZ 1 5 0 0.09983341664682815 0.9950041652780258 1 1 0 0 1 0 1
+FIX 0
+"""
+
+
+def _write(tmp_path, text, name="g.g2o"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_read_2d_keys_values_and_permuted_information(tmp_path):
+    graph, values = read_g2o(_write(tmp_path, POSE2))
+    assert values.keys() == [key("x", 10), key("x", 3), key("l", 7)]
+    assert np.allclose(values.at(key("x", 3)).to_storage(), [math.cos(0.1), math.sin(0.1), 1, 0])
+    assert np.allclose(values.at(key("l", 7)), [1, 1])
+    between, point = graph.batches
+    assert between.keys.tolist() == [[key("x", 10), key("x", 3)]]
+    assert point.keys.tolist() == [[key("x", 3), key("l", 7)]]
+    R = between.sqrt_information[0]
+    info = R.T @ R
+    g2o = np.array([[10, 1, 2], [1, 20, 3], [2, 3, 30.0]])  # x y theta
+    assert np.allclose(info, g2o[[2, 0, 1]][:, [2, 0, 1]])  # theta x y
+    assert np.allclose(np.tril(R, -1), 0)
+    assert between.origin == [f"{tmp_path / 'g.g2o'}:6"]
+    e = np.array([math.sin(0.1) - 0.1, math.cos(0.1) - 1.0])  # R(0.1)^T (l - t) - m
+    assert graph.error(values) == pytest.approx(0.5 * e @ np.array([[5, 1], [1, 6.0]]) @ e,
+                                                rel=1e-12)
+
+
+def test_read_3d_with_trackxyz_and_fix(tmp_path):
+    graph, values = read_g2o(_write(tmp_path, POSE3))
+    names = [b.kernel.name for b in graph.batches]
+    assert names == ["between_se3", "pose_point_se3", "prior_se3"]
+    R = graph.batches[0].sqrt_information[0]
+    assert np.allclose(np.diag(R.T @ R), [4, 5, 6, 1, 2, 3])  # rotation first
+    prior = graph.batches[2]
+    assert prior.keys.tolist() == [[key("x", 0)]]
+    assert np.allclose(prior.sqrt_information[0], np.eye(6) / FIX_SIGMA)
+    assert isinstance(values.at(key("x", 1)), SE3)
+    assert graph.error(values) < 1e-20
+
+
+def test_toro_information_order(tmp_path):
+    text = "VERTEX2 0 0 0 0\nVERTEX2 1 1 0 0\nEDGE2 0 1 1 0 0 11 12 22 33 13 23\nEQUIV 0 1\n"
+    graph, _ = read_g2o(_write(tmp_path, text, "t.graph"))
+    R = graph.batches[0].sqrt_information[0]
+    xyt = np.array([[11, 12, 13], [12, 22, 23], [13, 23, 33.0]])
+    assert np.allclose(R.T @ R, xyt[[2, 0, 1]][:, [2, 0, 1]])
+
+
+def test_equiv_lines_are_skipped_with_a_counted_warning(tmp_path, caplog):
+    text = "VERTEX2 0 0 0 0\nVERTEX2 1 1 0 0\nEDGE2 0 1 1 0 0 1 0 1 1 0 0\nEQUIV 0 1\nEQUIV 1 0\n"
+    with caplog.at_level(logging.WARNING, logger="fgopt.io"):
+        read_g2o(_write(tmp_path, text, "t.graph"))
+    assert "skipped 2 EQUIV lines" in caplog.text
+
+
+def test_edges_only_file_builds_a_spanning_tree_guess(tmp_path, caplog):
+    text = ("EDGE_SE2 0 1 1 0 1.5707963267948966 1 0 0 1 0 1\n"
+            "EDGE_SE2 2 1 -1 0 0 1 0 0 1 0 1\n"  # stored backwards: 1 = 2 * m
+            "EDGE_SE2_XY 2 9 1 0 1 0 1\n")
+    with caplog.at_level(logging.INFO, logger="fgopt.io"):
+        graph, values = read_g2o(_write(tmp_path, text))
+    assert "no VERTEX lines" in caplog.text and "spanning tree" in caplog.text
+    x2 = values.at(key("x", 2))
+    assert np.allclose([x2.x(), x2.y(), x2.theta()], [1, 1, math.pi / 2])
+    assert np.allclose(values.at(key("l", 9)), [1, 2])
+    assert graph.error(values) < 1e-20
+
+
+def test_add_prior_fixes_the_lowest_pose_once(tmp_path):
+    graph, _ = read_g2o(_write(tmp_path, POSE2), add_prior=True)
+    prior = graph.batches[-1]
+    assert prior.kernel.name == "prior_se2" and prior.keys.tolist() == [[key("x", 3)]]
+    graph, _ = read_g2o(_write(tmp_path, POSE3), add_prior=True)  # has FIX: no second prior
+    assert [b.kernel.name for b in graph.batches].count("prior_se3") == 1
+
+
+@pytest.mark.parametrize("text, match", [
+    ("VERTEX_SE2 0 0 0\n", r":1: VERTEX_SE2 needs 4 numbers after the tag, found 3"),
+    ("VERTEX_SE2 0 0 0 0 9\n", r":1: VERTEX_SE2 needs 4 numbers"),
+    ("VERTEX_SE2 0 0 zero 0\n", r":1: 'zero' is not a number"),
+    ("VERTEX_SE2 0 0 0 nan\n", r":1: 'nan' is not a finite number"),
+    ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1.5 0 0 0\n", r":2: VERTEX_SE2: id '1.5' is not"),
+    ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 -1 0 0 0\n", r":2: VERTEX_SE2: id '-1' is not"),
+    ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 0 1 0 0\n", r":2: vertex id 0 is defined twice \(first at line 1\)"),
+    ("VERTEX_SE2 0 0 0 0\nEDGE_SE2 0 4 1 0 0 1 0 0 1 0 1\n", r":2: EDGE_SE2 refers to vertex 4, which has no VERTEX"),
+    ("VERTEX_SE2 0 0 0 0\nEDGE_SE2 0 0 1 0 0 1 0 0 1 0 1\n", r":2: EDGE_SE2 connects vertex 0 to itself"),
+    ("VERTEX_SE2 0 0 0 0\nVERTEX_XY 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n", r":3: EDGE_SE2: vertex 1 must be a pose"),
+    ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 -1 0 1\n", r":3: 1 of 1 edges have information matrices that are not positive definite"),
+    ("VERTEX_SE2 0 0 0 0\nFOO 1 2\n", r":2: unknown record 'FOO'.*skip_unknown=True"),
+    ("VERTEX_SE2 0 0 0 0\nVERTEX_SE3:QUAT 1 0 0 0 0 0 0 1\n", r":2: the file mixes 2D records \(VERTEX_SE2 at line 1\) and 3D"),
+    ("VERTEX_SE3:QUAT 1 0 0 0 0 0 0 2\n", r":1: VERTEX_SE3:QUAT: quaternion norm is 2"),
+    ("VERTEX_SE2 0 0 0 0\nFIX 3\n", r":2: FIX refers to vertex 3"),
+    ("# only a comment\n\n", r"no records"),
+    ("PARAMS_SE3OFFSET 0 1 0 0 0 0 0 1\n", r":1: PARAMS_SE3OFFSET: only the identity"),
+])
+def test_malformed_input_names_file_and_line(tmp_path, text, match):
+    with pytest.raises(FileFormatError, match=match):
+        read_g2o(_write(tmp_path, text))
+
+
+def test_unknown_tags_can_be_skipped_with_a_counted_warning(tmp_path, caplog):
+    text = POSE2 + "FOO 1 2\nFOO 3\nBAR\n"
+    with caplog.at_level(logging.WARNING, logger="fgopt.io"):
+        graph, _ = read_g2o(_write(tmp_path, text), skip_unknown=True)
+    assert len(graph) == 2
+    assert "skipped 3 lines with unknown tags" in caplog.text and "2 'FOO'" in caplog.text
+
+
+def test_repair_clip_logs_and_makes_information_positive_definite(tmp_path, caplog):
+    text = "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 1 2 0 1 0 1\n"
+    with pytest.raises(FileFormatError, match="repair_information='clip'"):
+        read_g2o(_write(tmp_path, text))
+    with caplog.at_level(logging.WARNING, logger="fgopt.io"):
+        graph, _ = read_g2o(_write(tmp_path, text), repair_information="clip")
+    R = graph.batches[0].sqrt_information[0]
+    assert np.linalg.eigvalsh(R.T @ R).min() > 0
+    assert "repaired 1 of 1 information matrices" in caplog.text
+    with pytest.raises(FgoptError, match="repair_information"):
+        read_g2o(_write(tmp_path, text), repair_information="fix-it")
+
+
+@pytest.mark.parametrize("text", [POSE2, POSE3])
+def test_round_trip(tmp_path, text):
+    graph, values = read_g2o(_write(tmp_path, text))
+    write_g2o(tmp_path / "out.g2o", graph, values)
+    graph2, values2 = read_g2o(tmp_path / "out.g2o")
+    assert values2 == values
+    assert [b.kernel for b in graph2.batches] == [b.kernel for b in graph.batches]
+    for a, b in zip(graph.batches, graph2.batches):
+        assert np.array_equal(a.keys, b.keys)
+        assert np.allclose(a.constants, b.constants, rtol=1e-15, atol=1e-15)
+        assert np.allclose(a.sqrt_information, b.sqrt_information, rtol=1e-12)
+
+
+def test_write_user_graph_with_individual_factors(tmp_path, caplog):
+    graph, values = FactorGraph(), Variables()
+    values.add(key("x", 0), SE2.from_xytheta(0, 0, 0))
+    values.add(key("x", 1), SE2.from_xytheta(1, 0, 0.2))
+    values.add(key("l", 2), np.array([2.0, 1.0]))
+    info = np.array([[3.0, 0.5, 0], [0.5, 2, 0], [0, 0, 1]])
+    graph.add(BetweenFactor(key("x", 0), key("x", 1), SE2.from_xytheta(1, 0, 0.1),
+                            Gaussian.from_information(info)))
+    graph.add(PosePointFactor(key("x", 1), key("l", 2), [1.0, 1.0]))
+    p = tmp_path / "user.g2o.gz"
+    write_g2o(p, graph, values)
+    graph2, values2 = read(p)
+    assert values2 == values
+    assert graph2.error(values2) == pytest.approx(graph.error(values), rel=1e-12)
+    R = graph2.batches[0].sqrt_information[0]
+    assert np.allclose(R.T @ R, info)
+
+
+def test_write_rejects_colliding_ids_and_mixed_dimensions(tmp_path):
+    values = Variables()
+    values.add(key("x", 1), SE2.identity())
+    values.add(key("l", 1), np.zeros(2))
+    with pytest.raises(FgoptError, match="g2o id 1"):
+        write_g2o(tmp_path / "a.g2o", FactorGraph(), values)
+    values = Variables()
+    values.add(key("x", 1), SE2.identity())
+    values.add(key("x", 2), SE3.identity())
+    with pytest.raises(FgoptError, match="mix 2D and 3D"):
+        write_g2o(tmp_path / "a.g2o", FactorGraph(), values)

@@ -1,0 +1,55 @@
+"""The numba tokenizer: records, tags, comments, and exact number parsing."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fgopt.errors import FileFormatError
+from fgopt.io._scan import scan, tag_hash
+
+
+def test_records_tags_comments_and_blank_lines():
+    text = b"# header\nA 1 2.5 -3e-2\n\n  B 7 # trailing comment\r\nC\n   \nD 4"
+    sc = scan("mem.txt", data=text)
+    assert [sc.tag(r) for r in range(len(sc.line))] == ["A", "B", "C", "D"]
+    assert sc.line.tolist() == [2, 4, 5, 7]
+    assert sc.count.tolist() == [3, 1, 0, 1]
+    assert sc.values.tolist() == [1.0, 2.5, -0.03, 7.0, 4.0]
+    assert sc.tag_hash[0] == tag_hash("A")
+    assert sc.line_of_value(3) == 4
+
+
+def test_bad_tokens_are_flagged_and_reported_with_their_line():
+    sc = scan("mem.txt", data=b"A 1 2\nB 3 x4 1_0 nan\n")
+    assert sc.bad.tolist() == [False, False, False, True, True, False]
+    with pytest.raises(FileFormatError, match=r"mem.txt:2: 'x4' is not a number"):
+        sc.check_values()
+    with pytest.raises(FileFormatError, match=r"mem.txt:2: 'nan' is not a finite number"):
+        sc.check_finite(np.array([5]))
+
+
+def test_numbers_equal_python_float_exactly():
+    rng = np.random.default_rng(1)
+    x = rng.standard_normal(20000) * 10.0 ** rng.integers(-40, 40, 20000)
+    toks = [repr(float(v)) for v in x] + ["%.17e" % v for v in x[:3000]] + [
+        "%.6f" % v for v in x[:3000]] + [
+        "9007199254740993", "1e23", "123456789012345678e-5", "4.9e-324", "-0", "+.5", "5.",
+        "1.7976931348623157e308", "2.2250738585072014e-308", "0.1e-400", "7E+2"]
+    sc = scan("mem.txt", data=" ".join(toks).encode(), has_tag=False)
+    ref = np.array([float(t) for t in toks])
+    assert not sc.bad.any()
+    assert np.array_equal(sc.values, ref)
+    assert np.array_equal(np.signbit(sc.values), np.signbit(ref))
+
+
+@pytest.mark.parametrize("tok", ["1e", ".", "-", "+e5", "1.2.3", "0x10", "1,5", "--1", "inf1",
+                                 "\xe4", "1d5"])
+def test_malformed_numbers_are_bad(tok):
+    sc = scan("mem.txt", data=f"T {tok}".encode(), has_tag=True)
+    assert sc.bad.tolist() == [True]
+
+
+def test_missing_file_is_a_file_format_error(tmp_path):
+    with pytest.raises(FileFormatError, match="no such file"):
+        scan(tmp_path / "nope.g2o")
