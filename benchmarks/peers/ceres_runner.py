@@ -100,40 +100,53 @@ def _make_cost_classes():
 
         def Evaluate(self, parameters, residuals, jacobians):
             pa, qa, pb, qb = parameters
-            u = qa[:3]
-            w = qa[3]
-            d = pb - pa
-            Ku = _skew(u)
-            # M d == Eigen's (q_a.conjugate() * d) for unit q_a, differentiated as written
-            M = np.eye(3) - 2.0 * w * Ku + 2.0 * (Ku @ Ku)
-            r = np.empty(6)
-            r[:3] = M @ d - self.pm
-            qm_qbc = _quat_mul(self.qm, qb * _CONJ)
-            delta = _quat_mul(qm_qbc, qa)
-            r[3:] = 2.0 * delta[:3]
-            residuals[:] = self.S @ r
-            if jacobians is not None:
-                S = self.S
-                if jacobians[0] is not None:
-                    J = np.zeros((6, 3))
-                    J[:3] = -M
-                    jacobians[0][:] = (S @ J).ravel()
-                if jacobians[1] is not None:
-                    J = np.zeros((6, 4))
-                    ud = u @ d
-                    J[:3, :3] = 2.0 * w * _skew(d) + 2.0 * (ud * np.eye(3) + np.outer(u, d)
-                                                             - 2.0 * np.outer(d, u))
-                    J[:3, 3] = -2.0 * np.cross(u, d)
-                    J[3:] = 2.0 * _quat_left(qm_qbc)[:3]
-                    jacobians[1][:] = (S @ J).ravel()
-                if jacobians[2] is not None:
-                    J = np.zeros((6, 3))
-                    J[:3] = M
-                    jacobians[2][:] = (S @ J).ravel()
-                if jacobians[3] is not None:
-                    J = np.zeros((6, 4))
-                    J[3:] = 2.0 * (self.Lqm @ _quat_right(qa))[:3] * _CONJ
-                    jacobians[3][:] = (S @ J).ravel()
+            ux, uy, uz, w = qa.tolist()
+            dx, dy, dz = (pb - pa).tolist()
+            # f = conj(q_a) * d as Eigen evaluates it: d - 2w (u x d) + 2 u x (u x d)
+            c0, c1, c2 = uy * dz - uz * dy, uz * dx - ux * dz, ux * dy - uy * dx
+            e0, e1, e2 = uy * c2 - uz * c1, uz * c0 - ux * c2, ux * c1 - uy * c0
+            pm = self.pm
+            # A = q_m * conj(q_b); delta = A * q_a (quaternions x, y, z, w)
+            mx, my, mz, mw = self.qm
+            bx, by, bz, bw = (-qb[0], -qb[1], -qb[2], qb[3])
+            Ax = mw * bx + bw * mx + my * bz - mz * by
+            Ay = mw * by + bw * my + mz * bx - mx * bz
+            Az = mw * bz + bw * mz + mx * by - my * bx
+            Aw = mw * bw - mx * bx - my * by - mz * bz
+            r = np.array([dx - 2 * w * c0 + 2 * e0 - pm[0], dy - 2 * w * c1 + 2 * e1 - pm[1],
+                          dz - 2 * w * c2 + 2 * e2 - pm[2],
+                          2 * (Aw * ux + w * Ax + Ay * uz - Az * uy),
+                          2 * (Aw * uy + w * Ay + Az * ux - Ax * uz),
+                          2 * (Aw * uz + w * Az + Ax * uy - Ay * ux)])
+            S = self.S
+            residuals[:] = S @ r
+            if jacobians is None:
+                return True
+            uu = ux * ux + uy * uy + uz * uz
+            a = 1.0 - 2.0 * uu
+            M = [[a + 2 * ux * ux, 2 * ux * uy + 2 * w * uz, 2 * ux * uz - 2 * w * uy],
+                 [2 * uy * ux - 2 * w * uz, a + 2 * uy * uy, 2 * uy * uz + 2 * w * ux],
+                 [2 * uz * ux + 2 * w * uy, 2 * uz * uy - 2 * w * ux, a + 2 * uz * uz]]
+            ud = ux * dx + uy * dy + uz * dz
+            u = (ux, uy, uz)
+            d = (dx, dy, dz)
+            # df/du = 2w [d]x + 2 ((u.d) I + u d^T - 2 d u^T); df/dw = -2 (u x d)
+            Dd = [[0.0, -dz, dy], [dz, 0.0, -dx], [-dy, dx, 0.0]]
+            Fu = [[2 * w * Dd[i][j] + 2 * ((ud if i == j else 0.0) + u[i] * d[j] - 2 * d[i] * u[j])
+                   for j in range(3)] for i in range(3)]
+            J = np.zeros((6, 14))
+            Mn = np.array(M)
+            J[:3, 0:3] = -Mn
+            J[:3, 3:6] = Fu
+            J[:3, 6] = (-2 * c0, -2 * c1, -2 * c2)
+            J[:3, 7:10] = Mn
+            J[3:, 3:7] = ((2 * Aw, -2 * Az, 2 * Ay, 2 * Ax), (2 * Az, 2 * Aw, -2 * Ax, 2 * Ay),
+                          (-2 * Ay, 2 * Ax, 2 * Aw, 2 * Az))
+            J[3:, 10:14] = 2.0 * (self.Lqm @ _quat_right(qa))[:3] * _CONJ
+            SJ = S @ J
+            for k, (lo, hi) in enumerate(((0, 3), (3, 7), (7, 10), (10, 14))):
+                if jacobians[k] is not None:
+                    jacobians[k][:] = SJ[:, lo:hi].ravel()
             return True
 
     class Snavely(pyceres.CostFunction):
