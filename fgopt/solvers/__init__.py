@@ -23,7 +23,7 @@ _METHODS = {"lm": (LevenbergMarquardt, LMParams), "gn": (GaussNewton, GaussNewto
             "dogleg": (Dogleg, DoglegParams)}
 
 
-def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = "cholmod",
+def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = "auto",
              max_iterations: int | None = None, verbose: bool | None = None, callback: Any = None,
              params: Any = None, **options: Any) -> Result:
     """Minimize ``graph.error`` from ``initial``; returns a :class:`Result` (``initial`` untouched).
@@ -32,7 +32,8 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
         graph: the :class:`~fgopt.FactorGraph`.
         initial: :class:`~fgopt.Variables` with a value for every key the graph uses.
         method: ``"lm"`` (Levenberg-Marquardt), ``"gn"`` (Gauss-Newton) or ``"dogleg"``.
-        linear_solver: ``"cholmod" | "ldlt" | "pcg" | "dense"`` or a solver object.
+        linear_solver: ``"auto" | "cholmod" | "ldlt" | "pcg" | "dense"`` or a solver object;
+            ``"auto"`` picks by problem shape (dense for tiny, CHOLMOD otherwise, ...).
         max_iterations: iteration limit (every linear solve counts; default 100).
         verbose: print the per-iteration table (default False).
         callback: ``f(record: IterationRecord)``; return True to stop.

@@ -20,28 +20,38 @@ Callback = Callable[[IterationRecord], "bool | None"]
 class Run:
     """One optimization: the compiled problem, linear solver, current iterate and history."""
 
-    def __init__(self, graph: Any, initial: Variables, params: Any, method: str,
-                 callback: Callback | None, linear_solver: Any = None):
-        if not isinstance(initial, Variables):
-            raise FgoptError(f"initial values must be fgopt.Variables, got {type(initial).__name__}")
+    def __init__(self, graph: Any, initial: Variables | None, params: Any, method: str,
+                 callback: Callback | None, linear_solver: Any = None,
+                 problem: Problem | None = None, state: State | None = None,
+                 solver: Any = None):
+        """Compile ``graph`` against ``initial``, or continue on an already compiled ``problem``
+        from ``state`` with an already analyzed ``solver`` (GNC re-solves this way)."""
         self.t0 = time.perf_counter()
         self.params = params
         self.method = method
         self.callback = callback
         self.verbose = bool(getattr(params, "verbose", False))
-        self.problem = Problem(graph, initial, ordering=params.ordering)
-        self.solver = make_linear_solver(linear_solver if linear_solver is not None
-                                         else params.linear_solver)
-        self.solver.analyze(self.problem.pattern)
+        if problem is None:
+            if not isinstance(initial, Variables):
+                raise FgoptError(
+                    f"initial values must be fgopt.Variables, got {type(initial).__name__}")
+            problem = Problem(graph, initial, ordering=params.ordering)
+        self.problem = problem
+        if solver is None:
+            choice = linear_solver if linear_solver is not None else params.linear_solver
+            solver = make_linear_solver(choice, pattern=problem.pattern)
+            solver.analyze(problem.pattern)
+        self.solver = solver
         self.t_setup = time.perf_counter() - self.t0
         self.t_solve = 0.0
-        self.state: State = self.problem.initial_state()
-        self.cost = self.problem.linearize(self.state)  # raises NonFiniteError naming the factor
+        self.state: State = state if state is not None else problem.initial_state()
+        self.cost = problem.linearize(self.state)  # raises NonFiniteError naming the factor
         self.initial_cost = self.cost
         self.history = [self.cost]
         self.records: list[IterationRecord] = []
         if self.verbose:
-            print(f"{method}: {self.problem.num_variables} variables, {len(graph)} factors, "
+            print(f"{method}: {problem.num_variables} variables, "
+                  f"{sum(len(b.source) for b in problem.batches) + len(problem._slow)} factors, "
                   f"initial cost {self.cost:.6e}")
             print(IterationRecord.HEADER)
 

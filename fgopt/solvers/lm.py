@@ -30,8 +30,16 @@ class LevenbergMarquardt:
         self.linear_solver = linear_solver
 
     def optimize(self, graph: Any, initial: Variables, callback: Callback | None = None) -> Result:
+        return self.iterate(Run(graph, initial, self.params, "lm", callback, self.linear_solver))
+
+    def optimize_problem(self, problem: Any, state: Any = None, solver: Any = None,
+                         callback: Callback | None = None) -> Result:
+        """Continue on a compiled problem (from ``state``; reusing an analyzed ``solver``)."""
+        return self.iterate(Run(None, None, self.params, "lm", callback, self.linear_solver,
+                                problem=problem, state=state, solver=solver))
+
+    def iterate(self, run: Run) -> Result:
         p = self.params
-        run = Run(graph, initial, p, "lm", callback, self.linear_solver)
         problem = run.problem
         diag_pos = problem.pattern.diag_pos
         lam, nu = p.initial_lambda, 2.0

@@ -30,7 +30,7 @@ class LMParams(TerminationParams):
     max_diagonal: float = 1e32
     min_relative_decrease: float = 1e-3
     """A step is accepted when actual/predicted decrease exceeds this (Ceres' default)."""
-    linear_solver: str = "cholmod"
+    linear_solver: str = "auto"
     ordering: str = "amd"
     """Fill-reducing order of the variable graph: amd | metis | nesdis | colamd | natural."""
     verbose: bool = False
@@ -38,7 +38,7 @@ class LMParams(TerminationParams):
 
 @dataclass(frozen=True)
 class GaussNewtonParams(TerminationParams):
-    linear_solver: str = "cholmod"
+    linear_solver: str = "auto"
     ordering: str = "amd"
     verbose: bool = False
 
@@ -50,6 +50,6 @@ class DoglegParams(TerminationParams):
     min_radius: float = 1e-12
     regularization: float = 1e-9
     """Tiny diagonal damping so gauge-free problems (no prior) still factor."""
-    linear_solver: str = "cholmod"
+    linear_solver: str = "auto"
     ordering: str = "amd"
     verbose: bool = False

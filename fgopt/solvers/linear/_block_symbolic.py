@@ -214,3 +214,35 @@ def supernode_partition(n, parent, cnt, dim, below, relax_cols, relax_zeros):
             out[k] = first[s]
             k += 1
     return out[:k].copy()
+
+
+@njit(cache=True)
+def supernode_rows(sn, post, ipost, lp, li, dim_p):
+    """Row variables of each supernode (its own, then the ones below, in postorder labels).
+
+    Returns ``rvp, rvi`` (CSR over supernodes) and ``rpos``: the scalar row offset of each
+    listed variable inside its supernode's panel.
+    """
+    nsn = sn.shape[0] - 1
+    rvp = np.zeros(nsn + 1, np.int64)
+    for s in range(nsn):
+        top = post[sn[s + 1] - 1]
+        rvp[s + 1] = rvp[s] + (sn[s + 1] - sn[s]) + (lp[top + 1] - lp[top])
+    rvi = np.empty(rvp[nsn], np.int64)
+    rpos = np.empty(rvp[nsn], np.int64)
+    for s in range(nsn):
+        k = rvp[s]
+        for j in range(sn[s], sn[s + 1]):
+            rvi[k] = j
+            k += 1
+        top = post[sn[s + 1] - 1]
+        nb = lp[top + 1] - lp[top]
+        tmp = np.empty(nb, np.int64)
+        for p in range(nb):
+            tmp[p] = ipost[li[lp[top] + p]]
+        rvi[k:k + nb] = np.sort(tmp)
+        acc = 0
+        for p in range(rvp[s], rvp[s + 1]):
+            rpos[p] = acc
+            acc += dim_p[rvi[p]]
+    return rvp, rvi, rpos

@@ -30,10 +30,25 @@ class LinearSolver(Protocol):
         """Solve ``H x = rhs`` with the last factorization."""
 
 
-def make_linear_solver(name: "str | LinearSolver", **options) -> LinearSolver:
-    """``"cholmod" | "ldlt" | "pcg" | "dense"`` (or a solver object, returned as is)."""
+def choose_linear_solver(pattern: HessianPattern | None) -> str:
+    """The backend ``"auto"`` picks for a problem's pattern (measured choices, see README)."""
+    if pattern is None:
+        return "cholmod"
+    if pattern.size <= 300:
+        return "dense"
+    return "cholmod"
+
+
+def make_linear_solver(name: "str | LinearSolver", pattern: HessianPattern | None = None,
+                       **options) -> LinearSolver:
+    """``"auto" | "cholmod" | "ldlt" | "pcg" | "dense"`` (or a solver object, returned as is).
+
+    ``"auto"`` chooses from the problem's ``pattern`` (:func:`choose_linear_solver`).
+    """
     if not isinstance(name, str):
         return name
+    if name == "auto":
+        name = choose_linear_solver(pattern)
     if name == "cholmod":
         from .cholmod import CholmodSolver
 
@@ -51,4 +66,4 @@ def make_linear_solver(name: "str | LinearSolver", **options) -> LinearSolver:
 
         return DenseCholeskySolver(**options)
     raise FgoptError(
-        f"unknown linear solver {name!r}: choose 'cholmod', 'ldlt', 'pcg' or 'dense'")
+        f"unknown linear solver {name!r}: choose 'auto', 'cholmod', 'ldlt', 'pcg' or 'dense'")
