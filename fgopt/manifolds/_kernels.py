@@ -8,8 +8,8 @@ Three layers, all ``@njit(cache=True)``:
 2. per-element dispatchers over a group id (``lie_compose(gid, a, b, out)``, ``lie_log``,
    ``lie_jrinv``...), which the value classes call one element at a time and the factor
    kernels call inside their loops;
-3. batched loops over ``(n, storage_dim)`` arrays (``batch_retract(gid, x, delta)``...) and one
-   named ``<group>_retract_batch`` / ``<group>_local_batch`` pair per group for ``BatchKind``.
+3. batched loops over ``(n, storage_dim)`` arrays (``batch_retract(gid, x, delta)``...), and
+   ``<group>_retract_batch`` / ``<group>_local_batch`` entries per group for ``BatchKind``.
 
 Layouts (float64, 1-D), tangent order rotation first::
 
@@ -55,12 +55,12 @@ MAX_DIM = 7
 
 
 @njit(cache=True)
-def _storage_dim(gid):
+def storage_dim(gid):
     return 2 if gid == SO2_ID else 4 if gid <= SO3_ID else 7 if gid == SE3_ID else 8
 
 
 @njit(cache=True)
-def _tangent_dim(gid):
+def tangent_dim(gid):
     return 1 if gid == SO2_ID else 3 if gid <= SO3_ID else 6 if gid == SE3_ID else 7
 
 
@@ -81,18 +81,52 @@ def skew_poly_apply(w, c0, c1, c2, v, out):
 
 
 @njit(cache=True)
-def skew_poly3(w, c0, c1, c2, out):
-    """out (3, 3) = c0 I + c1 hat(w) + c2 hat(w)^2, using hat(w)^2 = w w^T - |w|^2 I."""
+def skew_poly3(w, c0, c1, c2, out, r, c):
+    """out[r:r+3, c:c+3] = c0 I + c1 hat(w) + c2 hat(w)^2, with hat(w)^2 = w w^T - |w|^2 I.
+
+    Blocks are written through offsets rather than slices: 2-D slices are 'A'-layout arrays,
+    each of which costs numba a separate compilation of the callee.
+    """
     x, y, z = w[0], w[1], w[2]
-    out[0, 0] = c0 - c2 * (y * y + z * z)
-    out[1, 1] = c0 - c2 * (x * x + z * z)
-    out[2, 2] = c0 - c2 * (x * x + y * y)
-    out[0, 1] = -c1 * z + c2 * x * y
-    out[1, 0] = c1 * z + c2 * x * y
-    out[0, 2] = c1 * y + c2 * x * z
-    out[2, 0] = -c1 * y + c2 * x * z
-    out[1, 2] = -c1 * x + c2 * y * z
-    out[2, 1] = c1 * x + c2 * y * z
+    out[r, c] = c0 - c2 * (y * y + z * z)
+    out[r + 1, c + 1] = c0 - c2 * (x * x + z * z)
+    out[r + 2, c + 2] = c0 - c2 * (x * x + y * y)
+    out[r, c + 1] = -c1 * z + c2 * x * y
+    out[r + 1, c] = c1 * z + c2 * x * y
+    out[r, c + 2] = c1 * y + c2 * x * z
+    out[r + 2, c] = -c1 * y + c2 * x * z
+    out[r + 1, c + 2] = -c1 * x + c2 * y * z
+    out[r + 2, c + 1] = c1 * x + c2 * y * z
+
+
+@njit(cache=True)
+def fill_block(out, r, c, nr, nc, value):
+    """out[r:r+nr, c:c+nc] = value."""
+    for i in range(r, r + nr):
+        for j in range(c, c + nc):
+            out[i, j] = value
+
+
+@njit(cache=True)
+def copy_block3(m, rs, cs, rd, cd, scale):
+    """m[rd:rd+3, cd:cd+3] = scale * m[rs:rs+3, cs:cs+3] (non-overlapping blocks)."""
+    for i in range(3):
+        for j in range(3):
+            m[rd + i, cd + j] = scale * m[rs + i, cs + j]
+
+
+@njit(cache=True)
+def matmul_block3(m, ra, ca, rb, cb, rd, cd, scale):
+    """m[rd:rd+3, cd:cd+3] = scale * A @ B for 3x3 blocks A at (ra, ca), B at (rb, cb) of m.
+
+    The destination must not overlap A or B.
+    """
+    for i in range(3):
+        for j in range(3):
+            acc = 0.0
+            for k in range(3):
+                acc += m[ra + i, ca + k] * m[rb + k, cb + j]
+            m[rd + i, cd + j] = scale * acc
 
 
 @njit(cache=True)
@@ -152,26 +186,34 @@ def phi_matrix(a, out):
     while nrm > 0.5 and s < 60:
         nrm *= 0.5
         s += 1
-    b = a * 0.5 ** s
+    scale = 0.5 ** s
+    b = np.empty((n, n))
     e = np.eye(n)
-    f = np.eye(n)
     term = np.eye(n)
     tmp = np.empty((n, n))
-    for k in range(1, 18):
+    for i in range(n):
+        for j in range(n):
+            b[i, j] = a[i, j] * scale
+            out[i, j] = 1.0 if i == j else 0.0
+    for k in range(1, 18):  # e = exp(b), out = phi(b); |b| <= 1/2, so 18 terms reach 1e-21
         matmul(term, b, tmp)
-        term[:, :] = tmp / k
-        e += term
-        f += term / (k + 1)
+        for i in range(n):
+            for j in range(n):
+                term[i, j] = tmp[i, j] / k
+                e[i, j] += term[i, j]
+                out[i, j] += term[i, j] / (k + 1)
     for _ in range(s):
         for i in range(n):
             e[i, i] += 1.0
-        matmul(f, e, tmp)
-        f[:, :] = 0.5 * tmp
+        matmul(out, e, tmp)
         for i in range(n):
             e[i, i] -= 1.0
+            for j in range(n):
+                out[i, j] = 0.5 * tmp[i, j]
         matmul(e, e, tmp)
-        e[:, :] = tmp
-    out[:, :] = f
+        for i in range(n):
+            for j in range(n):
+                e[i, j] = tmp[i, j]
 
 
 @njit(cache=True)
@@ -215,18 +257,24 @@ def quat_rotate(q, p, out, sign=1.0):
 
 
 @njit(cache=True)
+def rotation_block(q, out, r, c, scale):
+    """out[r:r+3, c:c+3] = scale * R(q) for the unit quaternion q = [x, y, z, w]."""
+    x, y, z, w = q[0], q[1], q[2], q[3]
+    out[r, c] = scale * (1.0 - 2.0 * (y * y + z * z))
+    out[r, c + 1] = scale * 2.0 * (x * y - z * w)
+    out[r, c + 2] = scale * 2.0 * (x * z + y * w)
+    out[r + 1, c] = scale * 2.0 * (x * y + z * w)
+    out[r + 1, c + 1] = scale * (1.0 - 2.0 * (x * x + z * z))
+    out[r + 1, c + 2] = scale * 2.0 * (y * z - x * w)
+    out[r + 2, c] = scale * 2.0 * (x * z - y * w)
+    out[r + 2, c + 1] = scale * 2.0 * (y * z + x * w)
+    out[r + 2, c + 2] = scale * (1.0 - 2.0 * (x * x + y * y))
+
+
+@njit(cache=True)
 def quat_to_matrix(q, out):
     """out (3, 3) = rotation matrix of the unit quaternion q = [x, y, z, w]."""
-    x, y, z, w = q[0], q[1], q[2], q[3]
-    out[0, 0] = 1.0 - 2.0 * (y * y + z * z)
-    out[0, 1] = 2.0 * (x * y - z * w)
-    out[0, 2] = 2.0 * (x * z + y * w)
-    out[1, 0] = 2.0 * (x * y + z * w)
-    out[1, 1] = 1.0 - 2.0 * (x * x + z * z)
-    out[1, 2] = 2.0 * (y * z - x * w)
-    out[2, 0] = 2.0 * (x * z - y * w)
-    out[2, 1] = 2.0 * (y * z + x * w)
-    out[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+    rotation_block(q, out, 0, 0, 1.0)
 
 
 @njit(cache=True)
@@ -313,26 +361,38 @@ def so3_inverse(a, out):
 
 @njit(cache=True)
 def so3_adjoint(a, out):
-    quat_to_matrix(a, out)
+    rotation_block(a, out, 0, 0, 1.0)
 
 
 @njit(cache=True)
 def so3_ad(w, out):
-    skew_poly3(w, 0.0, 1.0, 0.0, out)
+    skew_poly3(w, 0.0, 1.0, 0.0, out, 0, 0)
+
+
+@njit(cache=True)
+def _so3_jr_block(w, out, r, c):
+    """out[r:r+3, c:c+3] = Jr(w) = I - a W + b W^2."""
+    a, b, _ = so3_coeffs(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    skew_poly3(w, 1.0, -a, b, out, r, c)
+
+
+@njit(cache=True)
+def _so3_jrinv_block(w, out, r, c):
+    """out[r:r+3, c:c+3] = Jr(w)^-1 = I + W/2 + c W^2 (finite for |w| <= pi)."""
+    _, _, k = so3_coeffs(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    skew_poly3(w, 1.0, 0.5, k, out, r, c)
 
 
 @njit(cache=True)
 def so3_jr(w, out):
     """Right Jacobian Jr(w) = I - a W + b W^2."""
-    a, b, _ = so3_coeffs(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
-    skew_poly3(w, 1.0, -a, b, out)
+    _so3_jr_block(w, out, 0, 0)
 
 
 @njit(cache=True)
 def so3_jrinv(w, out):
     """Inverse right Jacobian Jr(w)^-1 = I + W/2 + c W^2 (finite for |w| <= pi)."""
-    _, _, c = so3_coeffs(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
-    skew_poly3(w, 1.0, 0.5, c, out)
+    _so3_jrinv_block(w, out, 0, 0)
 
 
 # ----------------------------------------------------------------------------- SO(2), SE(2)
@@ -492,22 +552,29 @@ def se3_log(x, out):
 
 
 @njit(cache=True)
-def se3_adjoint(x, out):
-    """Adj = [[R, 0], [hat(t) R, R]]."""
-    quat_to_matrix(x, out[:3, :3])
-    out[:3, 3:] = 0.0
-    out[3:, 3:] = out[:3, :3]
+def _se3_adjoint_scaled(x, out, s):
+    """out[:6, :6] = [[R, 0], [hat(t) R, s R]]."""
+    rotation_block(x, out, 0, 0, 1.0)
+    rotation_block(x, out, 3, 3, s)
+    fill_block(out, 0, 3, 3, 3, 0.0)
     for j in range(3):
         c0, c1, c2 = _cross(x[4], x[5], x[6], out[0, j], out[1, j], out[2, j])
         out[3, j], out[4, j], out[5, j] = c0, c1, c2
 
 
 @njit(cache=True)
+def se3_adjoint(x, out):
+    """Adj = [[R, 0], [hat(t) R, R]]."""
+    _se3_adjoint_scaled(x, out, 1.0)
+
+
+@njit(cache=True)
 def se3_ad(xi, out):
-    out[:3, 3:] = 0.0
-    skew_poly3(xi, 0.0, 1.0, 0.0, out[:3, :3])
-    skew_poly3(xi, 0.0, 1.0, 0.0, out[3:, 3:])
-    skew_poly3(xi[3:6], 0.0, 1.0, 0.0, out[3:, :3])
+    """ad = [[W, 0], [hat(v), W]] (written into out[:6, :6])."""
+    fill_block(out, 0, 3, 3, 3, 0.0)
+    skew_poly3(xi, 0.0, 1.0, 0.0, out, 0, 0)
+    skew_poly3(xi, 0.0, 1.0, 0.0, out, 3, 3)
+    skew_poly3(xi[3:6], 0.0, 1.0, 0.0, out, 3, 0)
 
 
 @njit(cache=True)
@@ -526,8 +593,8 @@ def _q_coeffs(t2):
 
 
 @njit(cache=True)
-def se3_q(w0, w1, w2, p0, p1, p2, out):
-    """Barfoot's Q(phi=w, rho=p), the lower-left block of the left Jacobian Jl([w, p]).
+def se3_q(w0, w1, w2, p0, p1, p2, out, r, c):
+    """out[r:r+3, c:c+3] = Barfoot's Q(phi=w, rho=p), the lower-left block of Jl([w, p]).
 
     Q = P/2 + c1 (WP + PW + WPW) + c2 (WWP + PWW - 3 WPW) + c3 (WPWW + WWPW), built column
     by column with cross products (W = hat(w), P = hat(p)).
@@ -546,29 +613,28 @@ def se3_q(w0, w1, w2, p0, p1, p2, out):
         wpwwe = _cross(w0, w1, w2, pwwe[0], pwwe[1], pwwe[2])  # WPWW e
         wwpwe = _cross(w0, w1, w2, wpwe[0], wpwe[1], wpwe[2])  # WWPW e
         for i in range(3):
-            out[i, j] = (0.5 * pe[i] + c1 * (wpe[i] + pwe[i] + wpwe[i])
+            out[r + i, c + j] = (0.5 * pe[i] + c1 * (wpe[i] + pwe[i] + wpwe[i])
                          + c2 * (wwpe[i] + pwwe[i] - 3.0 * wpwe[i]) + c3 * (wpwwe[i] + wwpwe[i]))
 
 
 @njit(cache=True)
 def se3_jr(xi, out):
     """Jr([w, v]) = [[Jr(w), 0], [Q(-w, -v), Jr(w)]]."""
-    so3_jr(xi, out[:3, :3])
-    out[3:, 3:] = out[:3, :3]
-    out[:3, 3:] = 0.0
-    se3_q(-xi[0], -xi[1], -xi[2], -xi[3], -xi[4], -xi[5], out[3:, :3])
+    _so3_jr_block(xi, out, 0, 0)
+    _so3_jr_block(xi, out, 3, 3)
+    fill_block(out, 0, 3, 3, 3, 0.0)
+    se3_q(-xi[0], -xi[1], -xi[2], -xi[3], -xi[4], -xi[5], out, 3, 0)
 
 
 @njit(cache=True)
 def se3_jrinv(xi, out):
     """Jr^-1 = [[Ji, 0], [-Ji Q(-w, -v) Ji, Ji]] with Ji = Jr(w)^-1."""
-    so3_jrinv(xi, out[:3, :3])
-    out[3:, 3:] = out[:3, :3]
-    se3_q(-xi[0], -xi[1], -xi[2], -xi[3], -xi[4], -xi[5], out[3:, :3])
-    matmul(out[3:, :3], out[:3, :3], out[:3, 3:])  # Q Ji, using the upper-right as scratch
-    matmul(out[:3, :3], out[:3, 3:], out[3:, :3])  # Ji Q Ji
-    out[3:, :3] *= -1.0
-    out[:3, 3:] = 0.0
+    _so3_jrinv_block(xi, out, 0, 0)
+    _so3_jrinv_block(xi, out, 3, 3)
+    se3_q(-xi[0], -xi[1], -xi[2], -xi[3], -xi[4], -xi[5], out, 3, 0)
+    matmul_block3(out, 3, 0, 0, 0, 0, 3, 1.0)  # Q Ji, using the upper-right block as scratch
+    matmul_block3(out, 0, 0, 0, 3, 3, 0, -1.0)  # -Ji (Q Ji)
+    fill_block(out, 0, 3, 3, 3, 0.0)
 
 
 # ----------------------------------------------------------------------------- Sim(3)
@@ -658,9 +724,9 @@ def sim3_log(x, out):
 @njit(cache=True)
 def sim3_adjoint(x, out):
     """Adj = [[R, 0, 0], [hat(t) R, s R, -t], [0, 0, 1]]."""
-    out[:, :] = 0.0
-    se3_adjoint(x, out[:6, :6])
-    out[3:6, 3:6] *= x[7]
+    _se3_adjoint_scaled(x, out, x[7])
+    fill_block(out, 0, 6, 6, 1, 0.0)
+    fill_block(out, 6, 0, 1, 6, 0.0)
     for i in range(3):
         out[3 + i, 6] = -x[4 + i]
     out[6, 6] = 1.0
@@ -669,8 +735,9 @@ def sim3_adjoint(x, out):
 @njit(cache=True)
 def sim3_ad(xi, out):
     """ad = [[W, 0, 0], [hat(v), W + lam I, -v], [0, 0, 0]]."""
-    out[:, :] = 0.0
-    se3_ad(xi, out[:6, :6])
+    se3_ad(xi, out)
+    fill_block(out, 0, 6, 3, 1, 0.0)
+    fill_block(out, 6, 0, 1, 7, 0.0)
     for i in range(3):
         out[3 + i, 3 + i] = xi[6]
         out[3 + i, 6] = -xi[3 + i]
@@ -827,7 +894,7 @@ def lie_local(gid, a, b, out, tmp1, tmp2):
 @njit(cache=True)
 def batch_compose(gid, a, b):
     """(n, s), (n, s) -> (n, s): row-wise a * b."""
-    out = np.empty((a.shape[0], _storage_dim(gid)))
+    out = np.empty((a.shape[0], storage_dim(gid)))
     for i in range(a.shape[0]):
         lie_compose(gid, a[i], b[i], out[i])
     return out
@@ -835,7 +902,7 @@ def batch_compose(gid, a, b):
 
 @njit(cache=True)
 def batch_inverse(gid, a):
-    out = np.empty((a.shape[0], _storage_dim(gid)))
+    out = np.empty((a.shape[0], storage_dim(gid)))
     for i in range(a.shape[0]):
         lie_inverse(gid, a[i], out[i])
     return out
@@ -844,7 +911,7 @@ def batch_inverse(gid, a):
 @njit(cache=True)
 def batch_exp(gid, v):
     """(n, d) -> (n, s)."""
-    out = np.empty((v.shape[0], _storage_dim(gid)))
+    out = np.empty((v.shape[0], storage_dim(gid)))
     for i in range(v.shape[0]):
         lie_exp(gid, v[i], out[i])
     return out
@@ -853,7 +920,7 @@ def batch_exp(gid, v):
 @njit(cache=True)
 def batch_log(gid, a):
     """(n, s) -> (n, d)."""
-    out = np.empty((a.shape[0], _tangent_dim(gid)))
+    out = np.empty((a.shape[0], tangent_dim(gid)))
     for i in range(a.shape[0]):
         lie_log(gid, a[i], out[i])
     return out
@@ -862,7 +929,7 @@ def batch_log(gid, a):
 @njit(cache=True)
 def batch_retract(gid, x, delta):
     """(n, s), (n, d) -> (n, s): row-wise x * Exp(delta)."""
-    out = np.empty((x.shape[0], _storage_dim(gid)))
+    out = np.empty((x.shape[0], storage_dim(gid)))
     tmp = np.empty(MAX_STORAGE_DIM)
     for i in range(x.shape[0]):
         lie_retract(gid, x[i], delta[i], out[i], tmp)
@@ -872,7 +939,7 @@ def batch_retract(gid, x, delta):
 @njit(cache=True)
 def batch_local(gid, a, b):
     """(n, s), (n, s) -> (n, d): row-wise Log(a^-1 * b)."""
-    out = np.empty((a.shape[0], _tangent_dim(gid)))
+    out = np.empty((a.shape[0], tangent_dim(gid)))
     tmp1 = np.empty(MAX_STORAGE_DIM)
     tmp2 = np.empty(MAX_STORAGE_DIM)
     for i in range(a.shape[0]):
@@ -880,58 +947,25 @@ def batch_local(gid, a, b):
     return out
 
 
-# One named numba function per group, the ``BatchKind.retract`` / ``.local`` entries.
-@njit(cache=True)
-def so2_retract_batch(x, delta):
-    return batch_retract(SO2_ID, x, delta)
+# ``BatchKind.retract`` / ``.local`` of each group: thin Python entries over the two compiled
+# loops (numba wrappers per group would each cost ~1 s of compilation for no run-time gain).
+# Inputs are made C-contiguous float64 so that strided views do not trigger new compilations.
 
 
-@njit(cache=True)
-def so2_local_batch(a, b):
-    return batch_local(SO2_ID, a, b)
+def _entry(loop, gid: int, name: str):
+    def run(a, b):
+        return loop(gid, np.ascontiguousarray(a, dtype=np.float64),
+                    np.ascontiguousarray(b, dtype=np.float64))
+
+    run.__name__ = run.__qualname__ = name
+    run.__doc__ = f"Batched {name.split('_')[1]} of {GROUP_NAMES[gid]} over (n, storage) rows."
+    return run
 
 
-@njit(cache=True)
-def se2_retract_batch(x, delta):
-    return batch_retract(SE2_ID, x, delta)
-
-
-@njit(cache=True)
-def se2_local_batch(a, b):
-    return batch_local(SE2_ID, a, b)
-
-
-@njit(cache=True)
-def so3_retract_batch(x, delta):
-    return batch_retract(SO3_ID, x, delta)
-
-
-@njit(cache=True)
-def so3_local_batch(a, b):
-    return batch_local(SO3_ID, a, b)
-
-
-@njit(cache=True)
-def se3_retract_batch(x, delta):
-    return batch_retract(SE3_ID, x, delta)
-
-
-@njit(cache=True)
-def se3_local_batch(a, b):
-    return batch_local(SE3_ID, a, b)
-
-
-@njit(cache=True)
-def sim3_retract_batch(x, delta):
-    return batch_retract(SIM3_ID, x, delta)
-
-
-@njit(cache=True)
-def sim3_local_batch(a, b):
-    return batch_local(SIM3_ID, a, b)
-
-
-RETRACT_BATCH = (so2_retract_batch, se2_retract_batch, so3_retract_batch, se3_retract_batch,
-                 sim3_retract_batch)
-LOCAL_BATCH = (so2_local_batch, se2_local_batch, so3_local_batch, se3_local_batch,
-               sim3_local_batch)
+RETRACT_BATCH = tuple(_entry(batch_retract, g, f"{GROUP_NAMES[g].lower()}_retract_batch")
+                      for g in range(5))
+LOCAL_BATCH = tuple(_entry(batch_local, g, f"{GROUP_NAMES[g].lower()}_local_batch")
+                    for g in range(5))
+so2_retract_batch, se2_retract_batch, so3_retract_batch, se3_retract_batch, \
+    sim3_retract_batch = RETRACT_BATCH
+so2_local_batch, se2_local_batch, so3_local_batch, se3_local_batch, sim3_local_batch = LOCAL_BATCH

@@ -50,7 +50,9 @@ class LieGroup:
     ``random(rng)`` and ``__repr__``.
     """
 
-    __slots__ = ("_data",)
+    # ``_data`` is a read-only view of ``_buf``; numba receives ``_buf`` (never written), because a
+    # read-only array is a different numba type and would double every kernel's compilation.
+    __slots__ = ("_data", "_buf")
     _GID: int
     _DIM: int
     _STORAGE_DIM: int
@@ -63,9 +65,14 @@ class LieGroup:
     def _wrap(cls, data: np.ndarray):
         """Wrap an owned float64 array as a value without checks (it becomes read-only)."""
         obj = object.__new__(cls)
-        data.flags.writeable = False
-        object.__setattr__(obj, "_data", data)
+        obj._set(data)
         return obj
+
+    def _set(self, data: np.ndarray) -> None:
+        view = data.view()
+        view.flags.writeable = False
+        object.__setattr__(self, "_buf", data)
+        object.__setattr__(self, "_data", view)
 
     @classmethod
     def _normalize(cls, data: np.ndarray) -> None:  # pragma: no cover - overridden
@@ -115,12 +122,12 @@ class LieGroup:
         """The group product ``self * other``."""
         self._check_same(other, "compose")
         out = np.empty(self._STORAGE_DIM)
-        K.lie_compose(self._GID, self._data, other._data, out)
+        K.lie_compose(self._GID, self._buf, other._buf, out)
         return self._wrap(out)
 
     def inverse(self):
         out = np.empty(self._STORAGE_DIM)
-        K.lie_inverse(self._GID, self._data, out)
+        K.lie_inverse(self._GID, self._buf, out)
         return self._wrap(out)
 
     def between(self, other):
@@ -139,13 +146,13 @@ class LieGroup:
     def log(self) -> np.ndarray:
         """The group logarithm ``Log(self)``, shape ``(dim,)``; rotation angle in [0, pi]."""
         out = np.empty(self._DIM)
-        K.lie_log(self._GID, self._data, out)
+        K.lie_log(self._GID, self._buf, out)
         return out
 
     def adjoint(self) -> np.ndarray:
         """``Adj``, shape ``(dim, dim)``, with ``self * Exp(v) = Exp(Adj v) * self``."""
         out = np.empty((self._DIM, self._DIM))
-        K.lie_adjoint(self._GID, self._data, out)
+        K.lie_adjoint(self._GID, self._buf, out)
         return out
 
     def retract(self, delta: Any):

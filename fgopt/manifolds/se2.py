@@ -35,8 +35,7 @@ class SE2(LieGroup):
         data = np.empty(4)
         data[:2] = rot._data
         data[2:] = as_float_vector(translation, 2, "SE2 translation")
-        data.flags.writeable = False
-        object.__setattr__(self, "_data", data)
+        self._set(data)
 
     @classmethod
     def _normalize(cls, data: np.ndarray) -> None:

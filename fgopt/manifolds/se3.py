@@ -43,8 +43,7 @@ class SE3(LieGroup):
         data = np.empty(7)
         data[:4] = as_so3(rotation, "SE3 rotation")._data
         data[4:] = as_float_vector(translation, 3, "SE3 translation")
-        data.flags.writeable = False
-        object.__setattr__(self, "_data", data)
+        self._set(data)
 
     @classmethod
     def _normalize(cls, data: np.ndarray) -> None:
@@ -70,7 +69,7 @@ class SE3(LieGroup):
     def matrix(self) -> np.ndarray:
         """The 4x4 homogeneous matrix ``[[R, t], [0, 1]]``."""
         m = np.eye(4)
-        K.quat_to_matrix(self._data, m[:3, :3])
+        K.rotation_block(self._buf, m, 0, 0, 1.0)
         m[:3, 3] = self._data[4:7]
         return m
 

@@ -40,8 +40,7 @@ class Sim3(LieGroup):
         data[4:7] = as_float_vector(translation, 3, "Sim3 translation")
         data[7] = float(scale)
         self._normalize(data)
-        data.flags.writeable = False
-        object.__setattr__(self, "_data", data)
+        self._set(data)
 
     @classmethod
     def _normalize(cls, data: np.ndarray) -> None:
@@ -78,8 +77,7 @@ class Sim3(LieGroup):
     def matrix(self) -> np.ndarray:
         """The 4x4 matrix ``[[s R, t], [0, 1]]``."""
         m = np.eye(4)
-        K.quat_to_matrix(self._data, m[:3, :3])
-        m[:3, :3] *= self._data[7]
+        K.rotation_block(self._buf, m, 0, 0, float(self._buf[7]))
         m[:3, 3] = self._data[4:7]
         return m
 

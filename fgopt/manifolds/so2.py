@@ -18,12 +18,13 @@ def normalize_unit(data: np.ndarray, what: str) -> None:
     if not n > 1e-12:
         raise InvalidGroupElementError(
             f"{what}: cannot normalize {data} (norm {n:.3g}); pass a unit rotation")
-    data /= n
+    if abs(n - 1.0) > 1e-15:  # leave unit data bit-exact (storage round trips)
+        data /= n
 
 
 def as_matrix(value: Any, n: int, what: str) -> np.ndarray:
     """``value`` as a finite float64 ``(n, n)`` array, or a clear error."""
-    m = np.asarray(value, dtype=np.float64)
+    m = np.array(value, dtype=np.float64)  # a C-contiguous copy
     if m.shape != (n, n):
         raise DimensionMismatchError(f"{what}: expected a {n}x{n} matrix, got shape {m.shape}")
     if not np.all(np.isfinite(m)):
@@ -60,8 +61,7 @@ class SO2(LieGroup):
         if not math.isfinite(t):
             raise NonFiniteError(f"SO2: angle must be finite, got {theta!r}")
         data = np.array([math.cos(t), math.sin(t)])
-        data.flags.writeable = False
-        object.__setattr__(self, "_data", data)
+        self._set(data)
 
     @classmethod
     def _normalize(cls, data: np.ndarray) -> None:

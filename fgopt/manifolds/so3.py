@@ -32,8 +32,7 @@ class SO3(LieGroup):
         """``SO3()`` is the identity; ``SO3(xyzw)`` takes a quaternion in storage order."""
         data = self._IDENTITY.copy() if xyzw is None else as_float_vector(xyzw, 4, "SO3")
         self._normalize(data)
-        data.flags.writeable = False
-        object.__setattr__(self, "_data", data)
+        self._set(data)
 
     @classmethod
     def _normalize(cls, data: np.ndarray) -> None:
@@ -77,7 +76,7 @@ class SO3(LieGroup):
 
     def matrix(self) -> np.ndarray:
         out = np.empty((3, 3))
-        K.quat_to_matrix(self._data, out)
+        K.quat_to_matrix(self._buf, out)
         return out
 
     def __repr__(self) -> str:
