@@ -1,0 +1,203 @@
+"""Generated kernel modules: programs -> readable, batched ``@numba.njit`` source.
+
+One module per factor type and variable pattern. It holds
+
+* ``_residual_kernel(<vars>, _consts, _res)`` and ``_linearize_kernel(..., _res, _jac)``
+  (plus ``_linearize_hessian_kernel(..., _hess, _rhs)`` on request): one ``for _i in range(n)``
+  loop over instances with flat CSE'd scalar code inside, writing into preallocated arrays,
+  compiled with ``numba.njit(cache=True, fastmath=False, error_model="numpy")``;
+* Python wrappers ``residual(args, consts)`` / ``linearize(args, consts)`` with the
+  :class:`~fgopt.factors.kernel.FactorKernel` signature (they check shapes, allocate outputs and
+  make one kernel call per batch);
+* ``META``: what the kernel computes (names, dims, op counts), read back on cache hits.
+
+Section order inside a kernel (as SymForce's templates): total ops, input loads (only entries
+that are used), intermediate terms ``_tmpN``, output terms. Kernels compute the *unwhitened*
+residual and Jacobian: noise models and robust losses are applied by the problem.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+from .cse import Program, total_ops
+
+#: Bump when the layout of generated modules changes (part of every cache key).
+CODEGEN_VERSION = "1"
+
+RESERVED_NAMES = frozenset({"math", "np", "numba", "abs", "min", "max", "range", "EPSILON",
+                            "META", "residual", "linearize", "linearize_hessian", "prepare"})
+
+
+@dataclass(frozen=True)
+class ArgLayout:
+    """One function argument: where its storage comes from in the kernel."""
+
+    name: str
+    type_name: str
+    symbols: tuple  # storage symbols (SymPy), storage order
+    is_variable: bool
+    offset: int  # column offset in the constants array (constants only)
+    tangent_dim: int
+
+
+def _loads(layouts: Sequence[ArgLayout], used: set) -> list[str]:
+    lines = []
+    for a in layouts:
+        src = f"_{a.name}" if a.is_variable else "_consts"
+        for k, s in enumerate(a.symbols):
+            if s in used:
+                col = k if a.is_variable else a.offset + k
+                lines.append(f"{s.name} = {src}[_i, {col}]")
+    return lines
+
+
+def _kernel_source(fn_name: str, prog: Program, layouts: Sequence[ArgLayout], outputs: dict,
+                   doc: str) -> str:
+    """One njit kernel. ``outputs`` maps program output name -> (array name, index builder)."""
+    from .printer import to_source
+
+    used: set = set()
+    for _, e in prog.stmts:
+        used |= e.free_symbols
+    for e in prog.all_outputs():
+        used |= getattr(e, "free_symbols", set())
+    var_params = [f"_{a.name}" for a in layouts if a.is_variable]
+    out_params = [arr for arr, _ in outputs.values()]
+    params = ", ".join(var_params + ["_consts"] + out_params)
+    ops = total_ops(prog)
+    body = [f"    # total ops: {ops}",
+            f"    for _i in range({out_params[0]}.shape[0]):"]
+    loads = _loads(layouts, used)
+    if len(loads) > 0:
+        body.append("        # input arrays")
+        body += [f"        {ln}" for ln in loads]
+    if len(prog.stmts) > 0:
+        body.append(f"        # intermediate terms ({len(prog.stmts)})")
+        body += [f"        {s.name} = {to_source(e)}" for s, e in prog.stmts]
+    body.append("        # output terms")
+    for name, (arr, index) in outputs.items():
+        for k, e in enumerate(prog.outputs[name]):
+            body.append(f"        {arr}[_i, {index(k)}] = {to_source(e)}")
+    head = ['@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)',
+            f"def {fn_name}({params}):",
+            f'    """{doc}"""']
+    return "\n".join(head + body) + "\n"
+
+
+def _wrapper_source(fn_name: str, kernel: str, layouts: Sequence[ArgLayout],
+                    outs: Sequence[tuple[str, str]]) -> str:
+    var_names = [f"_{a.name}" for a in layouts if a.is_variable]
+    lines = [f"def {fn_name}(args, consts):",
+             f'    """Batched {fn_name} of ``n`` instances; see the module docstring."""',
+             "    args, consts = prepare(args, consts, STORAGE_DIMS, NUM_CONSTANTS, NAME)",
+             f"    {', '.join(var_names)}{',' if len(var_names) == 1 else ''} = args",
+             "    n = consts.shape[0]"]
+    for arr, shape in outs:
+        lines.append(f"    {arr} = np.empty((n, {shape}))")
+    call_args = ", ".join(var_names + ["consts"] + [arr for arr, _ in outs])
+    lines.append(f"    {kernel}({call_args})")
+    ret = ", ".join(arr for arr, _ in outs)
+    lines.append(f"    return {ret}")
+    return "\n".join(lines) + "\n"
+
+
+def module_source(name: str, signature: str, origin: str, layouts: Sequence[ArgLayout],
+                  res_prog: Program, lin_prog: Program, meta: dict,
+                  hess_prog: Program | None = None) -> str:
+    """The full generated module (see the module docstring)."""
+    from ._sym import EPSILON_VALUE
+
+    r = len(res_prog.outputs["res"])
+    D = sum(a.tangent_dim for a in layouts if a.is_variable)
+    variables = ", ".join(f"{a.name} ({a.type_name})" for a in layouts if a.is_variable)
+    constants = ", ".join(f"{a.name} ({a.type_name}, cols {a.offset}:{a.offset + len(a.symbols)})"
+                          for a in layouts if not a.is_variable) or "none"
+    ops_res, ops_lin = total_ops(res_prog), total_ops(lin_prog)
+    header = [
+        "# " + "-" * 98,
+        "# Autogenerated by fgopt.symbolic.codegen (template: fgopt/symbolic/codegen.py).",
+        f"# Source: {signature}",
+        f"#   at {origin}",
+        f"# Variables: {variables}. Constants: {constants}.",
+        "# Kernels return the UNWHITENED residual and tangent-space Jacobian; the problem applies",
+        "# the noise model's square-root information and robust weights.",
+        "# Do NOT modify by hand: edit the factor function instead.",
+        "# " + "-" * 98,
+        f"# total ops: residual {ops_res}, linearize {ops_lin}"
+        + (f", linearize_hessian {total_ops(hess_prog)}" if hess_prog is not None else ""),
+        "# ruff: noqa",
+        "# fmt: off",
+        f'"""Generated batched kernels of ``{name}`` (residual dim {r}, tangent dim {D})."""',
+        "",
+        "import math",
+        "",
+        "import numba",
+        "import numpy as np",
+        "",
+        "from fgopt.symbolic.runtime import prepare",
+        "",
+        f"EPSILON = {EPSILON_VALUE!r}",
+        f"NAME = {name!r}",
+        f"STORAGE_DIMS = {tuple(len(a.symbols) for a in layouts if a.is_variable)!r}",
+        f"NUM_CONSTANTS = {sum(len(a.symbols) for a in layouts if not a.is_variable)}",
+        f"META = {meta!r}",
+        "",
+    ]
+    shapes = "; ".join(f"_{a.name} (n, {len(a.symbols)}) {a.type_name} storage"
+                       for a in layouts if a.is_variable)
+    parts = ["\n".join(header), ""]
+    parts.append(_kernel_source(
+        "_residual_kernel", res_prog, layouts, {"res": ("_res", lambda k: f"{k}")},
+        f"Inputs: {shapes}; _consts (n, c). Writes _res (n, {r})."))
+    parts.append("")
+    parts.append(_kernel_source(
+        "_linearize_kernel", lin_prog, layouts,
+        {"res": ("_res", lambda k: f"{k}"),
+         "jac": ("_jac", lambda k: f"{k // D}, {k % D}" if D > 0 else "0")},
+        f"Inputs: {shapes}; _consts (n, c). Writes _res (n, {r}), _jac (n, {r}, {D})."))
+    parts.append("")
+    if hess_prog is not None:
+        parts.append(_kernel_source(
+            "_linearize_hessian_kernel", hess_prog, layouts,
+            {"res": ("_res", lambda k: f"{k}"),
+             "jac": ("_jac", lambda k: f"{k // D}, {k % D}"),
+             "hess": ("_hess", lambda k: f"{k // D}, {k % D}"),
+             "rhs": ("_rhs", lambda k: f"{k}")},
+            f"Writes _res (n, {r}), _jac (n, {r}, {D}), _hess = J^T J (n, {D}, {D}), "
+            f"_rhs = J^T r (n, {D}) (unwhitened)."))
+        parts.append("")
+    parts.append(_wrapper_source("residual", "_residual_kernel", layouts, [("res", str(r))]))
+    parts.append("")
+    parts.append(_wrapper_source("linearize", "_linearize_kernel", layouts,
+                                 [("res", str(r)), ("jac", f"{r}, {D}")]))
+    if hess_prog is not None:
+        parts.append("")
+        parts.append(_wrapper_source(
+            "linearize_hessian", "_linearize_hessian_kernel", layouts,
+            [("res", str(r)), ("jac", f"{r}, {D}"), ("hess", f"{D}, {D}"), ("rhs", str(D))]))
+    return "\n".join(parts)
+
+
+def python_function(symbols: Sequence[Any], exprs: Sequence[Any], name: str = "f"):
+    """A plain-Python (no numba) scalar function of ``symbols`` returning ``exprs`` as a list.
+
+    Uses the same printer and CSE as generated kernels; for tests and quick evaluation.
+    """
+    import math
+
+    import numpy as np
+
+    from ._sym import EPSILON_VALUE
+    from .cse import optimize
+    from .printer import to_source
+
+    prog = optimize(Program([], {"out": list(exprs)}))
+    params = ", ".join(s.name for s in symbols)
+    lines = [f"def {name}({params}):"]
+    lines += [f"    {s.name} = {to_source(e)}" for s, e in prog.stmts]
+    lines.append("    return [" + ", ".join(to_source(e) for e in prog.outputs["out"]) + "]")
+    env = {"math": math, "np": np, "EPSILON": EPSILON_VALUE}
+    exec(compile("\n".join(lines) + "\n", f"<fgopt python_function {name}>", "exec"), env)
+    return env[name]

@@ -1,0 +1,261 @@
+"""``@fgopt.factor``: a typed residual function over symbolic types becomes a factor type.
+
+    @fgopt.factor
+    def range_bearing(pose: Pose2, landmark: V2, measured: V2) -> V2:
+        d = pose.inverse() * landmark
+        return V2(d.norm(), atan2(d[1], d[0])) - measured
+
+    f = range_bearing(pose=key('x', 1), landmark=key('l', 3), measured=np.array([4.0, 0.3]),
+                      loss=noise)
+
+Calling the factor type makes an instance (an ordinary :class:`~fgopt.factors.base.KernelFactor`).
+Each argument given a :class:`fgopt.Key` is a *variable*, anything else a *constant* (its
+storage goes into the instance's constants row). One kernel is generated per pattern of
+variables: the function is run once on symbolic arguments, its tangent-space Jacobians w.r.t.
+the variables are derived (:mod:`fgopt.symbolic.linearize`), CSE'd and emitted as a batched
+numba module (:mod:`fgopt.symbolic.codegen`), cached on disk (:mod:`fgopt.symbolic.cache`).
+``factor_type.source`` shows the generated code.
+
+Kernels compute the unwhitened residual and Jacobian; ``loss`` (a noise model or robust loss)
+is applied by the problem, as for every kernel factor.
+
+This module does not import SymPy: on a cache hit nothing symbolic runs.
+"""
+
+from __future__ import annotations
+
+import functools
+import inspect
+import typing
+from typing import Any, Callable, Iterable
+
+import numpy as np
+
+from ..errors import DimensionMismatchError, FgoptError
+from ..factors.base import KernelFactor
+from ..factors.kernel import FactorKernel
+from ..key import Key
+from . import cache as _cache
+from .codegen import RESERVED_NAMES
+from .lie import LieGroupBase
+from .matrix import Matrix, Scalar
+from .ops import normalize_type
+
+_MISSING = object()
+_NUMERIC_TWIN = {"Rot2": "SO2", "Pose2": "SE2", "Rot3": "SO3", "Pose3": "SE3"}
+
+
+def factor(fn: Callable | None = None, *, name: str | None = None, method: str = "retraction",
+           engine: str = "auto", hessian: bool = False, cache: bool = True,
+           variables: Iterable[str] | None = None):
+    """Decorator: make a factor type from a typed symbolic residual function.
+
+    Args:
+        fn: ``def f(a: Pose3, b: V3, ...) -> V3``; every parameter annotated with a symbolic
+            type (``Rot2, Rot3, Pose2, Pose3, V1..V9, Matrix.shaped(r, c), Scalar``).
+        name: factor name (default ``fn.__name__``).
+        method: tangent-space Jacobian method, ``"retraction"`` (first-order retraction, the
+            default) or ``"chain"`` (symbolic chain rule).
+        engine: ``"auto"``, ``"tree"`` or ``"dag"`` (see :mod:`fgopt.symbolic.linearize`).
+        hessian: also generate ``linearize_hessian`` (``J^T J`` and ``J^T r`` per instance).
+        cache: use the on-disk kernel cache.
+        variables: argument names that are variables in the default pattern shown by
+            ``.source`` before any instance exists (default: all).
+    """
+    def wrap(f: Callable) -> SymbolicFactorType:
+        return SymbolicFactorType(f, name=name, method=method, engine=engine, hessian=hessian,
+                                  cache=cache, variables=variables)
+
+    return wrap if fn is None else wrap(fn)
+
+
+class SymbolicFactor(KernelFactor):
+    """An instance of a :class:`SymbolicFactorType` (a kernel factor)."""
+
+    def __init__(self, factor_type: SymbolicFactorType, kernel: FactorKernel, keys: list,
+                 constants: np.ndarray, loss: Any):
+        self.factor_type = factor_type
+        super().__init__(kernel, keys, constants, loss)
+
+    def describe(self) -> str:
+        keys = ", ".join(repr(k) for k in self.keys) if hasattr(self, "keys") else "?"
+        return f"{self.factor_type.name}({keys})"
+
+
+class SymbolicFactorType:
+    """A factor type made by :func:`factor`; call it to make instances."""
+
+    def __init__(self, fn: Callable, *, name: str | None, method: str, engine: str,
+                 hessian: bool, cache: bool, variables: Iterable[str] | None):
+        functools.update_wrapper(self, fn)
+        self.fn = fn
+        self.name = name or fn.__name__
+        self.method, self.engine, self.hessian, self.use_cache = method, engine, hessian, cache
+        sig = inspect.signature(fn)
+        try:
+            hints = typing.get_type_hints(fn)
+        except Exception as exc:
+            raise FgoptError(f"@fgopt.factor {self.name}: cannot resolve annotations: {exc}") from exc
+        params = []
+        for p in sig.parameters.values():
+            if p.kind not in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY):
+                raise FgoptError(f"@fgopt.factor {self.name}: *args / **kwargs are not supported")
+            if p.name not in hints:
+                raise FgoptError(f"@fgopt.factor {self.name}: argument '{p.name}' needs a type "
+                                 "annotation (Pose2, Pose3, Rot3, V3, Scalar, ...)")
+            if p.name.startswith("_") or p.name in RESERVED_NAMES or p.name == "loss":
+                raise FgoptError(f"@fgopt.factor {self.name}: argument name '{p.name}' is reserved")
+            try:
+                tp = normalize_type(hints[p.name])
+            except TypeError as exc:
+                raise FgoptError(f"@fgopt.factor {self.name}: argument '{p.name}': {exc}") from None
+            params.append((p.name, tp))
+        if len(params) == 0:
+            raise FgoptError(f"@fgopt.factor {self.name}: the function takes no arguments")
+        self.params: tuple = tuple(params)
+        self.return_type = hints.get("return")
+        self._index = {n: i for i, (n, _) in enumerate(params)}
+        self._storage_dims = tuple(tp.storage_dim() for _, tp in params)
+        self._kernels: dict = {}
+        self._sources: dict = {}
+        self._default_variables = tuple(variables) if variables is not None else None
+
+    # ------------------------------------------------------------------ instances
+    def __call__(self, *args: Any, loss: Any = None, **kwargs: Any) -> SymbolicFactor:
+        n = len(self.params)
+        if len(args) > n:
+            raise FgoptError(f"{self.name}: takes {n} arguments, got {len(args)}")
+        values = list(args) + [_MISSING] * (n - len(args))
+        for k, v in kwargs.items():
+            i = self._index.get(k)
+            if i is None:
+                raise FgoptError(f"{self.name}: unknown argument '{k}' "
+                                 f"(arguments: {', '.join(p for p, _ in self.params)})")
+            if values[i] is not _MISSING:
+                raise FgoptError(f"{self.name}: argument '{k}' given twice")
+            values[i] = v
+        missing = [self.params[i][0] for i, v in enumerate(values) if v is _MISSING]
+        if len(missing) > 0:
+            raise FgoptError(f"{self.name}: missing argument(s) {', '.join(missing)}")
+        pattern = tuple(isinstance(v, Key) for v in values)
+        if not any(pattern):
+            raise FgoptError(f"{self.name}: no argument is a variable; pass fgopt.key(...) for "
+                             "the variables")
+        kernel = self._kernels.get(pattern) or self.kernel(pattern)
+        keys = [v for v in values if isinstance(v, Key)]
+        consts = [self._constant(i, v) for i, v in enumerate(values) if not pattern[i]]
+        c = np.concatenate(consts) if len(consts) > 0 else np.zeros(0)
+        return SymbolicFactor(self, kernel, keys, c, loss)
+
+    def _constant(self, i: int, value: Any) -> np.ndarray:
+        name, tp = self.params[i]
+        s = self._storage_dims[i]
+        if issubclass(tp, LieGroupBase) and hasattr(value, "to_storage"):
+            twin = _NUMERIC_TWIN.get(tp.__name__)
+            if twin is not None and type(value).__name__ != twin:
+                raise FgoptError(f"{self.name}: argument '{name}' is a {tp.__name__}; got a "
+                                 f"{type(value).__name__} (give an fgopt.manifolds.{twin}, its "
+                                 f"storage, or a key)")
+            value = value.to_storage()
+        if isinstance(value, (int, np.integer)) and not isinstance(value, bool) and s != 1:
+            raise FgoptError(f"{self.name}: argument '{name}' got the int {value}; pass "
+                             "fgopt.key(...) to make it a variable")
+        try:
+            arr = np.asarray(value, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError) as exc:
+            raise DimensionMismatchError(
+                f"{self.name}: argument '{name}' ({tp.__name__}) must be a key or "
+                f"{s} numbers, got {value!r}") from exc
+        if arr.shape[0] != s:
+            raise DimensionMismatchError(
+                f"{self.name}: argument '{name}' ({tp.__name__}) needs {s} numbers "
+                f"(its storage), got {arr.shape[0]}")
+        return arr
+
+    # ------------------------------------------------------------------ kernels
+    def _pattern(self, variables: Any) -> tuple:
+        if variables is None:
+            if self._default_variables is None:
+                return tuple(True for _ in self.params)
+            variables = self._default_variables
+        if isinstance(variables, tuple) and all(isinstance(v, bool) for v in variables):
+            if len(variables) != len(self.params):
+                raise FgoptError(f"{self.name}: pattern needs {len(self.params)} booleans")
+            return variables
+        names = set(variables)
+        unknown = names - set(self._index)
+        if len(unknown) > 0:
+            raise FgoptError(f"{self.name}: unknown argument(s) {sorted(unknown)}")
+        return tuple(n in names for n, _ in self.params)
+
+    def kernel(self, variables: Any = None) -> FactorKernel:
+        """The :class:`FactorKernel` for a variable pattern (argument names or booleans)."""
+        pattern = self._pattern(variables)
+        k = self._kernels.get(pattern)
+        if k is None:
+            module = self._module(pattern)
+            k = _kernel_from_module(module, self.params, pattern, self.name)
+            self._kernels[pattern] = k
+            self._sources[pattern] = k.source
+        return k
+
+    def _module(self, pattern: tuple):
+        parts = (self.name, tuple((n, tp.__module__, tp.__qualname__) for n, tp in self.params),
+                 pattern, self.method, self.engine, self.hessian)
+        key = _cache.kernel_key(self.fn, parts) if self.use_cache else None
+        if key is not None:
+            module = _cache.load(self.name, key)
+            if module is not None:
+                return module
+        from .derive import derive_source
+
+        source = derive_source(self, pattern)
+        _cache.STATS["derived"] += 1
+        if key is None:
+            import hashlib
+
+            key = "nocache_" + hashlib.sha256(source.encode()).hexdigest()[:16]
+        return _cache.store(self.name, key, source)
+
+    @property
+    def source(self) -> str:
+        """Generated source of every kernel made so far (of the default pattern if none)."""
+        if len(self._sources) == 0:
+            self.kernel()
+        return "\n\n".join(self._sources.values())
+
+    def symbolic(self, *names: str):
+        """Run the function on symbolic arguments; returns ``(args, output)``."""
+        from .ops import symbolic_value
+
+        names = names or tuple(n for n, _ in self.params)
+        args = [symbolic_value(tp, n) for n, (_, tp) in zip(names, self.params)]
+        return args, self.fn(*args)
+
+    def __repr__(self) -> str:
+        sig = ", ".join(f"{n}: {tp.__name__}" for n, tp in self.params)
+        return f"<fgopt factor {self.name}({sig})>"
+
+
+def batch_kind_of(tp: type):
+    """The :class:`~fgopt.manifolds.base.BatchKind` of variables of symbolic type ``tp``."""
+    from .. import manifolds as M
+
+    if tp is Scalar:
+        return M.SCALAR_KIND
+    if issubclass(tp, Matrix):
+        return M.vector_kind(tp.storage_dim())
+    twin = _NUMERIC_TWIN.get(tp.__name__)
+    if twin is None or not hasattr(M, twin):
+        raise FgoptError(f"no numeric manifold for symbolic type {tp.__name__}")
+    return getattr(M, twin).batch_kind()
+
+
+def _kernel_from_module(module: Any, params: tuple, pattern: tuple, name: str) -> FactorKernel:
+    meta = module.META
+    kinds = tuple(batch_kind_of(tp) for (_, tp), v in zip(params, pattern) if v)
+    with open(module.__file__) as fh:
+        source = fh.read()
+    return FactorKernel(name=name, arg_kinds=kinds, residual_dim=meta["residual_dim"],
+                        num_constants=module.NUM_CONSTANTS, residual=module.residual,
+                        linearize=module.linearize, source=source)

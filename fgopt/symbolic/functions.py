@@ -1,0 +1,165 @@
+"""Scalar math for symbolic residuals: ``fgopt.symbolic.sin, cos, sqrt, atan2, ...``.
+
+Each function takes a number, a SymPy expression or a :class:`~fgopt.symbolic.Matrix`
+(applied entry-wise) and returns a SymPy expression (or a Matrix). Functions with singular
+points are *epsilon-safe*: they shift or clamp their argument by the ``epsilon`` symbol so that
+generated code never produces NaN there, without branches (SymForce paper, Sec. VI-A):
+
+===================  ==============================================================
+``sqrt(x)``          ``sqrt(max(x, epsilon**2))`` (no NaN for tiny negative rounding)
+``log(x)``           ``log(max(x, epsilon))``
+``acos(x)/asin(x)``  argument clamped to ``[-1, 1]``
+``atan2(y, x)``      ``atan2(y, x + snz(x) epsilon)``: finite value and gradient at 0
+``safe_div(a, b)``   ``a / (b + snz(b) epsilon)``
+===================  ==============================================================
+
+Pass ``epsilon=0`` to get the raw function. ``epsilon`` itself is :data:`fgopt.symbolic.epsilon`.
+
+SymPy is imported on first call, not on import: modules that define factors may import these
+names freely and still load cached kernels without SymPy.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+_DEFAULT = object()  # "use the epsilon symbol"
+
+
+def _s():
+    from . import _sym
+
+    return _sym
+
+
+def _eps(epsilon: Any):
+    return _s().epsilon if epsilon is _DEFAULT else _s().as_expr(epsilon)
+
+
+def _map1(fn, x: Any):
+    from .matrix import Matrix
+
+    if isinstance(x, Matrix):
+        return x.applyfunc(fn)
+    return fn(_s().as_expr(x))
+
+
+def _fn(name: str):
+    def f(x: Any):
+        return _map1(getattr(_s().sp, name), x)
+
+    f.__name__ = name
+    f.__qualname__ = name
+    f.__doc__ = f"``{name}(x)`` (entry-wise on matrices)."
+    return f
+
+
+sin = _fn("sin")
+cos = _fn("cos")
+tan = _fn("tan")
+atan = _fn("atan")
+sinh = _fn("sinh")
+cosh = _fn("cosh")
+tanh = _fn("tanh")
+exp = _fn("exp")
+floor = _fn("floor")
+sign = _fn("sign")
+
+
+def sign_no_zero(x: Any):
+    """``snz(x)``: 1 if ``x >= 0`` else -1 (never 0), branchless, derivative 0 (Eq. 11-12)."""
+    return _map1(_s().snz, x)
+
+
+snz = sign_no_zero
+
+
+def Abs(x: Any):  # noqa: N802 - SymPy / SymForce name
+    """``|x|`` (derivative ``sign(x)``)."""
+    return _map1(_s().sp.Abs, x)
+
+
+def Min(*args: Any):  # noqa: N802
+    return _s().sp.Min(*(_s().as_expr(a) for a in args))
+
+
+def Max(*args: Any):  # noqa: N802
+    return _s().sp.Max(*(_s().as_expr(a) for a in args))
+
+
+def clamp(x: Any, lo: Any, hi: Any):
+    """``min(max(x, lo), hi)``."""
+    return Min(Max(x, lo), hi)
+
+
+def sqrt(x: Any, epsilon: Any = _DEFAULT):
+    """``sqrt(max(x, epsilon**2))``: never NaN, finite derivative at 0."""
+    e = _eps(epsilon)
+    sp = _s().sp
+    if e == 0:
+        return _map1(sp.sqrt, x)
+    return _map1(lambda a: sp.sqrt(sp.Max(a, e**2)), x)
+
+
+def log(x: Any, epsilon: Any = _DEFAULT):
+    """``log(max(x, epsilon))``."""
+    e = _eps(epsilon)
+    sp = _s().sp
+    if e == 0:
+        return _map1(sp.log, x)
+    return _map1(lambda a: sp.log(sp.Max(a, e)), x)
+
+
+def acos(x: Any, epsilon: Any = _DEFAULT):
+    """``acos`` of the argument clamped to ``[-1, 1]``."""
+    sp = _s().sp
+    if _eps(epsilon) == 0:
+        return _map1(sp.acos, x)
+    return _map1(lambda a: sp.acos(sp.Max(-1, sp.Min(1, a))), x)
+
+
+def asin(x: Any, epsilon: Any = _DEFAULT):
+    """``asin`` of the argument clamped to ``[-1, 1]``."""
+    sp = _s().sp
+    if _eps(epsilon) == 0:
+        return _map1(sp.asin, x)
+    return _map1(lambda a: sp.asin(sp.Max(-1, sp.Min(1, a))), x)
+
+
+def atan2(y: Any, x: Any, epsilon: Any = _DEFAULT):
+    """``atan2(y, x + snz(x) epsilon)``: finite value and gradient at ``x = y = 0``."""
+    s = _s()
+    y, x = s.as_expr(y), s.as_expr(x)
+    e = _eps(epsilon)
+    return s.sp.atan2(y, x + s.snz(x) * e if e != 0 else x)
+
+
+def safe_div(a: Any, b: Any, epsilon: Any = _DEFAULT):
+    """``a / (b + snz(b) epsilon)``."""
+    s = _s()
+    b = s.as_expr(b)
+    return s.as_expr(a) / (b + s.snz(b) * _eps(epsilon))
+
+
+def pow(x: Any, p: Any):  # noqa: A001 - math name
+    return _s().as_expr(x) ** _s().as_expr(p)
+
+
+def symbols(names: str):
+    """Real SymPy symbols, ``a, b = symbols("a b")``."""
+    return _s().sp.symbols(names, real=True)
+
+
+def __getattr__(name: str) -> Any:
+    if name == "epsilon":
+        return _s().epsilon
+    if name == "pi":
+        return _s().sp.pi
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+__all__ = [
+    "sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sinh", "cosh", "tanh", "sqrt",
+    "exp", "log", "floor", "sign", "sign_no_zero", "snz", "Abs", "Min", "Max", "clamp",
+    "safe_div", "pow", "symbols",
+]

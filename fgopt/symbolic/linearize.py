@@ -1,0 +1,154 @@
+"""Residual + tangent-space Jacobian programs for code generation.
+
+:func:`linearization_program` turns a function value and its arguments into a
+:class:`~fgopt.symbolic.cse.Program` with outputs ``res`` (r entries) and ``jac`` (r x D,
+row-major), optionally also ``hess`` (``J^T J``, D x D) and ``rhs`` (``J^T r``, D) as in the
+SymForce paper's ``with_linearization`` (Sec. III-C).
+
+Two differentiation engines compute the same tangent-space Jacobians (method ``"retraction"``
+or ``"chain"``, see :mod:`fgopt.symbolic.jacobians`):
+
+* ``"tree"``: SymPy differentiates the whole flattened expression (what SymForce does), then
+  CSE. Best code for small functions; SymPy's tree traversals make it slow (tens of seconds)
+  for large ones such as an SE(3) log.
+* ``"dag"``: first CSE the *value* into a straight-line program, then propagate directional
+  derivatives through it statement by statement (forward mode on the CSE DAG), each step a
+  small SymPy ``diff``; a final global CSE merges everything. The seeds are the columns of
+  ``storage_D_tangent`` (first-order retraction) or storage unit vectors followed by a product
+  with ``storage_D_tangent`` (chain rule). Derivation time is linear in the program size.
+
+``"auto"`` (default) uses ``"tree"`` when the CSE'd value has at most :data:`TREE_MAX_OPS`
+operations, else ``"dag"``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+from .cse import Program, count_ops, optimize, temp_symbols
+from .jacobians import METHODS, output_storage, tangent_jacobians
+from .lie import LieGroupBase
+from .ops import storage_D_tangent_of, storage_of, tangent_D_storage_of
+
+ENGINES = ("auto", "tree", "dag")
+#: "auto" differentiates whole expression trees up to this many (CSE'd) value operations.
+TREE_MAX_OPS = 80
+
+
+def _s():
+    from . import _sym
+
+    return _sym
+
+
+def linearization_program(output: Any, args: Sequence[Any], method: str = "retraction",
+                          engine: str = "auto", hessian: bool = False) -> Program:
+    """Program computing ``res`` and ``jac`` (and ``hess``/``rhs`` if ``hessian``).
+
+    Args:
+        output: the function value (vector, scalar, sequence, or a Lie group element, whose
+            Jacobian is then taken in its tangent space).
+        args: symbolic values (storage = distinct symbols) to differentiate by, in column order.
+        method: ``"retraction"`` or ``"chain"``.
+        engine: ``"auto"``, ``"tree"`` or ``"dag"``.
+        hessian: also output ``J^T J`` (upper triangle and below, full) and ``J^T r``.
+    """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
+    sp = _s().sp
+    res = [_s().as_expr(e) for e in output_storage(output)]
+    value = optimize(Program([], {"res": res}))
+    if engine == "auto":
+        engine = "tree" if count_ops([e for _, e in value.stmts] + value.outputs["res"]) \
+            <= TREE_MAX_OPS else "dag"
+    if engine == "tree":
+        jacs = tangent_jacobians(output, args, method) if len(args) > 0 else []
+        jac = sp.Matrix.hstack(*jacs) if len(jacs) > 0 else sp.zeros(len(res), 0)
+        stmts, res_out = [], res
+        if isinstance(output, LieGroupBase):
+            res_out = res  # the value stays the storage of the group element
+    else:
+        stmts, res_out, jac = _dag_jacobian(value, output, args, method)
+    prog = Program(list(stmts), {"res": list(res_out), "jac": list(jac)})
+    if hessian:
+        _add_hessian(prog, len(res_out), jac.shape[1])
+    return optimize(prog)
+
+
+def _add_hessian(prog: Program, r: int, dim: int) -> None:
+    """Append ``hess = J^T J`` and ``rhs = J^T res`` (through temporaries, so CSE shares J)."""
+    sp = _s().sp
+    syms = temp_symbols("_lin")
+    res_syms = [next(syms) for _ in range(r)]
+    jac_syms = [next(syms) for _ in range(r * dim)]
+    prog.stmts += list(zip(res_syms, prog.outputs["res"])) + list(zip(jac_syms, prog.outputs["jac"]))
+    J = sp.Matrix(r, dim, jac_syms)
+    e = sp.Matrix(res_syms)
+    prog.outputs["res"] = list(res_syms)
+    prog.outputs["jac"] = list(jac_syms)
+    prog.outputs["hess"] = list(J.T * J)
+    prog.outputs["rhs"] = list(J.T * e)
+
+
+def _dag_jacobian(value: Program, output: Any, args: Sequence[Any], method: str):
+    """Forward-mode propagation of tangent directions through the CSE'd value program."""
+    sp = _s().sp
+    remove = _s().remove_distributions
+    seeds: dict = {}
+    col_blocks = []  # (first direction, D) per argument, for the chain rule's final product
+    ndir = 0
+    for arg in args:
+        s = storage_of(arg)
+        D = storage_D_tangent_of(arg)
+        if method == "retraction":
+            for i, si in enumerate(s):
+                seeds[si] = {ndir + j: D[i, j] for j in range(D.shape[1]) if D[i, j] != 0}
+            col_blocks.append((ndir, D.shape[1]))
+            ndir += D.shape[1]
+        else:
+            for i, si in enumerate(s):
+                seeds[si] = {ndir + i: sp.S.One}
+            col_blocks.append((ndir, D))
+            ndir += len(s)
+    deriv = dict(seeds)
+    stmts = []
+    dsyms = temp_symbols("_dd")
+
+    def directional(e):
+        deps = [x for x in e.free_symbols if x in deriv]
+        if len(deps) == 0:
+            return {}
+        partials = [(x, remove(e.diff(x))) for x in deps]
+        acc: dict = {}
+        for x, p in partials:
+            if p == 0:
+                continue
+            for j, dxj in deriv[x].items():
+                acc.setdefault(j, []).append(p * dxj)
+        return {j: sp.Add(*terms) for j, terms in acc.items()}
+
+    for t, e in value.stmts:
+        stmts.append((t, e))
+        d = {}
+        for j, de in directional(e).items():
+            if de == 0:
+                continue
+            if de.is_Atom:
+                d[j] = de
+            else:
+                sym = next(dsyms)
+                stmts.append((sym, de))
+                d[j] = sym
+        if len(d) > 0:
+            deriv[t] = d
+    res = value.outputs["res"]
+    rows = [directional(e) for e in res]
+    J = sp.Matrix(len(res), ndir, lambda i, j: rows[i].get(j, sp.S.Zero))
+    if method == "chain":
+        blocks = [J[:, start:start + D.shape[0]] * D for start, D in col_blocks]
+        J = sp.Matrix.hstack(*blocks) if len(blocks) > 0 else sp.zeros(len(res), 0)
+    if isinstance(output, LieGroupBase):
+        J = tangent_D_storage_of(type(output).from_storage(res)) * J
+    return stmts, res, J

@@ -1,0 +1,94 @@
+"""Storage / tangent operations for every symbolic type, in one place (SymForce's *Ops* idea).
+
+Types that can be factor arguments: ``Rot2, Rot3, Pose2, Pose3`` (Lie groups), fixed-shape
+matrices and vectors (``V3``, ``Matrix.shaped(3, 3)``), and :class:`~fgopt.symbolic.Scalar`
+(``float`` / ``int`` annotations mean Scalar too).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from .lie import LieGroupBase
+from .matrix import Matrix, Scalar
+
+
+def _s():
+    from . import _sym
+
+    return _sym
+
+
+def is_symbolic_type(tp: Any) -> bool:
+    if tp in (float, int, Scalar):
+        return True
+    if not isinstance(tp, type):
+        return False
+    if issubclass(tp, LieGroupBase):
+        return True
+    return issubclass(tp, Matrix) and tp.SHAPE is not None
+
+
+def normalize_type(tp: Any) -> type:
+    """``float``/``int`` -> :class:`Scalar`; other supported types unchanged."""
+    if tp in (float, int):
+        return Scalar
+    if not is_symbolic_type(tp):
+        name = getattr(tp, "__name__", repr(tp))
+        raise TypeError(
+            f"{name} is not a symbolic argument type: use Rot2, Rot3, Pose2, Pose3, V1..V9, "
+            "Matrix.shaped(r, c) or Scalar")
+    return tp
+
+
+def type_storage_dim(tp: type) -> int:
+    return normalize_type(tp).storage_dim()
+
+
+def type_dim(tp: type) -> int:
+    return normalize_type(tp).dim()
+
+
+def type_name(tp: type) -> str:
+    return normalize_type(tp).__name__
+
+
+def symbolic_value(tp: type, name: str) -> Any:
+    """A value of type ``tp`` whose storage entries are the real symbols ``name_k``.
+
+    Scalars are the single symbol ``name``.
+    """
+    tp = normalize_type(tp)
+    return tp.symbolic(name)
+
+
+def from_storage(tp: type, data: Any) -> Any:
+    return normalize_type(tp).from_storage(data)
+
+
+def storage_of(value: Any) -> list:
+    """The storage entries of a symbolic value (SymPy expressions)."""
+    if isinstance(value, (LieGroupBase, Matrix)):
+        return [_s().as_expr(e) for e in value.to_storage()]
+    if hasattr(value, "to_storage") and not isinstance(value, _s().sp.Basic):
+        return [_s().as_expr(e) for e in value.to_storage()]
+    return [_s().as_expr(value)]
+
+
+def storage_D_tangent_of(value: Any):
+    """``d S(value (+) v) / dv`` at 0 as a SymPy matrix (identity for vectors and scalars)."""
+    if isinstance(value, LieGroupBase):
+        return value.storage_D_tangent()
+    return _s().sp.eye(len(storage_of(value)))
+
+
+def tangent_D_storage_of(value: Any):
+    if isinstance(value, LieGroupBase):
+        return value.tangent_D_storage()
+    return _s().sp.eye(len(storage_of(value)))
+
+
+def tangent_dim_of(value: Any) -> int:
+    if isinstance(value, LieGroupBase):
+        return value.dim()
+    return len(storage_of(value))

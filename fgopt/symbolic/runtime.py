@@ -1,0 +1,51 @@
+"""Runtime helpers imported by generated kernel modules (numpy only: no SymPy here)."""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..errors import DimensionMismatchError
+
+
+def _as_kernel_array(a: Any) -> np.ndarray:
+    """C-contiguous, writeable float64 (one numba signature for every caller)."""
+    a = np.ascontiguousarray(a, dtype=np.float64)
+    return a if a.flags.writeable else a.copy()
+
+
+def prepare(args: Sequence[Any], consts: Any, storage_dims: Sequence[int], num_consts: int,
+            name: str) -> tuple[tuple, np.ndarray]:
+    """Check shapes and return C-contiguous float64 ``(args, consts)`` for a kernel call.
+
+    Args:
+        args: one ``(n, s_i)`` array per variable argument.
+        consts: ``(n, c)`` constants (``None`` or an empty array when ``c == 0``).
+        storage_dims: expected ``s_i``.
+        num_consts: expected ``c``.
+        name: kernel name, for error messages.
+    """
+    if len(args) != len(storage_dims):
+        raise DimensionMismatchError(
+            f"{name}: kernel takes {len(storage_dims)} variable arrays, got {len(args)}")
+    out = []
+    n = None
+    for k, (a, s) in enumerate(zip(args, storage_dims)):
+        a = _as_kernel_array(a)
+        if a.ndim != 2 or a.shape[1] != s or (n is not None and a.shape[0] != n):
+            raise DimensionMismatchError(
+                f"{name}: variable array {k} has shape {a.shape}, expected "
+                f"({n if n is not None else 'n'}, {s})")
+        n = a.shape[0]
+        out.append(a)
+    if consts is None or (num_consts == 0 and np.size(consts) == 0):
+        c = np.empty((n, 0))
+    else:
+        c = _as_kernel_array(consts)
+        if c.ndim == 1 and n == 1:
+            c = c.reshape(1, -1)
+        if c.ndim != 2 or c.shape != (n, num_consts):
+            raise DimensionMismatchError(
+                f"{name}: constants have shape {c.shape}, expected ({n}, {num_consts})")
+    return tuple(out), c
