@@ -29,11 +29,12 @@ from .problems import DEFAULT_DATASETS, PROBLEMS, data_dir
 
 REPO = Path(__file__).resolve().parent.parent
 RESULTS = Path(__file__).resolve().parent / "results"
-ALL_PEERS = ["gtsam", "ceres", "symforce", "scipy"]
+ALL_PEERS = ["gtsam", "ceres", "ceres_cpp", "symforce", "scipy"]
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS",
                "VECLIB_MAXIMUM_THREADS", "BLIS_NUM_THREADS")
 
 LABEL = {"fgopt": "fgopt", "gtsam": "GTSAM", "ceres": "pyceres (Python callback costs)",
+         "ceres_cpp": "Ceres C++ (measured, AutoDiff)",
          "symforce": "SymForce (Python Optimizer)", "scipy": "scipy least_squares"}
 
 # C++ Ceres 2.1.0 (Debian libceres-dev, AutoDiff costs), from /work/shared/BENCHMARKS.md:
@@ -179,7 +180,8 @@ def markdown(records: list[dict], meta: dict) -> str:
     a("Seconds, median of {r} runs after a warm-up (¹ = one run: the warm-up itself took > {l} s); "
       "×N = time / fgopt's time in the same run (>1: fgopt faster). Single-threaded everywhere: "
       "OMP/OPENBLAS/MKL/NUMBA_NUM_THREADS=1 set before numpy is imported; per library: {p}. "
-      "Ceres C++ columns are **quoted from BENCHMARKS.md, not measured here**."
+      "The \"Ceres C++ (quoted, not measured)\" column is copied from BENCHMARKS.md; "
+      "\"Ceres C++ (measured)\" is benchmarks/ceres_cpp/ceres_bench run here."
       .format(r=meta["args"]["repeats"], l=meta["args"]["long"],
               p="; ".join(f"{LABEL.get(k, k)}: {v}" for k, v in meta["pinning"].items())))
     for mode, title in (("5it", "Exactly 5 LM iterations (stopping tests off, file's initial "
@@ -282,7 +284,8 @@ def main(argv=None) -> int:
     ap.add_argument("--datasets", default=",".join(DEFAULT_DATASETS),
                     help=f"comma list of {', '.join(PROBLEMS)}")
     ap.add_argument("--peers", default=",".join(ALL_PEERS),
-                    help="comma list of gtsam,ceres,symforce,scipy (fgopt always runs)")
+                    help="comma list of gtsam,ceres,ceres_cpp,symforce,scipy (fgopt always runs; "
+                         "ceres_cpp needs bash benchmarks/ceres_cpp/build.sh)")
     ap.add_argument("--no-fgopt", action="store_true", help="measure the peers only")
     ap.add_argument("--modes", default=",".join(MODES))
     ap.add_argument("--repeats", type=int, default=None, help="timed runs after the warm-up "

@@ -9,6 +9,9 @@
   iterations, every stopping test off) or ``"converge"`` (the library's default stopping rules)
 * ``estimate(state, out) -> dict``: the final estimate in :mod:`benchmarks.problems` layout, for
   :mod:`benchmarks.yardstick` (untimed)
+
+A runner with ``self_timed = True`` (the C++ Ceres program) instead implements
+``run_self_timed(spec, mode, repeats) -> dict`` with the load/solve figures and ``estimate``.
 """
 
 from __future__ import annotations
@@ -17,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 MODES = ("5it", "converge")
-PEERS = ("fgopt", "gtsam", "ceres", "symforce", "scipy")
+PEERS = ("fgopt", "gtsam", "ceres", "ceres_cpp", "symforce", "scipy")
 
 
 @dataclass
