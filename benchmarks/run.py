@@ -263,6 +263,12 @@ def markdown(records: list[dict], meta: dict) -> str:
         a("")
         a("Not measured / failed:")
         lines.extend(errs)
+    if meta.get("loadavg_1min_range"):
+        lo, hi = meta["loadavg_1min_range"]
+        a("")
+        a(f"Machine load while measuring (1-min load average, {meta['host']['cores']} cores): "
+          f"{lo:.1f}–{hi:.1f}; above the core count, other processes shared the CPU and times are "
+          "inflated and noisy.")
     versions = ", ".join(f"{LABEL.get(k, k)} {v}" for k, v in meta["versions"].items())
     a("")
     a(f"Versions: {versions}; Python {meta['host']['python']}; data {meta['data_dir']}.")
@@ -349,6 +355,7 @@ def main(argv=None) -> int:
                 else:
                     print(f" {r.get('status')}: {str(r.get('error', ''))[:200]}", file=sys.stderr)
 
+    lav = [r["loadavg_1min"] for r in records if r.get("loadavg_1min") is not None]
     versions, pinning = {}, {}
     for r in records:
         if r.get("version"):
@@ -363,7 +370,8 @@ def main(argv=None) -> int:
             "quoted_ceres_cpp": {k: {"5it_s": v[0], "converge_s": v[1], "converge_iterations": v[2],
                                      "source": "BENCHMARKS.md (quoted, not measured)"}
                                  for k, v in QUOTED_CERES_CPP.items()},
-            "wall_s": (dt.datetime.now() - started).total_seconds()}
+            "wall_s": (dt.datetime.now() - started).total_seconds(),
+            "loadavg_1min_range": [min(lav), max(lav)] if lav else None}
     md = markdown(records, meta)
     print(md)
     if not args.no_save:

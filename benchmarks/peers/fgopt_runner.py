@@ -4,8 +4,8 @@ those two if fgopt's API changes.
 * pose graphs: ``fgopt.io.read_g2o(path, add_prior=True)`` (tight prior on the lowest-id pose;
   ``repair_information="clip"`` for files with non-PD information, i.e. cubicle)
 * BAL: ``fgopt.io.read_bal(path)`` (no gauge prior, as the protocol says)
-* robot localization: ``BetweenFactor`` odometry plus a Python ``Factor`` (analytic Jacobians) for
-  bearing-range to a known landmark (fgopt has no bearing-range kernel yet)
+* robot localization: ``BetweenFactor`` odometry plus bearing-range to a known landmark as an
+  ``@fgopt.symbolic.factor`` kernel (fallback: a Python ``Factor`` with analytic Jacobians)
 * "5it": ``LevenbergMarquardt(LMParams(max_iterations=5, every tolerance 0))``; "converge":
   ``fgopt.optimize(graph, initial, method="lm")`` with its defaults.
 
@@ -67,12 +67,24 @@ def solve_fgopt(graph, initial, mode: str):
     return fgopt.optimize(graph, initial, method="lm", **opts)
 
 
+def _bearing_range_symbolic():
+    """Bearing-range to a known landmark as an ``@fgopt.symbolic.factor`` kernel (fast path)."""
+    from ._fgopt_symbolic import bearing_range_known
+
+    return bearing_range_known
+
+
 def _robot_graph():
     import fgopt
     from fgopt import SE2, BetweenFactor, FactorGraph, Variables, key
     from fgopt.factors import Factor
 
     from ..problems import robot_localization
+
+    try:
+        symbolic = _bearing_range_symbolic()
+    except ImportError:
+        symbolic = None
 
     class BearingRangeKnown(Factor):
         """Bearing and range from an SE2 pose to a known landmark (tangent: theta, vx, vy)."""
@@ -106,8 +118,11 @@ def _robot_graph():
         initial.add(key("x", i), SE2.from_xytheta(*x))
     br = fgopt.noise.Diagonal.sigmas(p.br_sigmas)
     for k in range(len(p.br_meas)):
-        graph.add(BearingRangeKnown(key("x", int(p.br_pose[k])), p.landmarks[p.br_lm[k]],
-                                    p.br_meas[k], br))
+        xk, lm, z = key("x", int(p.br_pose[k])), p.landmarks[p.br_lm[k]], p.br_meas[k]
+        if symbolic is not None:
+            graph.add(symbolic(pose=xk, landmark=lm.copy(), measured=z.copy(), loss=br))
+        else:
+            graph.add(BearingRangeKnown(xk, lm, z, br))
     # odometry: fgopt's SE2 tangent is theta, vx, vy
     odo = fgopt.noise.Diagonal.sigmas(p.odom_sigmas[[2, 0, 1]])
     for k, z in enumerate(p.odom_meas):
