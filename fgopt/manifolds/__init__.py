@@ -6,10 +6,10 @@ from .base import SCALAR_KIND as SCALAR_KIND
 from .base import ops_for as ops_for
 from .base import register as register
 from .base import vector_kind as vector_kind
-from .lie import LieGroup as LieGroup
 from .lie import InvalidGroupElementError as InvalidGroupElementError
-from .so2 import SO2 as SO2
+from .lie import LieGroup as LieGroup
 from .se2 import SE2 as SE2
-from .so3 import SO3 as SO3
 from .se3 import SE3 as SE3
 from .sim3 import Sim3 as Sim3
+from .so2 import SO2 as SO2
+from .so3 import SO3 as SO3

@@ -621,7 +621,7 @@ def se3_q(w0, w1, w2, p0, p1, p2, out, r, c):
 def se3_jr(xi, out):
     """Jr([w, v]) = [[Jr(w), 0], [Q(-w, -v), Jr(w)]]."""
     _so3_jr_block(xi, out, 0, 0)
-    _so3_jr_block(xi, out, 3, 3)
+    copy_block3(out, 0, 0, 3, 3, 1.0)
     fill_block(out, 0, 3, 3, 3, 0.0)
     se3_q(-xi[0], -xi[1], -xi[2], -xi[3], -xi[4], -xi[5], out, 3, 0)
 
@@ -630,7 +630,7 @@ def se3_jr(xi, out):
 def se3_jrinv(xi, out):
     """Jr^-1 = [[Ji, 0], [-Ji Q(-w, -v) Ji, Ji]] with Ji = Jr(w)^-1."""
     _so3_jrinv_block(xi, out, 0, 0)
-    _so3_jrinv_block(xi, out, 3, 3)
+    copy_block3(out, 0, 0, 3, 3, 1.0)
     se3_q(-xi[0], -xi[1], -xi[2], -xi[3], -xi[4], -xi[5], out, 3, 0)
     matmul_block3(out, 3, 0, 0, 0, 0, 3, 1.0)  # Q Ji, using the upper-right block as scratch
     matmul_block3(out, 0, 0, 0, 3, 3, 0, -1.0)  # -Ji (Q Ji)

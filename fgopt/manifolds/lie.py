@@ -52,7 +52,7 @@ class LieGroup:
 
     # ``_data`` is a read-only view of ``_buf``; numba receives ``_buf`` (never written), because a
     # read-only array is a different numba type and would double every kernel's compilation.
-    __slots__ = ("_data", "_buf")
+    __slots__ = ("_buf", "_data")
     _GID: int
     _DIM: int
     _STORAGE_DIM: int
@@ -220,7 +220,7 @@ class LieGroupOps:
             retract=K.RETRACT_BATCH[cls._GID],
             local=K.LOCAL_BATCH[cls._GID],
             from_storage=cls.from_storage,
-            to_storage=_to_storage,
+            to_storage=self.to_storage,
         )
 
     def dim(self, x: Any) -> int:
@@ -230,6 +230,9 @@ class LieGroupOps:
         return self.cls._STORAGE_DIM
 
     def to_storage(self, x: Any) -> np.ndarray:
+        if not isinstance(x, self.cls):
+            raise ManifoldError(f"{self.cls.__name__} storage requested for a "
+                                f"{type(x).__name__} value")
         return x.to_storage()
 
     def from_storage(self, like: Any, data: np.ndarray) -> Any:
@@ -243,10 +246,6 @@ class LieGroupOps:
 
     def batch_kind(self, x: Any) -> BatchKind:
         return self.kind
-
-
-def _to_storage(value: Any) -> np.ndarray:
-    return value.to_storage()
 
 
 _GROUP_ID_BY_KIND: dict[BatchKind, int] = {}  # kinds hash by identity

@@ -61,7 +61,7 @@ class TestLieKernels:
     @settings(max_examples=20, deadline=None)
     @given(seed=seeds, angle=residual_angles)
     def test_between(self, G, seed, angle):
-        a, b, m, err = _case(G, seed, angle)
+        a, b, m, _ = _case(G, seed, angle)
         kern = between_kernel(G.batch_kind())
         res, jac = kern.linearize((_row(a), _row(b)), _row(m))
         assert res.shape == (1, G.dim()) and jac.shape == (1, G.dim(), 2 * G.dim())

@@ -16,8 +16,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fgopt.errors import DimensionMismatchError, FgoptError, NonFiniteError
-from fgopt.manifolds import (SE2, SE3, SO2, SO3, InvalidGroupElementError, LieGroup, Sim3,
-                             ops_for)
+from fgopt.manifolds import (
+    SE2,
+    SE3,
+    SO2,
+    SO3,
+    InvalidGroupElementError,
+    LieGroup,
+    Sim3,
+    ops_for,
+)
 
 
 def _load_checks():

@@ -51,7 +51,7 @@ class TestBatched:
         d = d.reshape(n, G.dim())
         A, B = _rows(G, a), _rows(G, b)
         A, B = A.reshape(n, G.storage_dim()), B.reshape(n, G.storage_dim())
-        exact = dict(rtol=0, atol=0)
+        exact = {"rtol": 0, "atol": 0}
         np.testing.assert_allclose(K.batch_compose(gid, A, B),
                                    _rows(G, [x * y for x, y in zip(a, b)]).reshape(A.shape),
                                    **exact)
@@ -96,8 +96,7 @@ class TestJacobians:
     @given(seed=seeds, angle=angles)
     def test_jr_definition_by_finite_differences(self, G, seed, angle):
         # Exp(v + d) = Exp(v) Exp(Jr(v) d)  =>  Jr = d/dd Log(Exp(v)^-1 Exp(v + d)).
-        if angle > 3.0:
-            angle = 3.0  # Log(Exp(v)^-1 Exp(v + d)) is smooth; keep v + d below pi
+        angle = min(angle, 3.0)  # Log(Exp(v)^-1 Exp(v + d)) is smooth; keep v + d below pi
         v = C.random_tangent(G, np.random.default_rng(seed), angle)
         x = G.exp(v)
         num = C.numerical_jacobian(lambda u: x.local(G.exp(u)), [v], 0)

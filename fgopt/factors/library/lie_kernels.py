@@ -20,14 +20,21 @@ batch kind, so factors of one kind batch together.
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 from numba import njit
 
 from ...errors import DimensionMismatchError, ManifoldError
-from ...manifolds._kernels import (MAX_STORAGE_DIM, lie_adjoint, lie_compose, lie_inverse,
-                                   lie_jrinv, lie_log, tangent_dim)
+from ...manifolds._kernels import (
+    MAX_STORAGE_DIM,
+    lie_adjoint,
+    lie_compose,
+    lie_inverse,
+    lie_jrinv,
+    lie_log,
+    tangent_dim,
+)
 from ...manifolds.base import SCALAR_KIND, BatchKind, vector_kind
 from ...manifolds.lie import group_id
 from ..kernel import FactorKernel
@@ -147,7 +154,7 @@ def _unsupported(which: str, kind: BatchKind) -> ManifoldError:
         "SE3, Sim3 and vector kinds (write a custom factor for other manifolds)")
 
 
-@lru_cache(maxsize=None)
+@cache
 def between_kernel(kind: BatchKind) -> FactorKernel:
     """The Between kernel of ``kind``: args ``(a, b)``, constants = storage of ``m``."""
     name = f"between_{kind.name.lower()}"
@@ -168,7 +175,7 @@ def between_kernel(kind: BatchKind) -> FactorKernel:
                         source=_SOURCE)
 
 
-@lru_cache(maxsize=None)
+@cache
 def prior_kernel(kind: BatchKind) -> FactorKernel:
     """The Prior kernel of ``kind``: arg ``(x,)``, constants = storage of ``m``."""
     name = f"prior_{kind.name.lower()}"
