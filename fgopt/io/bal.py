@@ -30,21 +30,20 @@ from ._scan import scan, write_text
 
 
 def reprojection_kernel():
-    """The kernel used for BAL observations.
+    """The kernel used for BAL observations: args ``(camera R^9, point R^3)``, constants ``m``.
 
-    The symbolic ``bal_reprojection`` factor (``fgopt/factors/library/reprojection.py``) when it
-    exists, else the hand-written numba kernel of :mod:`fgopt.factors.library.bal_kernel`.
+    The generated kernel of the symbolic ``bal_reprojection`` factor
+    (:mod:`fgopt.factors.library.reprojection`, ``camera`` and ``point`` variable) when the
+    symbolic package is available, else the hand-written numba kernel of
+    :mod:`fgopt.factors.library.bal_kernel` (the two agree to rounding; see the tests).
     """
     try:
         from ..factors.library.reprojection import bal_reprojection
     except ImportError:
-        bal_reprojection = None
-    kernel = getattr(bal_reprojection, "kernel", None)
-    if kernel is not None:
-        return kernel
-    from ..factors.library.bal_kernel import bal_kernel
+        from ..factors.library.bal_kernel import bal_kernel
 
-    return bal_kernel()
+        return bal_kernel()
+    return bal_reprojection.kernel(["camera", "point"])
 
 
 def _is_bal_kernel(kernel: Any) -> bool:

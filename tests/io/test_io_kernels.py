@@ -56,3 +56,19 @@ def test_bal_jacobians_match_central_differences(seed):
     for a, n in zip(analytic, numeric):
         scale = max(1.0, np.abs(a).max())
         assert np.allclose(a, n, atol=1e-6 * scale)
+
+
+def test_generated_and_hand_written_bal_kernels_agree():
+    from fgopt.io import reprojection_kernel
+
+    generated = reprojection_kernel()
+    rng = np.random.default_rng(3)
+    n = 200
+    cam = np.column_stack([rng.normal(size=(n, 3)) * 0.5, rng.normal(size=(n, 2)),
+                           -5 - rng.random((n, 1)), 500 + rng.random((n, 1)),
+                           rng.normal(size=(n, 2)) * 0.01])
+    pt, m = rng.normal(size=(n, 3)), rng.normal(size=(n, 2)) * 100
+    r1, j1 = generated.linearize((cam, pt), m)
+    r2, j2 = bal_kernel().linearize((cam, pt), m)
+    assert np.allclose(r1, r2, rtol=1e-12, atol=1e-9)
+    assert np.allclose(j1, j2, rtol=1e-12, atol=1e-9 * np.abs(j2).max())
