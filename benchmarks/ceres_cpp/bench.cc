@@ -10,6 +10,7 @@
 #include <ceres/rotation.h>
 
 #include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <algorithm>
@@ -24,6 +25,24 @@
 #include <vector>
 
 using Clock = std::chrono::steady_clock;
+
+// Same repair as fgopt's read_g2o(repair_information="clip") and benchmarks/problems.py:
+// eigenvalues below 1e-6 * the largest are raised to it (cubicle has non-PD information).
+static int g_repaired = 0;
+template <int N>
+Eigen::Matrix<double, N, N> UpperSqrt(const Eigen::Matrix<double, N, N>& I) {
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, N, N>> es(I);
+  Eigen::Matrix<double, N, 1> lam = es.eigenvalues();
+  double floor = 1e-6 * std::max(lam.maxCoeff(), 0.0);
+  Eigen::Matrix<double, N, N> J = I;
+  if (lam.minCoeff() <= floor) {
+    ++g_repaired;
+    for (int k = 0; k < N; ++k) lam(k) = std::max(lam(k), floor);
+    J = es.eigenvectors() * lam.asDiagonal() * es.eigenvectors().transpose();
+    J = 0.5 * (J + J.transpose()).eval();
+  }
+  return J.llt().matrixU();
+}
 static double secs(Clock::time_point a, Clock::time_point b) {
   return std::chrono::duration<double>(b - a).count();
 }
@@ -132,7 +151,7 @@ static bool ReadG2o(const std::string& path, bool is3d, Data& d, ceres::Problem&
       Eigen::Matrix3d I;
       const double* u = &e.v[3];
       I << u[0], u[1], u[2], u[1], u[3], u[4], u[2], u[4], u[5];
-      Eigen::Matrix3d S = I.llt().matrixU();
+      Eigen::Matrix3d S = UpperSqrt<3>(I);
       auto* c = new ceres::AutoDiffCostFunction<Pose2Error, 3, 3, 3>(
           new Pose2Error(Eigen::Vector3d(e.v[0], e.v[1], e.v[2]), S));
       prob.AddResidualBlock(c, nullptr, &d.x[3 * index[e.i]], &d.x[3 * index[e.j]]);
@@ -154,7 +173,7 @@ static bool ReadG2o(const std::string& path, bool is3d, Data& d, ceres::Problem&
       int t = 7;
       for (int r = 0; r < 6; ++r)
         for (int c = r; c < 6; ++c) { I(r, c) = e.v[t]; I(c, r) = e.v[t]; ++t; }
-      Eigen::Matrix<double, 6, 6> S = I.llt().matrixU();
+      Eigen::Matrix<double, 6, 6> S = UpperSqrt<6>(I);
       Eigen::Quaterniond q(e.v[6], e.v[3], e.v[4], e.v[5]);
       q.normalize();
       auto* c = new ceres::AutoDiffCostFunction<Pose3Error, 6, 3, 4, 3, 4>(
@@ -259,9 +278,10 @@ int main(int argc, char** argv) {
   printf("{\"load_s\": %.9g, \"solve_s\": %.9g, \"samples\": [", load_s, med);
   for (size_t k = 0; k < samples.size(); ++k) printf("%s%.9g", k ? ", " : "", samples[k]);
   printf("], \"iterations\": %d, \"initial_cost\": %.17g, \"final_cost\": %.17g, "
-         "\"termination\": \"%s\", \"linear_solver_s\": %.9g, \"ceres\": \"%s\"}\n",
+         "\"termination\": \"%s\", \"linear_solver_s\": %.9g, \"ceres\": \"%s\", "
+         "\"repaired_information\": %d}\n",
          s.num_successful_steps + s.num_unsuccessful_steps - 1, s.initial_cost, s.final_cost,
          ceres::TerminationTypeToString(s.termination_type), s.linear_solver_time_in_seconds,
-         CERES_VERSION_STRING);
+         CERES_VERSION_STRING, g_repaired);
   return 0;
 }

@@ -62,7 +62,9 @@ class CeresCppRunner:
                 "solve_samples": rec["samples"], "iterations": rec["iterations"],
                 "lib_initial_cost": rec["initial_cost"], "lib_final_cost": rec["final_cost"],
                 "lib_status": rec["termination"], "version": "Ceres " + rec.get("ceres", "?"),
-                "extra": {"linear_solver_s": rec.get("linear_solver_s")}, "estimate": est}
+                "extra": {"linear_solver_s": rec.get("linear_solver_s"),
+                          "repaired_information": rec.get("repaired_information")},
+                "estimate": est}
 
 
 RUNNER = CeresCppRunner()
