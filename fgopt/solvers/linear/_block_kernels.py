@@ -1,0 +1,312 @@
+"""Numeric kernels of the block supernodal Cholesky (numba).
+
+Storage: supernode ``s`` owns a dense **column-major** panel of ``rows[s] x width[s]`` doubles
+at ``L[pstart[s]:]``: the lower-trapezoidal columns of L for its variables, rows listed by its row
+variables (own variables first). Factorization is right-looking: each panel is factored with
+LAPACK/BLAS (``dpotrf`` on the diagonal block, ``dtrsm`` below), then its whole update
+``C = B B^T`` (``dsyrk``) is subtracted from the ancestors' panels through precomputed runs of
+contiguous rows. Small panels use hand-written loops instead of BLAS calls.
+
+BLAS/LAPACK come from scipy's ``cython_blas`` / ``cython_lapack`` (its bundled OpenBLAS). They
+are bound as named external symbols, so the compiled kernels stay cacheable (``cache=True``):
+the addresses are registered with LLVM when this module is imported, before any kernel runs.
+"""
+
+from __future__ import annotations
+
+import llvmlite.binding as _llvm
+import numpy as np
+from numba import njit, types
+from numba.extending import get_cython_function_address
+
+
+def _bind(module: str, name: str, nargs: int) -> types.ExternalFunction:
+    symbol = "fgopt_block_" + name
+    _llvm.add_symbol(symbol, get_cython_function_address(module, name))
+    return types.ExternalFunction(symbol, types.void(*([types.intp] * nargs)))
+
+
+_dpotrf = _bind("scipy.linalg.cython_lapack", "dpotrf", 5)
+_dtrsm = _bind("scipy.linalg.cython_blas", "dtrsm", 11)
+_dsyrk = _bind("scipy.linalg.cython_blas", "dsyrk", 10)
+
+# Argument block for the Fortran calls (every argument is passed by address):
+# int32 slots 0..4 hold the characters L R N T U, 8.. integers; float slots 1.0, -1.0, 0.0.
+_CL, _CR, _CN, _CT, _CU = 0, 1, 2, 3, 4
+_I0 = 8
+IW_SIZE = 16
+
+
+def blas_workspace() -> tuple[np.ndarray, np.ndarray]:
+    iw = np.zeros(IW_SIZE, np.int32)
+    iw[:5] = [ord(c) for c in "LRNTU"]
+    fw = np.array([1.0, -1.0, 0.0])
+    return iw, fw
+
+
+# ------------------------------------------------------------------ small dense kernels
+# Indices are unsigned (``_u``) so that numba emits no negative-index wraparound and LLVM can
+# vectorize the contiguous inner loops.
+_u = np.uint64
+
+
+@njit(cache=True, inline="always")
+def _panel_small(L, p0, w, m):
+    """Left-looking Cholesky of a whole ``m x w`` panel (diagonal block and the rows below).
+
+    Returns 0, or ``c + 1`` when the pivot of column ``c`` is not positive.
+    """
+    mu = _u(m)
+    for c in range(w):
+        cu = _u(c)
+        cc = _u(p0) + cu * mu
+        for k in range(c):
+            kk = _u(p0) + _u(k) * mu
+            f = L[kk + cu]
+            for i in range(cu, mu):
+                L[cc + i] -= L[kk + i] * f
+        d = L[cc + cu]
+        if not d > 0.0:
+            return c + 1
+        d = np.sqrt(d)
+        L[cc + cu] = d
+        inv = 1.0 / d
+        for i in range(cu + _u(1), mu):
+            L[cc + i] *= inv
+    return 0
+
+
+@njit(cache=True, inline="always")
+def _syrk_small(L, p0, w, m, C):
+    """Lower triangle of ``C = B B^T`` (``r x r``, column-major), ``B`` the panel's rows below."""
+    ru = _u(m - w)
+    b0 = _u(p0 + w)
+    mu = _u(m)
+    for j in range(ru):
+        cj = j * ru
+        for i in range(j, ru):
+            C[cj + i] = 0.0
+        for k in range(_u(w)):
+            kk = b0 + k * mu
+            f = L[kk + j]
+            for i in range(j, ru):
+                C[cj + i] += L[kk + i] * f
+
+
+# ------------------------------------------------------------------ factorization
+@njit(cache=True)
+def factorize(H, hmap, L, C, pstart, width, rows, cb_ptr, cb_base, cb_ld, cb_src, cb_dim,
+              run_ptr, run_src, run_dst, run_len, iw, fw, small):
+    """Numeric factorization; returns -1, or the supernode whose pivot was not positive."""
+    L[:] = 0.0
+    for p in range(H.shape[0]):
+        L[hmap[p]] = H[p]
+    base = L.ctypes.data
+    cbase = C.ctypes.data
+    ip = iw.ctypes.data
+    fp = fw.ctypes.data
+    S = width.shape[0]
+    for s in range(S):
+        w = width[s]
+        m = rows[s]
+        r = m - w
+        p0 = pstart[s]
+        if w <= small:
+            if _panel_small(L, p0, w, m) != 0:
+                return s
+            if r > 0:
+                _syrk_small(L, p0, w, m, C)
+        else:
+            iw[_I0] = w
+            iw[_I0 + 1] = m
+            iw[_I0 + 2] = 0
+            _dpotrf(ip + 4 * _CL, ip + 4 * _I0, base + 8 * p0, ip + 4 * (_I0 + 1),
+                    ip + 4 * (_I0 + 2))
+            if iw[_I0 + 2] != 0:
+                return s
+            if r > 0:
+                iw[_I0 + 3] = r
+                # B <- B L11^-T : side R, lower, transposed, non-unit; B is r x w at p0 + w
+                _dtrsm(ip + 4 * _CR, ip + 4 * _CL, ip + 4 * _CT, ip + 4 * _CN,
+                       ip + 4 * (_I0 + 3), ip + 4 * _I0, fp, base + 8 * p0, ip + 4 * (_I0 + 1),
+                       base + 8 * (p0 + w), ip + 4 * (_I0 + 1))
+                # C <- B B^T (lower), C is r x r with ld r
+                _dsyrk(ip + 4 * _CL, ip + 4 * _CN, ip + 4 * (_I0 + 3), ip + 4 * _I0, fp,
+                       base + 8 * (p0 + w), ip + 4 * (_I0 + 1), fp + 16, cbase,
+                       ip + 4 * (_I0 + 3))
+        if r > 0:
+            _scatter_update(L, C, r, s, cb_ptr, cb_base, cb_ld, cb_src, cb_dim, run_ptr, run_src,
+                            run_dst, run_len)
+    return -1
+
+
+@njit(cache=True, inline="always")
+def _scatter_update(L, C, r, s, cb_ptr, cb_base, cb_ld, cb_src, cb_dim, run_ptr, run_src,
+                    run_dst, run_len):
+    """Subtract the lower triangle of ``C`` from the ancestors' panels (runs of rows)."""
+    for jb in range(cb_ptr[s], cb_ptr[s + 1]):
+        tb = cb_base[jb]
+        ldt = cb_ld[jb]
+        oj = cb_src[jb]
+        q0 = run_ptr[jb]
+        q1 = run_ptr[jb + 1]
+        for c in range(cb_dim[jb]):
+            scol = _u((oj + c) * r)
+            dcol = _u(tb + c * ldt)
+            for q in range(q0, q1):
+                sr = scol + _u(run_src[q])
+                dr = dcol + _u(run_dst[q])
+                k0 = _u(c) if q == q0 else _u(0)
+                for k in range(k0, _u(run_len[q])):
+                    L[dr + k] -= C[sr + k]
+
+
+# ------------------------------------------------------------------ solve
+@njit(cache=True)
+def solve_inplace(L, x, pstart, width, rows, col0, rix_ptr, rix, buf):
+    """Solve ``L L^T x = b`` in place (``x`` holds ``b`` in the factor's order)."""
+    S = width.shape[0]
+    for s in range(S):                       # forward: L y = b
+        w = width[s]
+        m = rows[s]
+        p0 = pstart[s]
+        c0 = col0[s]
+        g0 = rix_ptr[s]
+        for i in range(m - w):
+            buf[i] = 0.0
+        for c in range(w):
+            cc = p0 + c * m
+            xc = x[c0 + c] / L[cc + c]
+            x[c0 + c] = xc
+            for i in range(c + 1, w):
+                x[c0 + i] -= L[cc + i] * xc
+            for i in range(m - w):
+                buf[i] += L[cc + w + i] * xc
+        for i in range(m - w):
+            x[rix[g0 + w + i]] -= buf[i]
+    for s in range(S - 1, -1, -1):           # backward: L^T x = y
+        w = width[s]
+        m = rows[s]
+        p0 = pstart[s]
+        c0 = col0[s]
+        g0 = rix_ptr[s]
+        for i in range(m - w):
+            buf[i] = x[rix[g0 + w + i]]
+        for c in range(w - 1, -1, -1):
+            cc = p0 + c * m
+            acc = x[c0 + c]
+            for i in range(m - w):
+                acc -= L[cc + w + i] * buf[i]
+            for i in range(c + 1, w):
+                acc -= L[cc + i] * x[c0 + i]
+            x[c0 + c] = acc / L[cc + c]
+
+
+# ------------------------------------------------------------------ symbolic maps
+@njit(cache=True)
+def build_maps(sn, rvp, rvi, rpos, dim, off, pstart, rows, width):
+    """Scatter runs of every supernode's update into its ancestors' panels.
+
+    For supernode ``s`` and each of its below variables ``b_j`` (a column block of the update
+    ``C``): the target panel column base and leading dimension, ``C``'s column offset and the
+    runs ``(C row offset, target row offset, length)`` of rows ``b_i, i >= j`` that are
+    contiguous in both ``C`` and the target panel.
+    """
+    S = sn.shape[0] - 1
+    V = dim.shape[0]
+    sn_of = np.empty(V, np.int64)
+    for s in range(S):
+        for j in range(sn[s], sn[s + 1]):
+            sn_of[j] = s
+    ncb = 0
+    for s in range(S):
+        ncb += (rvp[s + 1] - rvp[s]) - (sn[s + 1] - sn[s])
+    cb_ptr = np.zeros(S + 1, np.int64)
+    cb_base = np.empty(ncb, np.int64)
+    cb_ld = np.empty(ncb, np.int64)
+    cb_src = np.empty(ncb, np.int64)
+    cb_dim = np.empty(ncb, np.int64)
+    run_ptr = np.zeros(ncb + 1, np.int64)
+    cap = 4 * ncb + 16
+    run_src = np.empty(cap, np.int64)
+    run_dst = np.empty(cap, np.int64)
+    run_len = np.empty(cap, np.int64)
+    jb = 0
+    nr = 0
+    for s in range(S):
+        q_lo = rvp[s] + (sn[s + 1] - sn[s])    # first below variable of s
+        q_hi = rvp[s + 1]
+        w = width[s]
+        for qj in range(q_lo, q_hi):
+            bj = rvi[qj]
+            t = sn_of[bj]
+            t_lo, t_hi = rvp[t], rvp[t + 1]
+            col = off[bj] - off[sn[t]]
+            cb_base[jb] = pstart[t] + col * rows[t]
+            cb_ld[jb] = rows[t]
+            cb_src[jb] = rpos[qj] - w
+            cb_dim[jb] = dim[bj]
+            pt = t_lo
+            last_src = -1
+            last_end = -1
+            for qi in range(qj, q_hi):
+                bi = rvi[qi]
+                while rvi[pt] != bi:           # both lists are sorted; t's holds s's below rows
+                    pt += 1
+                    if pt >= t_hi:
+                        raise ValueError("block Cholesky: inconsistent supernode structures")
+                src = rpos[qi] - w
+                dst = rpos[pt]
+                if nr > 0 and run_ptr[jb] < nr and src == last_src and dst == last_end:
+                    run_len[nr - 1] += dim[bi]
+                else:
+                    if nr >= cap:
+                        cap *= 2
+                        run_src = _grow(run_src, cap)
+                        run_dst = _grow(run_dst, cap)
+                        run_len = _grow(run_len, cap)
+                    run_src[nr] = src
+                    run_dst[nr] = dst
+                    run_len[nr] = dim[bi]
+                    nr += 1
+                last_src = src + dim[bi]
+                last_end = dst + dim[bi]
+            jb += 1
+            run_ptr[jb] = nr
+        cb_ptr[s + 1] = jb
+    return (cb_ptr, cb_base, cb_ld, cb_src, cb_dim, run_ptr, run_src[:nr].copy(),
+            run_dst[:nr].copy(), run_len[:nr].copy())
+
+
+@njit(cache=True)
+def _grow(a, cap):
+    out = np.empty(cap, a.dtype)
+    out[:a.shape[0]] = a
+    return out
+
+
+@njit(cache=True)
+def build_hmap(indptr, indices, new_of_old, var_of_new, sn_of, off, sn, rvp, rvi, rpos,
+               pstart, rows):
+    """Position in the panels of every stored entry of H's lower CSC (pattern order)."""
+    n = indptr.shape[0] - 1
+    hmap = np.empty(indices.shape[0], np.int64)
+    for j in range(n):
+        for p in range(indptr[j], indptr[j + 1]):
+            I = new_of_old[indices[p]]
+            J = new_of_old[j]
+            if I < J:
+                I, J = J, I
+            vJ = var_of_new[J]
+            vI = var_of_new[I]
+            s = sn_of[vJ]
+            c = J - off[sn[s]]
+            lo, hi = rvp[s], rvp[s + 1]
+            while hi - lo > 1:                 # binary search of vI in s's sorted rows
+                mid = (lo + hi) // 2
+                if rvi[mid] <= vI:
+                    lo = mid
+                else:
+                    hi = mid
+            hmap[p] = pstart[s] + c * rows[s] + rpos[lo] + (I - off[vI])
+    return hmap

@@ -1,0 +1,163 @@
+"""Block-aware supernodal Cholesky in numba (``linear_solver="block"``).
+
+See ``_block_symbolic.py`` for the symbolic analysis and ``_block_kernels.py`` for the numeric
+kernels.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...errors import NotPositiveDefiniteError
+from ...structure import HessianPattern
+from . import _block_symbolic as sym
+
+# CHOLMOD-like relaxed amalgamation: (max merged width in scalar columns, max zero fraction)
+DEFAULT_RELAX = ((4, 1.0), (16, 0.8), (48, 0.1), (1 << 62, 0.05))
+
+
+@dataclass(eq=False)
+class BlockSymbolic:
+    n_var: int
+    post_var: np.ndarray     # (V,) pattern variable of each postorder position
+    dim: np.ndarray          # (V,) dims in postorder
+    off: np.ndarray          # (V,) scalar offsets in postorder
+    sn: np.ndarray           # (S+1,) first variable of each supernode
+    rvp: np.ndarray          # (S+1,) CSR of supernode row variables
+    rvi: np.ndarray
+    rpos: np.ndarray         # scalar row offset of each row variable in its panel
+    width: np.ndarray        # (S,) scalar columns
+    rows: np.ndarray         # (S,) scalar rows (incl. the diagonal block)
+    pstart: np.ndarray       # (S+1,) panel start in the factor's data array
+    sparent: np.ndarray      # (S,) parent supernode (-1: root)
+
+
+def analyze_blocks(pattern: HessianPattern, relax=DEFAULT_RELAX) -> BlockSymbolic:
+    var_offset = np.asarray(pattern.var_offset, np.int64)
+    var_dim = np.asarray(pattern.var_dim, np.int64)
+    V = var_offset.shape[0]
+    vorder = np.argsort(var_offset, kind="stable")
+    off_r, dim_r = var_offset[vorder], var_dim[vorder]
+    col2rank = np.repeat(np.arange(V, dtype=np.int64), dim_r)
+    ap, ai = sym.block_graph(off_r, pattern.indptr, pattern.indices, col2rank)
+    parent = sym.etree(V, ap, ai)
+    lp, li = sym.symbolic_columns(V, ap, ai, parent)
+    cnt = np.diff(lp)
+    below = np.zeros(V, np.int64)
+    np.add.at(below, np.repeat(np.arange(V), cnt), dim_r[li])
+    post = sym.postorder(V, parent, cnt)
+    ipost = np.empty(V, np.int64)
+    ipost[post] = np.arange(V)
+    par_p = parent[post]
+    par_p = np.where(par_p >= 0, ipost[np.maximum(par_p, 0)], -1)
+    dim_p = dim_r[post]
+    rc = np.array([r[0] for r in relax], np.int64)
+    rz = np.array([r[1] for r in relax], np.float64)
+    sn = sym.supernode_partition(V, par_p, cnt[post], dim_p, below[post], rc, rz)
+    rvp, rvi, rpos = sym.supernode_rows(sn, post, ipost, lp, li, dim_p)
+    off_p = np.zeros(V, np.int64)
+    np.cumsum(dim_p[:-1], out=off_p[1:])
+    S = sn.shape[0] - 1
+    width = np.add.reduceat(dim_p, sn[:-1])
+    last = rvp[1:] - 1
+    rows = rpos[last] + dim_p[rvi[last]]
+    pstart = np.zeros(S + 1, np.int64)
+    np.cumsum(width * rows, out=pstart[1:])
+    sn_of = np.repeat(np.arange(S), np.diff(sn))
+    first_below = rvp[:-1] + np.diff(sn)
+    sparent = np.where(first_below < rvp[1:], sn_of[rvi[np.minimum(first_below, rvi.shape[0] - 1)]], -1)
+    return BlockSymbolic(V, vorder[post], dim_p, off_p, sn, rvp, rvi, rpos, width, rows, pstart,
+                         sparent)
+
+
+class BlockCholeskySolver:
+    """Supernodal Cholesky on the variable-block structure of H (numba + BLAS).
+
+    ``small``: panels at most this many scalar columns wide use hand-written loops instead of
+    BLAS calls. ``relax``: relaxed-amalgamation thresholds ``((max width, max zero fraction),
+    ...)``.
+    """
+
+    name = "block"
+
+    def __init__(self, small: int = 12, relax=DEFAULT_RELAX):
+        self.small = int(small)
+        self.relax = relax
+        self.symbolic: BlockSymbolic | None = None
+
+    def analyze(self, pattern: HessianPattern) -> None:
+        from . import _block_kernels as k
+
+        sy = analyze_blocks(pattern, self.relax)
+        self.symbolic = sy
+        S = sy.sn.shape[0] - 1
+        sn_of = np.repeat(np.arange(S, dtype=np.int64), np.diff(sy.sn))
+        self._maps = k.build_maps(sy.sn, sy.rvp, sy.rvi, sy.rpos, sy.dim, sy.off, sy.pstart,
+                                  sy.rows, sy.width)
+        # scalar permutation: new (factor) order -> pattern order
+        old_off = np.asarray(pattern.var_offset, np.int64)[sy.post_var]
+        self._perm = np.repeat(old_off - sy.off, sy.dim) + np.arange(pattern.size)
+        new_of_old = np.empty(pattern.size, np.int64)
+        new_of_old[self._perm] = np.arange(pattern.size)
+        var_of_new = np.repeat(np.arange(sy.n_var, dtype=np.int64), sy.dim)
+        self._hmap = k.build_hmap(pattern.indptr, pattern.indices, new_of_old, var_of_new, sn_of,
+                                  sy.off, sy.sn, sy.rvp, sy.rvi, sy.rpos, sy.pstart, sy.rows)
+        self._col0 = sy.off[sy.sn[:-1]]
+        # global (factor-order) scalar index of every panel row
+        rix_len = sy.rows
+        self._rix_ptr = np.zeros(S + 1, np.int64)
+        np.cumsum(rix_len, out=self._rix_ptr[1:])
+        rvd = sy.dim[sy.rvi]
+        self._rix = np.repeat(sy.off[sy.rvi], rvd) + _ranges(rvd)
+        self.L = np.zeros(int(sy.pstart[-1]))
+        r = sy.rows - sy.width
+        self._C = np.zeros(max(1, int((r * r).max(initial=0))))
+        self._buf = np.zeros(max(1, int(r.max(initial=0))))
+        self._iw, self._fw = k.blas_workspace()
+        self._ok = False
+
+    @property
+    def nnz_factor(self) -> int:
+        """Stored entries of L (lower trapezoids of the panels, explicit zeros included)."""
+        w, m = self.symbolic.width, self.symbolic.rows
+        return int((w * m - w * (w - 1) // 2).sum())
+
+    def factorize(self, H_data: np.ndarray) -> None:
+        from . import _block_kernels as k
+
+        sy = self.symbolic
+        self._ok = False
+        fail = k.factorize(np.ascontiguousarray(H_data, dtype=np.float64), self._hmap, self.L,
+                           self._C, sy.pstart, sy.width, sy.rows, *self._maps, self._iw,
+                           self._fw, self.small)
+        if fail >= 0:
+            v = int(sy.post_var[sy.sn[fail]])
+            raise NotPositiveDefiniteError(
+                f"block Cholesky: H is not positive definite (non-positive pivot in the supernode "
+                f"starting at variable {v}); increase the damping")
+        self._ok = True
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        from . import _block_kernels as k
+
+        if not self._ok:
+            raise NotPositiveDefiniteError("block Cholesky: solve() before a successful "
+                                           "factorize()")
+        sy = self.symbolic
+        b = np.asarray(rhs, dtype=np.float64)
+        cols = b.reshape(b.shape[0], -1)
+        out = np.empty_like(cols)
+        for j in range(cols.shape[1]):
+            x = cols[self._perm, j]
+            k.solve_inplace(self.L, x, sy.pstart, sy.width, sy.rows, self._col0, self._rix_ptr,
+                            self._rix, self._buf)
+            out[self._perm, j] = x
+        return out.reshape(b.shape)
+
+
+def _ranges(lengths: np.ndarray) -> np.ndarray:
+    total = int(lengths.sum())
+    starts = np.repeat(np.cumsum(lengths) - lengths, lengths)
+    return np.arange(total, dtype=np.int64) - starts
