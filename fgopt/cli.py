@@ -38,7 +38,8 @@ def _robust(spec: str) -> tuple[str, int, float]:
     try:
         k = float(value) if value else default
     except ValueError:
-        raise argparse.ArgumentTypeError(f"robust loss threshold {value!r} is not a number")
+        raise argparse.ArgumentTypeError(
+            f"robust loss threshold {value!r} is not a number") from None
     if not (np.isfinite(k) and k > 0):
         raise argparse.ArgumentTypeError(f"robust loss threshold must be positive, got {value}")
     return name, code, k

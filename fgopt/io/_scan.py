@@ -95,14 +95,14 @@ def _scale_exact(m, exp10, p10_hi, p10_lo):
     p, e = _two_prod(xh, yh)
     e += xh * yl + xl * yh
     h = p + e
-    l = e - (h - p)
+    lo = e - (h - p)
     mant, ex = math.frexp(abs(h))
     ulp = math.ldexp(1.0, ex - 53)
     tol = math.ldexp(1.0, ex - 98)
-    if (l > 0) == (h > 0):
-        room = 0.5 * ulp - abs(l)
+    if (lo > 0) == (h > 0):
+        room = 0.5 * ulp - abs(lo)
     else:
-        room = (0.25 * ulp if mant == 0.5 else 0.5 * ulp) - abs(l)
+        room = (0.25 * ulp if mant == 0.5 else 0.5 * ulp) - abs(lo)
     if room <= tol:
         return 0.0, False
     return h, True

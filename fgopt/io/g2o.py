@@ -87,7 +87,7 @@ class _Reader:
         self.groups: dict[str, _Group] = {}
         self.skipped: dict[str, int] = {}
         hashes, first, inverse = np.unique(sc.tag_hash, return_index=True, return_inverse=True)
-        for u, (h, r0) in enumerate(zip(hashes.tolist(), first.tolist())):
+        for u, r0 in enumerate(first.tolist()):
             tag = sc.tag(r0)
             rec = np.nonzero(inverse == u)[0]
             spec = SPECS.get(tag)

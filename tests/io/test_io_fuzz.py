@@ -168,10 +168,9 @@ def reference_g2o(text: str):
     dims = {DIM[t] for _, t, _ in recs if t in DIM}
     if len(dims) != 1:
         raise Invalid("dims")
-    dim = dims.pop()
     verts, is_point = {}, {}
     params = {}
-    for n, tag, v in recs:
+    for _n, tag, v in recs:
         if tag.startswith("VERTEX"):
             i = _id(v[0])
             if i in verts:
@@ -222,7 +221,7 @@ def reference_g2o(text: str):
             meas, M = v[off:off + 3], _sym(v[off + 3:off + 9], 3)
         edges.append((n, point, keys, meas, M))
     fixed = set()
-    for n, tag, v in recs:
+    for _n, tag, v in recs:
         if tag == "FIX":
             for x in v:
                 i = _id(x)
@@ -287,7 +286,7 @@ def reference_bal(text: str):
     if len(lines) < 1 + nobs:
         raise Invalid("obs")
     obs = []
-    for n, toks in lines[1:1 + nobs]:
+    for _n, toks in lines[1:1 + nobs]:
         if len(toks) != 4:
             raise Invalid("obs")
         c, p, x, y = (_num(t) for t in toks)

@@ -108,22 +108,29 @@ def test_add_prior_fixes_the_lowest_pose_once(tmp_path):
     assert [b.kernel.name for b in graph.batches].count("prior_se3") == 1
 
 
+V0 = "VERTEX_SE2 0 0 0 0\n"
+V1 = "VERTEX_SE2 1 0 0 0\n"
+UNIT = "1 0 0 1 0 1"
+
+
 @pytest.mark.parametrize("text, match", [
     ("VERTEX_SE2 0 0 0\n", r":1: VERTEX_SE2 needs 4 numbers after the tag, found 3"),
     ("VERTEX_SE2 0 0 0 0 9\n", r":1: VERTEX_SE2 needs 4 numbers"),
     ("VERTEX_SE2 0 0 zero 0\n", r":1: 'zero' is not a number"),
     ("VERTEX_SE2 0 0 0 nan\n", r":1: 'nan' is not a finite number"),
-    ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1.5 0 0 0\n", r":2: VERTEX_SE2: id '1.5' is not"),
-    ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 -1 0 0 0\n", r":2: VERTEX_SE2: id '-1' is not"),
-    ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 0 1 0 0\n", r":2: vertex id 0 is defined twice \(first at line 1\)"),
-    ("VERTEX_SE2 0 0 0 0\nEDGE_SE2 0 4 1 0 0 1 0 0 1 0 1\n", r":2: EDGE_SE2 refers to vertex 4, which has no VERTEX"),
-    ("VERTEX_SE2 0 0 0 0\nEDGE_SE2 0 0 1 0 0 1 0 0 1 0 1\n", r":2: EDGE_SE2 connects vertex 0 to itself"),
-    ("VERTEX_SE2 0 0 0 0\nVERTEX_XY 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n", r":3: EDGE_SE2: vertex 1 must be a pose"),
-    ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 -1 0 1\n", r":3: 1 of 1 edges have information matrices that are not positive definite"),
-    ("VERTEX_SE2 0 0 0 0\nFOO 1 2\n", r":2: unknown record 'FOO'.*skip_unknown=True"),
-    ("VERTEX_SE2 0 0 0 0\nVERTEX_SE3:QUAT 1 0 0 0 0 0 0 1\n", r":2: the file mixes 2D records \(VERTEX_SE2 at line 1\) and 3D"),
+    (V0 + "VERTEX_SE2 1.5 0 0 0\n", r":2: VERTEX_SE2: id '1.5' is not"),
+    (V0 + "VERTEX_SE2 -1 0 0 0\n", r":2: VERTEX_SE2: id '-1' is not"),
+    (V0 + "VERTEX_SE2 0 1 0 0\n", r":2: vertex id 0 is defined twice \(first at line 1\)"),
+    (V0 + f"EDGE_SE2 0 4 1 0 0 {UNIT}\n", r":2: EDGE_SE2 refers to vertex 4, which has no"),
+    (V0 + f"EDGE_SE2 0 0 1 0 0 {UNIT}\n", r":2: EDGE_SE2 connects vertex 0 to itself"),
+    (V0 + f"VERTEX_XY 1 0 0\nEDGE_SE2 0 1 1 0 0 {UNIT}\n", r":3: EDGE_SE2: vertex 1 must be"),
+    (V0 + V1 + "EDGE_SE2 0 1 1 0 0 1 0 0 -1 0 1\n",
+     r":3: 1 of 1 edges have information matrices that are not positive definite"),
+    (V0 + "FOO 1 2\n", r":2: unknown record 'FOO'.*skip_unknown=True"),
+    (V0 + "VERTEX_SE3:QUAT 1 0 0 0 0 0 0 1\n",
+     r":2: the file mixes 2D records \(VERTEX_SE2 at line 1\) and 3D"),
     ("VERTEX_SE3:QUAT 1 0 0 0 0 0 0 2\n", r":1: VERTEX_SE3:QUAT: quaternion norm is 2"),
-    ("VERTEX_SE2 0 0 0 0\nFIX 3\n", r":2: FIX refers to vertex 3"),
+    (V0 + "FIX 3\n", r":2: FIX refers to vertex 3"),
     ("# only a comment\n\n", r"no records"),
     ("PARAMS_SE3OFFSET 0 1 0 0 0 0 0 1\n", r":1: PARAMS_SE3OFFSET: only the identity"),
 ])

@@ -108,7 +108,8 @@ def bal_batch(cam, pt, m, with_jac):
             dPdr[2, q] = -(-hy * Jl[0, q] + hx * Jl[1, q])
         for row in range(2):
             for q in range(3):
-                J[row, q] = A[row, 0] * dPdr[0, q] + A[row, 1] * dPdr[1, q] + A[row, 2] * dPdr[2, q]
+                J[row, q] = (A[row, 0] * dPdr[0, q] + A[row, 1] * dPdr[1, q]
+                             + A[row, 2] * dPdr[2, q])
                 J[row, 3 + q] = A[row, q]
                 J[row, 9 + q] = A[row, 0] * R[0, q] + A[row, 1] * R[1, q] + A[row, 2] * R[2, q]
         J[0, 6] = d * px
@@ -122,7 +123,8 @@ def bal_batch(cam, pt, m, with_jac):
 
 def _prepared(args: tuple, consts: np.ndarray):
     if len(args) != 2:
-        raise DimensionMismatchError(f"bal_reprojection: expected 2 argument arrays, got {len(args)}")
+        raise DimensionMismatchError(
+            f"bal_reprojection: expected 2 argument arrays, got {len(args)}")
     cam = np.ascontiguousarray(args[0], dtype=np.float64)
     pt = np.ascontiguousarray(args[1], dtype=np.float64)
     c = np.ascontiguousarray(consts, dtype=np.float64)
