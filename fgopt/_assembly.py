@@ -136,3 +136,24 @@ def first_nonfinite_row(a):
 def add_diagonal(H_data, diag_pos, values):
     for j in range(diag_pos.shape[0]):
         H_data[diag_pos[j]] += values[j]
+
+
+@njit(cache=True)
+def row_squared_norms(res, sqrt_info, unit):
+    """``|R_i e_i|^2`` per row (no robust loss)."""
+    n, m = res.shape
+    out = np.empty(n)
+    for i in range(n):
+        s = 0.0
+        if unit:
+            for a in range(m):
+                s += res[i, a] * res[i, a]
+        else:
+            R = sqrt_info[i]
+            for a in range(m):
+                acc = 0.0
+                for b in range(a, m):
+                    acc += R[a, b] * res[i, b]
+                s += acc * acc
+        out[i] = s
+    return out

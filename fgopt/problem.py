@@ -57,6 +57,8 @@ class _Batch:
     toff: np.ndarray = field(default=None)  # (n, k) tangent offsets
     pos: np.ndarray = field(default=None)   # (n, k, k, maxd) scatter map
     weights: np.ndarray = field(default=None)
+    sqrt_info0: np.ndarray = field(default=None)  # the factors' own noise (before GNC weights)
+    unit0: bool = True
 
     def gather(self, state: State) -> tuple:
         return tuple(state.storages[kid][rows] for kid, rows in zip(self.kind_ids, self.rows))
@@ -74,6 +76,8 @@ class _SlowFactor:
     arg_local_off: np.ndarray
     toff: np.ndarray = field(default=None)
     pos: np.ndarray = field(default=None)
+    sqrt_info0: np.ndarray = field(default=None)
+    unit0: bool = True
 
 
 class _StateView:
@@ -240,16 +244,17 @@ class Problem:
                        for j in range(var_idx.shape[1])],
                       np.ascontiguousarray(R), unit, dims,
                       np.array(kernel.arg_offsets, dtype=np.int64),
-                      weights=np.ones(len(b)))
+                      weights=np.ones(len(b)), sqrt_info0=np.ascontiguousarray(R), unit0=unit)
 
     def _make_slow(self, f: Factor) -> _SlowFactor:
         var_idx = np.array([self._var_of_key[k] for k in f.keys], dtype=np.int64)
         noise = base_noise(f.loss)
         code, param = loss_code_and_param(f.loss)
         dims = self.var_dim[var_idx]
-        return _SlowFactor(f, var_idx, np.ascontiguousarray(noise.sqrt_information)[None],
-                           bool(noise.is_unit), code, param, dims,
-                           np.concatenate([[0], np.cumsum(dims)[:-1]]).astype(np.int64))
+        R = np.ascontiguousarray(noise.sqrt_information)[None]
+        return _SlowFactor(f, var_idx, R, bool(noise.is_unit), code, param, dims,
+                           np.concatenate([[0], np.cumsum(dims)[:-1]]).astype(np.int64),
+                           sqrt_info0=R, unit0=bool(noise.is_unit))
 
     # ----------------------------------------------------------------- compile: structure
     def _build_structure(self, ordering: str) -> None:
@@ -411,6 +416,38 @@ class Problem:
             except NonFiniteError as e:
                 return str(e)
         return "a residual or Jacobian is not finite"
+
+    # ----------------------------------------------------------------- per-factor weights (GNC)
+    def squared_residuals(self, state: State) -> list[np.ndarray]:
+        """``|R_i e_i|^2`` of every factor: one array per batch, then one for Python factors.
+
+        Uses the factors' own noise models (any weights set by :meth:`set_weights` excluded).
+        """
+        out = []
+        for b in self.batches:
+            res = b.kernel.residual(b.gather(state), b.source.constants)
+            out.append(asm.row_squared_norms(res, b.sqrt_info0, b.unit0))
+        view = _StateView(self, state)
+        slow = [float(np.sum(s.factor.whitened_error(view) ** 2)) for s in self._slow]
+        out.append(np.array(slow))
+        return out
+
+    def set_weights(self, weights: list[np.ndarray] | None) -> None:
+        """Scale each factor's cost by ``w_i >= 0`` (as ``sqrt(w_i) R_i``); ``None`` resets."""
+        for i, b in enumerate(self.batches):
+            if weights is None:
+                b.sqrt_info, b.unit = b.sqrt_info0, b.unit0
+                continue
+            sw = np.sqrt(np.asarray(weights[i], dtype=float))
+            R0 = np.broadcast_to(b.sqrt_info0, (len(b.source),) + b.sqrt_info0.shape[1:])
+            b.sqrt_info = np.ascontiguousarray(sw[:, None, None] * R0)
+            b.unit = False
+        for j, s in enumerate(self._slow):
+            if weights is None:
+                s.sqrt_info, s.unit = s.sqrt_info0, s.unit0
+            else:
+                s.sqrt_info = np.sqrt(float(weights[-1][j])) * s.sqrt_info0
+                s.unit = False
 
     def gradient_norm(self) -> float:
         return float(np.abs(self.g).max(initial=0.0))

@@ -6,7 +6,10 @@ import dataclasses
 from typing import Any
 
 from ..errors import FgoptError
+from .covariance import marginals as marginals
 from .dogleg import Dogleg as Dogleg
+from .gnc import GNC as GNC
+from .gnc import GNCParams as GNCParams
 from .gauss_newton import GaussNewton as GaussNewton
 from .linear.base import LinearSolver as LinearSolver
 from .linear.base import make_linear_solver as make_linear_solver
@@ -20,7 +23,7 @@ from .result import Result as Result
 from .result import Status as Status
 
 _METHODS = {"lm": (LevenbergMarquardt, LMParams), "gn": (GaussNewton, GaussNewtonParams),
-            "dogleg": (Dogleg, DoglegParams)}
+            "dogleg": (Dogleg, DoglegParams), "gnc": (GNC, GNCParams)}
 
 
 def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = "auto",
@@ -31,7 +34,8 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
     Args:
         graph: the :class:`~fgopt.FactorGraph`.
         initial: :class:`~fgopt.Variables` with a value for every key the graph uses.
-        method: ``"lm"`` (Levenberg-Marquardt), ``"gn"`` (Gauss-Newton) or ``"dogleg"``.
+        method: ``"lm"`` (Levenberg-Marquardt), ``"gn"`` (Gauss-Newton), ``"dogleg"`` or
+            ``"gnc"`` (graduated non-convexity around LM, for outliers; see ``GNCParams``).
         linear_solver: ``"auto" | "cholmod" | "ldlt" | "pcg" | "dense"`` or a solver object;
             ``"auto"`` picks by problem shape (dense for tiny, CHOLMOD otherwise, ...).
         max_iterations: iteration limit (every linear solve counts; default 100).
@@ -61,4 +65,8 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
     else:
         solver_obj = linear_solver
     params = dataclasses.replace(params, **overrides)
+    if cls is GNC:
+        if solver_obj is not None:
+            raise FgoptError("method='gnc' takes linear_solver by name")
+        return GNC(params).optimize(graph, initial, callback=callback)
     return cls(params, solver_obj).optimize(graph, initial, callback=callback)

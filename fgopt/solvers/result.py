@@ -62,6 +62,8 @@ class Result:
     """The compiled problem (for marginals)."""
     state: object = field(default=None, repr=False)
     """The final :class:`fgopt.problem.State` (storage arrays)."""
+    info: dict = field(default_factory=dict, repr=False)
+    """Method-specific details (e.g. GNC weights and outlier count)."""
 
     @property
     def values(self) -> Variables:

@@ -1,0 +1,75 @@
+"""Marginal covariances of chosen variables, from a sparse factorization of H at the solution.
+
+For a Gaussian approximation at the optimum, the covariance of all tangent coordinates is
+``H^-1`` (H = J^T W J, undamped). The marginal of variable ``k`` is the ``d_k x d_k`` block of
+``H^-1`` at k's tangent indices: solve ``H X = E_k`` for the identity columns of k and keep the
+block. Coordinates are those of k's tangent space at the estimate, under fgopt's retraction
+``x Exp(delta)`` (GTSAM's convention for Pose2/Pose3; note the rotation-first order).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Iterable
+
+import numpy as np
+
+from ..errors import FgoptError, KeyNotFoundError, NotPositiveDefiniteError
+from ..key import Key, as_key, key_str
+from .linear.base import make_linear_solver
+
+
+def marginals(result: Any, keys: Iterable[int] | None = None, graph: Any = None,
+              values: Any = None, linear_solver: str = "cholmod") -> dict[Key, np.ndarray]:
+    """``{key: covariance}`` in each key's tangent space.
+
+    Args:
+        result: a :class:`~fgopt.Result` (its compiled problem and final state are reused), or
+            ``None`` together with ``graph`` and ``values``.
+        keys: the variables to report (default: all).
+        linear_solver: backend for the factorization of H (``"cholmod"`` or ``"dense"``...).
+    """
+    if result is not None:
+        problem, state = result.problem, result.state
+    else:
+        if graph is None or values is None:
+            raise FgoptError("marginals: pass a Result, or graph= and values=")
+        from ..problem import Problem
+
+        problem = Problem(graph, values)
+        state = problem.initial_state()
+    problem.set_weights(None)
+    problem.linearize(state)
+    solver = make_linear_solver(linear_solver, pattern=problem.pattern)
+    solver.analyze(problem.pattern)
+    try:
+        solver.factorize(problem.H_data.copy())
+    except NotPositiveDefiniteError:
+        raise NotPositiveDefiniteError(
+            "marginals: the information matrix H is singular at the solution; fix the gauge "
+            "with a prior (e.g. PriorFactor on the first pose)") from None
+    key_list = [as_key(k) for k in keys] if keys is not None else [
+        Key(int(k)) for k in problem.var_keys]
+    off, dim = problem.pattern.var_offset, problem.var_dim
+    cols, spans = [], []
+    for k in key_list:
+        v = problem._var_of_key.get(k)
+        if v is None:
+            raise KeyNotFoundError(f"marginals: {key_str(k)} is not a variable of the problem")
+        spans.append((len(cols), int(dim[v])))
+        cols.extend(range(int(off[v]), int(off[v] + dim[v])))
+    out: dict[Key, np.ndarray] = {}
+    n = problem.pattern.size
+    chunk = 256  # columns per multi-right-hand-side solve
+    X_cols = []
+    for start in range(0, len(cols), chunk):
+        E = np.zeros((n, min(chunk, len(cols) - start)))
+        E[cols[start:start + chunk], np.arange(E.shape[1])] = 1.0
+        X = solver.solve(E) if E.shape[1] > 1 else solver.solve(E[:, 0])[:, None]
+        X_cols.append(np.asarray(X).reshape(n, -1))
+    X = np.concatenate(X_cols, axis=1)
+    for k, (c0, d) in zip(key_list, spans):
+        v = problem._var_of_key[k]
+        rows = np.arange(off[v], off[v] + d)
+        block = X[rows, c0:c0 + d]
+        out[k] = 0.5 * (block + block.T)
+    return out

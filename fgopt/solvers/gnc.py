@@ -1,0 +1,190 @@
+"""Graduated non-convexity (GNC) for outlier-robust estimation (Yang et al. 2020; GTSAM's
+``GncOptimizer``).
+
+GNC minimizes ``sum_i w_i r_i^2`` while a surrogate of a robust loss is gradually made less
+convex. With the scale-free residual ``s_i = r_i^2 / c_i^2`` (``r_i^2`` the squared whitened
+residual, ``c_i^2`` the inlier threshold = chi-square quantile of the factor's dimension):
+
+* Geman-McClure: weights ``w = (mu / (s + mu))^2``; ``mu`` starts at ``2 max s`` and is divided by
+  ``mu_step`` each round down to 1 (the true GM loss);
+* truncated least squares: ``w = 1`` for ``s <= mu/(mu+1)``, ``0`` for ``s >= (mu+1)/mu``, else
+  ``sqrt(mu (mu + 1) / s) - mu``; ``mu`` starts at ``1 / (2 max s - 1)`` and is multiplied by
+  ``mu_step`` until the weights are binary.
+
+Each round re-solves the weighted problem with Levenberg-Marquardt from the previous estimate,
+on the same compiled problem and linear-solver analysis (only the weights change). Known inliers
+(by default: priors and odometry, i.e. between factors of consecutive indices) keep weight 1.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from ..errors import FgoptError
+from ..key import key_char, key_index
+from ..problem import Problem
+from ..variables import Variables
+from .linear.base import make_linear_solver
+from .lm import LevenbergMarquardt
+from .params import LMParams
+from .result import Result, Status
+
+
+@dataclass(frozen=True)
+class GNCParams:
+    loss: str = "gm"
+    """``"gm"`` (Geman-McClure) or ``"tls"`` (truncated least squares)."""
+    inlier_probability: float = 0.99
+    """Inlier threshold c_i^2 = chi2.ppf(p, dim_i) on the squared whitened residual."""
+    mu_step: float = 1.4
+    max_rounds: int = 100
+    weights_tolerance: float = 1e-4
+    cost_tolerance: float = 1e-5
+    known_inliers: str = "odometry"
+    """``"odometry"`` (priors + between factors of consecutive keys), ``"priors"`` or ``"none"``."""
+    lm: LMParams = field(default_factory=LMParams)
+    linear_solver: str = "auto"
+    ordering: str = "amd"
+    verbose: bool = False
+    max_iterations: int = 100
+    """Inner LM iteration limit per round."""
+
+
+def _known_inlier_mask(problem: Problem, policy: str) -> list[np.ndarray]:
+    masks = []
+    for b in problem.batches:
+        keys = b.source.keys
+        n, k = keys.shape
+        if policy == "none":
+            masks.append(np.zeros(n, dtype=bool))
+        elif k == 1:
+            masks.append(np.ones(n, dtype=bool))
+        elif policy == "odometry" and k == 2:
+            chars = np.right_shift(keys, 56)
+            idx = np.bitwise_and(keys, (1 << 56) - 1)
+            masks.append((chars[:, 0] == chars[:, 1]) & (np.abs(idx[:, 0] - idx[:, 1]) == 1))
+        else:
+            masks.append(np.zeros(n, dtype=bool))
+    slow = []
+    for s in problem._slow:
+        ks = s.factor.keys
+        if policy == "none":
+            slow.append(False)
+        elif len(ks) == 1:
+            slow.append(True)
+        else:
+            slow.append(policy == "odometry" and len(ks) == 2 and key_char(ks[0]) == key_char(ks[1])
+                        and abs(key_index(ks[0]) - key_index(ks[1])) == 1)
+    masks.append(np.array(slow, dtype=bool))
+    return masks
+
+
+def _thresholds(problem: Problem, probability: float) -> list[np.ndarray]:
+    from scipy.stats import chi2
+
+    out = [np.full(len(b.source), chi2.ppf(probability, b.kernel.residual_dim))
+           for b in problem.batches]
+    out.append(np.array([chi2.ppf(probability, s.factor.dim) for s in problem._slow]))
+    return out
+
+
+def gnc_weights(loss: str, s: np.ndarray, mu: float) -> np.ndarray:
+    """Weights of scale-free residuals ``s = r^2 / c^2`` at control parameter ``mu``."""
+    if loss == "gm":
+        return (mu / (s + mu)) ** 2
+    w = np.sqrt(mu * (mu + 1.0) / np.maximum(s, 1e-300)) - mu
+    w = np.where(s <= mu / (mu + 1.0), 1.0, w)
+    return np.clip(np.where(s >= (mu + 1.0) / mu, 0.0, w), 0.0, 1.0)
+
+
+class GNC:
+    """``GNC(GNCParams(loss="tls")).optimize(graph, initial)`` -> :class:`Result`.
+
+    ``result.info["weights"]`` holds the final weight of every factor (per batch) and
+    ``result.info["outliers"]`` the number of factors with weight < 0.5.
+    """
+
+    def __init__(self, params: GNCParams | None = None):
+        self.params = params or GNCParams()
+        if self.params.loss not in ("gm", "tls"):
+            raise FgoptError(f"GNC loss must be 'gm' or 'tls', got {self.params.loss!r}")
+
+    def optimize(self, graph: Any, initial: Variables,
+                 callback: Callable | None = None) -> Result:
+        p = self.params
+        t0 = time.perf_counter()
+        if not isinstance(initial, Variables):
+            raise FgoptError(f"initial values must be fgopt.Variables, got {type(initial).__name__}")
+        problem = Problem(graph, initial, ordering=p.ordering)
+        solver = make_linear_solver(p.linear_solver, pattern=problem.pattern)
+        solver.analyze(problem.pattern)
+        lm = LevenbergMarquardt(dataclasses.replace(p.lm, max_iterations=p.max_iterations,
+                                                    verbose=False))
+        inliers = _known_inlier_mask(problem, p.known_inliers)
+        c2 = _thresholds(problem, p.inlier_probability)
+        res = lm.optimize_problem(problem, None, solver, callback)
+        initial_cost = res.initial_cost
+        history, iterations = list(res.cost_history), res.iterations
+        state = res.state
+
+        def scaled(state):
+            return [r / c for r, c in zip(problem.squared_residuals(state), c2)]
+
+        s = scaled(state)
+        s_max = max((float(np.max(np.where(m, 0.0, x))) for x, m in zip(s, inliers) if x.size),
+                    default=0.0)
+        if p.loss == "gm":
+            mu = max(1.0, 2.0 * s_max)
+        else:
+            mu = 1.0 / (2.0 * s_max - 1.0) if s_max > 1.0 else None
+        status, message = Status.CONVERGED, "no outliers above the inlier threshold"
+        weights = [np.ones_like(x) for x in s]
+        rounds = 0
+        prev_cost = res.final_cost
+        while mu is not None and rounds < p.max_rounds:
+            rounds += 1
+            weights = [np.where(m, 1.0, gnc_weights(p.loss, x, mu)) for x, m in zip(s, inliers)]
+            problem.set_weights(weights)
+            res = lm.optimize_problem(problem, state, solver)
+            state = res.state
+            iterations += res.iterations
+            history.append(res.final_cost)
+            s = scaled(state)
+            if p.verbose:
+                n_out = sum(int(np.sum(w < 0.5)) for w in weights)
+                print(f"GNC round {rounds}: mu {mu:.4g}, weighted cost {res.final_cost:.6g}, "
+                      f"{n_out} factors with weight < 0.5")
+            if p.loss == "gm":
+                if mu <= 1.0:
+                    message = "mu reached 1 (Geman-McClure loss)"
+                    break
+                mu = max(1.0, mu / p.mu_step)
+            else:
+                binary = all(np.all((w < p.weights_tolerance) | (w > 1 - p.weights_tolerance))
+                             for w in weights)
+                if binary:
+                    message = "weights converged to 0/1 (truncated least squares)"
+                    break
+                mu *= p.mu_step
+            if abs(prev_cost - res.final_cost) <= p.cost_tolerance * max(prev_cost, 1e-300) \
+                    and p.loss == "tls":
+                message = "weighted cost converged"
+                break
+            prev_cost = res.final_cost
+        else:
+            if mu is not None:
+                status, message = Status.MAX_ITERATIONS, f"reached max_rounds={p.max_rounds}"
+        final = problem.cost(state)
+        problem.set_weights(None)
+        outliers = sum(int(np.sum(w < 0.5)) for w in weights)
+        timing = {"total": time.perf_counter() - t0}
+        return Result(None, status=status, message=f"{message}; {outliers} outliers",
+                      iterations=iterations, initial_cost=initial_cost, final_cost=final,
+                      cost_history=history, timing=timing, method=f"gnc-{p.loss}",
+                      linear_solver=getattr(solver, "name", ""), problem=problem, state=state,
+                      info={"weights": weights, "outliers": outliers, "rounds": rounds})

@@ -1,0 +1,372 @@
+"""numba kernels of the Schur-complement solver (see :mod:`fgopt.solvers.linear.schur`).
+
+Notation: ``E`` = the eliminated variables (BA points), ``F`` = the kept ones (cameras). For
+every eliminated variable ``e`` (dim ``de``) with diagonal block ``C_e`` and every edge ``k``
+= ``(e, f)`` with block ``B_k = H[f, e]`` (``df x de``)::
+
+    S = A_FF - sum_e sum_{k, l in edges(e)} W_k B_l^T,     W_k = B_k C_e^-1
+    r_F' = r_F - sum_k W_k r_e,   S x_F = r_F',   x_e = C_e^-1 (r_e - sum_k B_k^T x_f)
+
+Reading H (lower CSC, block-dense, see :mod:`fgopt.structure`): the diagonal block of a
+variable comes first in each of its columns, so entry ``(a, b)`` (``a >= b``) of ``C_e`` is at
+``indptr[off_e + b] + a - b``. An off-diagonal block is stored at the same row offset in each
+column of its column variable, shifted by one per column (the diagonal part shortens), so with
+``cshift[c] = indptr[c] - indptr[c0] - (c - c0)`` (``c0`` = first column of ``c``'s variable)
+and ``p00`` = the position of the block's entry ``(0, 0)``:
+
+* orientation 0 (``f`` after ``e``, stored in ``e``'s columns): ``B[a, b]`` at ``p00 + cshift[off_e + b] + a``
+* orientation 1 (``f`` before ``e``, stored in ``f``'s columns): ``B[a, b]`` at ``p00 + cshift[off_f + a] + b``
+
+Blocks of ``S`` are addressed by column bases: entry ``(a, b)`` of block ``blk`` is at
+``blk_base[blk_ptr[blk] + b] + a`` (dense column-major S and CHOLMOD's lower CSC alike).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+_FM = {"contract"}  # let LLVM fuse multiply-adds (no reassociation)
+
+
+@njit(cache=True, fastmath=_FM)
+def _chol_inverse(C, d, L, out):
+    """``out = C^-1`` for a symmetric ``d x d`` block (lower triangle read); False if not PD.
+
+    ``L`` is a work array of at least ``d x d`` (overwritten).
+    """
+    for j in range(d):
+        s = C[j, j]
+        for k in range(j):
+            s -= L[j, k] * L[j, k]
+        if not s > 0.0:
+            return False
+        ljj = np.sqrt(s)
+        L[j, j] = ljj
+        for i in range(j + 1, d):
+            t = C[i, j]
+            for k in range(j):
+                t -= L[i, k] * L[j, k]
+            L[i, j] = t / ljj
+    # L <- L^-1 in place, column by column (entries right of / below are still L's)
+    for j in range(d):
+        L[j, j] = 1.0 / L[j, j]
+        for i in range(j + 1, d):
+            t = 0.0
+            for k in range(j, i):
+                t -= L[i, k] * L[k, j]
+            L[i, j] = t / L[i, i]
+    for a in range(d):  # out = L^-T L^-1
+        for b in range(a + 1):
+            t = 0.0
+            for k in range(a, d):
+                t += L[k, a] * L[k, b]
+            out[a, b] = t
+            out[b, a] = t
+    return True
+
+
+@njit(cache=True, fastmath=_FM)
+def eliminate(H, indptr, cshift, e_off, e_dim, c_ptr, edge_ptr, edge_f, edge_p00, edge_orient,
+              f_hoff, f_dim, w_ptr, pair_ptr, pair_blk, blk_ptr, blk_base, Cinv, B, W, S,
+              accumulate):
+    """Invert every ``C_e``, store ``B_k`` and ``W_k``, subtract ``W_k B_l^T`` from S.
+
+    ``B_k`` / ``W_k`` are stored column-major per edge: entry ``(a, c)`` at ``w_ptr[k] + c df + a``.
+    ``S`` must already hold ``A_FF``; with ``accumulate=False`` S is left alone (implicit
+    Schur). Returns -1, or the index of an ``e`` whose ``C_e`` is not positive definite.
+    """
+    nE = e_off.shape[0]
+    maxd = 1
+    for i in range(nE):
+        maxd = max(maxd, e_dim[i])
+    C = np.empty((maxd, maxd))
+    L = np.empty((maxd, maxd))
+    Ci = np.empty((maxd, maxd))
+    for i in range(nE):
+        d = e_dim[i]
+        o = e_off[i]
+        for b in range(d):
+            base = indptr[o + b] - b
+            for a in range(b, d):
+                C[a, b] = H[base + a]
+        if not _chol_inverse(C, d, L, Ci):
+            return i
+        cp = c_ptr[i]
+        for a in range(d):
+            for b in range(d):
+                Cinv[cp + a * d + b] = Ci[a, b]
+        k0, k1 = edge_ptr[i], edge_ptr[i + 1]
+        for k in range(k0, k1):
+            f = edge_f[k]
+            df = f_dim[f]
+            p00 = edge_p00[k]
+            wp = w_ptr[k]
+            if edge_orient[k] == 0:
+                for b in range(d):
+                    pb = p00 + cshift[o + b]
+                    for a in range(df):
+                        B[wp + b * df + a] = H[pb + a]
+            else:
+                fo = f_hoff[f]
+                for a in range(df):
+                    pa = p00 + cshift[fo + a]
+                    for b in range(d):
+                        B[wp + b * df + a] = H[pa + b]
+            for b in range(d):
+                for a in range(df):
+                    t = 0.0
+                    for c in range(d):
+                        t += B[wp + c * df + a] * Ci[c, b]
+                    W[wp + b * df + a] = t
+        if not accumulate:
+            continue
+        p = pair_ptr[i]
+        for ki in range(k0, k1):
+            dfi = f_dim[edge_f[ki]]
+            wi = w_ptr[ki]
+            for kj in range(k0, ki + 1):
+                dfj = f_dim[edge_f[kj]]
+                bj = w_ptr[kj]
+                bp = blk_ptr[pair_blk[p]]
+                p += 1
+                diag = ki == kj
+                for b in range(dfj):
+                    base = blk_base[bp + b]
+                    for c in range(d):
+                        x = B[bj + c * dfj + b]
+                        wc = wi + c * dfi
+                        for a in range(b if diag else 0, dfi):
+                            S[base + a] -= W[wc + a] * x
+    return -1
+
+
+@njit(cache=True, fastmath=_FM)
+def eliminate_e3f9(H, indptr, cshift, e_off, c_ptr, edge_ptr, edge_f, edge_p00, edge_orient,
+                   f_hoff, w_ptr, pair_ptr, pair_blk, blk_ptr, blk_base, Cinv, B, W, S,
+                   accumulate):
+    """:func:`eliminate` for ``de = 3``, ``df = 9`` (BAL), with fixed-size unrolled loops.
+
+    S must be the *packed* block store: block ``blk`` is a full column-major 9x9 at
+    ``blk_base[blk_ptr[blk]]`` (diagonal blocks too: both triangles are accumulated).
+    """
+    nE = e_off.shape[0]
+    C = np.empty((3, 3))
+    L = np.empty((3, 3))
+    Ci = np.empty((3, 3))
+    for i in range(nE):
+        o = e_off[i]
+        for b in range(3):
+            base = indptr[o + b] - b
+            for a in range(b, 3):
+                C[a, b] = H[base + a]
+        if not _chol_inverse(C, 3, L, Ci):
+            return i
+        cp = c_ptr[i]
+        for a in range(3):
+            for b in range(3):
+                Cinv[cp + a * 3 + b] = Ci[a, b]
+        k0, k1 = edge_ptr[i], edge_ptr[i + 1]
+        for k in range(k0, k1):
+            p00 = edge_p00[k]
+            wp = w_ptr[k]
+            if edge_orient[k] == 0:
+                for b in range(3):
+                    pb = p00 + cshift[o + b]
+                    for a in range(9):
+                        B[wp + b * 9 + a] = H[pb + a]
+            else:
+                fo = f_hoff[edge_f[k]]
+                for a in range(9):
+                    pa = p00 + cshift[fo + a]
+                    for b in range(3):
+                        B[wp + b * 9 + a] = H[pa + b]
+            for b in range(3):
+                c0, c1, c2 = Ci[0, b], Ci[1, b], Ci[2, b]
+                for a in range(9):
+                    W[wp + b * 9 + a] = (B[wp + a] * c0 + B[wp + 9 + a] * c1
+                                         + B[wp + 18 + a] * c2)
+        if not accumulate:
+            continue
+        p = pair_ptr[i]
+        for ki in range(k0, k1):
+            wi = w_ptr[ki]
+            # W_ki in registers (numba does not SLP-vectorize: unrolled scalar code
+            # with operands in locals is ~2.5x faster than loops over memory)
+            w00, w10, w20, w30, w40, w50, w60, w70, w80 = W[wi:wi + 9]
+            w01, w11, w21, w31, w41, w51, w61, w71, w81 = W[wi + 9:wi + 18]
+            w02, w12, w22, w32, w42, w52, w62, w72, w82 = W[wi + 18:wi + 27]
+            for kj in range(k0, ki + 1):
+                bj = w_ptr[kj]
+                base = blk_base[blk_ptr[pair_blk[p]]]
+                p += 1
+                blk = S[base:base + 81]  # packed column-major 9x9
+                for b in range(9):
+                    x0, x1, x2 = B[bj + b], B[bj + 9 + b], B[bj + 18 + b]
+                    col = blk[9 * b:9 * b + 9]
+                    col[0] -= w00 * x0 + w01 * x1 + w02 * x2
+                    col[1] -= w10 * x0 + w11 * x1 + w12 * x2
+                    col[2] -= w20 * x0 + w21 * x1 + w22 * x2
+                    col[3] -= w30 * x0 + w31 * x1 + w32 * x2
+                    col[4] -= w40 * x0 + w41 * x1 + w42 * x2
+                    col[5] -= w50 * x0 + w51 * x1 + w52 * x2
+                    col[6] -= w60 * x0 + w61 * x1 + w62 * x2
+                    col[7] -= w70 * x0 + w71 * x1 + w72 * x2
+                    col[8] -= w80 * x0 + w81 * x1 + w82 * x2
+    return -1
+
+
+@njit(cache=True, fastmath=_FM)
+def reduce_rhs(rhs, rS, e_off, e_dim, edge_ptr, edge_f, f_soff, f_dim, w_ptr, W):
+    """``rS -= sum_k W_k rhs_e`` (``rS`` holds ``rhs_F`` in S order on entry)."""
+    for i in range(e_off.shape[0]):
+        d = e_dim[i]
+        o = e_off[i]
+        for k in range(edge_ptr[i], edge_ptr[i + 1]):
+            f = edge_f[k]
+            df = f_dim[f]
+            so = f_soff[f]
+            wp = w_ptr[k]
+            for c in range(d):
+                rc = rhs[o + c]
+                for a in range(df):
+                    rS[so + a] -= W[wp + c * df + a] * rc
+
+
+@njit(cache=True, fastmath=_FM)
+def back_substitute(rhs, xS, x, e_off, e_dim, c_ptr, Cinv, edge_ptr, edge_f, f_soff, f_dim,
+                    w_ptr, B):
+    """``x_e = C_e^-1 (rhs_e - sum_k B_k^T x_f)`` into ``x`` (H order)."""
+    maxd = 1
+    for i in range(e_off.shape[0]):
+        maxd = max(maxd, e_dim[i])
+    y = np.empty(maxd)
+    for i in range(e_off.shape[0]):
+        d = e_dim[i]
+        o = e_off[i]
+        for c in range(d):
+            y[c] = rhs[o + c]
+        for k in range(edge_ptr[i], edge_ptr[i + 1]):
+            f = edge_f[k]
+            df = f_dim[f]
+            so = f_soff[f]
+            wp = w_ptr[k]
+            for c in range(d):
+                t = 0.0
+                for a in range(df):
+                    t += B[wp + c * df + a] * xS[so + a]
+                y[c] -= t
+        cp = c_ptr[i]
+        for a in range(d):
+            t = 0.0
+            for c in range(d):
+                t += Cinv[cp + a * d + c] * y[c]
+            x[o + a] = t
+
+
+@njit(cache=True, fastmath=_FM)
+def implicit_schur_matvec(xS, out, e_dim, c_ptr, Cinv, edge_ptr, edge_f, f_soff, f_dim, w_ptr,
+                          B):
+    """``out -= sum_e B_e C_e^-1 B_e^T xS`` (``out`` holds ``A_FF xS`` on entry)."""
+    maxd = 1
+    for i in range(e_dim.shape[0]):
+        maxd = max(maxd, e_dim[i])
+    y = np.empty(maxd)
+    z = np.empty(maxd)
+    for i in range(e_dim.shape[0]):
+        d = e_dim[i]
+        for c in range(d):
+            y[c] = 0.0
+        k0, k1 = edge_ptr[i], edge_ptr[i + 1]
+        for k in range(k0, k1):
+            f = edge_f[k]
+            df = f_dim[f]
+            so = f_soff[f]
+            wp = w_ptr[k]
+            for c in range(d):
+                t = 0.0
+                for a in range(df):
+                    t += B[wp + c * df + a] * xS[so + a]
+                y[c] += t
+        cp = c_ptr[i]
+        for a in range(d):
+            t = 0.0
+            for c in range(d):
+                t += Cinv[cp + a * d + c] * y[c]
+            z[a] = t
+        for k in range(k0, k1):
+            f = edge_f[k]
+            df = f_dim[f]
+            so = f_soff[f]
+            wp = w_ptr[k]
+            for c in range(d):
+                zc = z[c]
+                for a in range(df):
+                    out[so + a] -= B[wp + c * df + a] * zc
+
+
+@njit(cache=True, fastmath=_FM)
+def schur_block_diagonal(Dg, dg_ptr, e_dim, edge_ptr, edge_f, f_dim, w_ptr, B, W):
+    """``Dg[f] -= sum_{k: f} W_k B_k^T`` (full ``df x df`` blocks, row-major; holds ``A_ff``)."""
+    for i in range(e_dim.shape[0]):
+        d = e_dim[i]
+        for k in range(edge_ptr[i], edge_ptr[i + 1]):
+            f = edge_f[k]
+            df = f_dim[f]
+            dp = dg_ptr[f]
+            wp = w_ptr[k]
+            for b in range(df):
+                for c in range(d):
+                    x = B[wp + c * df + b]
+                    for a in range(df):
+                        Dg[dp + b * df + a] -= W[wp + c * df + a] * x
+
+
+@njit(cache=True)
+def invert_blocks(Dg, dg_ptr, f_dim, out):
+    """Invert every symmetric block of ``Dg`` into ``out``; -1 or the first non-PD block."""
+    maxd = 1
+    for f in range(f_dim.shape[0]):
+        maxd = max(maxd, f_dim[f])
+    M = np.empty((maxd, maxd))
+    L = np.empty((maxd, maxd))
+    Mi = np.empty((maxd, maxd))
+    for f in range(f_dim.shape[0]):
+        df = f_dim[f]
+        dp = dg_ptr[f]
+        for a in range(df):
+            for b in range(df):
+                M[a, b] = Dg[dp + a * df + b]
+        if not _chol_inverse(M, df, L, Mi):
+            return f
+        for a in range(df):
+            for b in range(df):
+                out[dp + a * df + b] = Mi[a, b]
+    return -1
+
+
+@njit(cache=True)
+def apply_blocks(Minv, dg_ptr, f_soff, f_dim, r, z):
+    """``z_f = Minv_f r_f`` for every block."""
+    for f in range(f_dim.shape[0]):
+        df = f_dim[f]
+        dp = dg_ptr[f]
+        so = f_soff[f]
+        for a in range(df):
+            t = 0.0
+            for b in range(df):
+                t += Minv[dp + a * df + b] * r[so + b]
+            z[so + a] = t
+
+
+@njit(cache=True)
+def enumerate_pairs(edge_ptr, edge_f, pair_ptr, out_i, out_j):
+    """Per e, the reduced-variable pairs ``(f_ki, f_kj)``, ``kj <= ki`` (edges sorted by rank)."""
+    for i in range(edge_ptr.shape[0] - 1):
+        p = pair_ptr[i]
+        for ki in range(edge_ptr[i], edge_ptr[i + 1]):
+            for kj in range(edge_ptr[i], ki + 1):
+                out_i[p] = edge_f[ki]
+                out_j[p] = edge_f[kj]
+                p += 1
