@@ -122,8 +122,9 @@ def read_bal(path: str | os.PathLike, data: bytes | None = None) -> tuple[Factor
 def write_bal(path: str | os.PathLike, graph: Any, values: Any) -> None:
     """Write the reprojection factors of ``graph`` and their cameras / points as a BAL file.
 
-    Cameras and points are numbered in key order (``c0, c1, ...`` -> ``0, 1, ...``); every
-    camera must be an R^9 vector and every point an R^3 vector.
+    Cameras and points the factors use are numbered in key order (``c0, c1, ...`` ->
+    ``0, 1, ...``; values no factor uses are not written); every camera must be an R^9 vector
+    and every point an R^3 vector. ``.gz`` / ``.bz2`` paths are compressed.
     """
     keys_l, meas_l = [], []
     for b in graph.batches:
