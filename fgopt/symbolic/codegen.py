@@ -180,10 +180,12 @@ def module_source(name: str, signature: str, origin: str, layouts: Sequence[ArgL
     return "\n".join(parts)
 
 
-def python_function(symbols: Sequence[Any], exprs: Sequence[Any], name: str = "f"):
-    """A plain-Python (no numba) scalar function of ``symbols`` returning ``exprs`` as a list.
+def python_function(symbols: Sequence[Any], exprs: Any, name: str = "f"):
+    """A plain-Python (no numba) scalar function of ``symbols``, for tests and quick checks.
 
-    Uses the same printer and CSE as generated kernels; for tests and quick evaluation.
+    ``exprs`` is a list of expressions (returns a list of floats) or a
+    :class:`~fgopt.symbolic.cse.Program` (returns a dict output name -> list). Uses the same
+    CSE and printer as generated kernels.
     """
     import math
 
@@ -193,11 +195,17 @@ def python_function(symbols: Sequence[Any], exprs: Sequence[Any], name: str = "f
     from .cse import optimize
     from .printer import to_source
 
-    prog = optimize(Program([], {"out": list(exprs)}))
+    is_prog = isinstance(exprs, Program)
+    prog = exprs if is_prog else optimize(Program([], {"out": list(exprs)}))
     params = ", ".join(s.name for s in symbols)
     lines = [f"def {name}({params}):"]
     lines += [f"    {s.name} = {to_source(e)}" for s, e in prog.stmts]
-    lines.append("    return [" + ", ".join(to_source(e) for e in prog.outputs["out"]) + "]")
+    outs = ", ".join(f"{k!r}: [" + ", ".join(to_source(e) for e in v) + "]"
+                     for k, v in prog.outputs.items())
+    lines.append(f"    return {{{outs}}}")
     env = {"math": math, "np": np, "EPSILON": EPSILON_VALUE}
     exec(compile("\n".join(lines) + "\n", f"<fgopt python_function {name}>", "exec"), env)
-    return env[name]
+    fn = env[name]
+    if is_prog:
+        return fn
+    return lambda *vals: fn(*vals)["out"]

@@ -3,8 +3,8 @@
 A :class:`Matrix` wraps a SymPy matrix. Fixed-shape subclasses (``V3``, ``Matrix.shaped(3, 3)``)
 are manifold types for factor arguments: storage = entries in row-major order (numpy's
 ``reshape(-1)``), tangent = storage, ``retract(v) = self + v``. Arithmetic follows SymForce:
-``*`` is the matrix product (or scaling by a scalar), ``+``/``-`` are entry-wise, and any
-``(n, 1)`` result is a ``V<n>``. Vectors index like sequences (``v[0]``, ``v.x``) and are built
+``*`` is the matrix product (or scaling by a scalar), ``+``/``-`` are entry-wise, and results
+keep a fixed shape (an ``(n, 1)`` result is a ``V<n>``, a 3x3 one an ``M33``). Vectors index like sequences (``v[0]``, ``v.x``) and are built
 from scalars or sequences: ``V3(a, b, c)``, ``V3([a, b, c])``, ``V3()`` (zeros).
 
 :class:`Scalar` marks a scalar argument; its values are plain SymPy expressions.
@@ -148,6 +148,11 @@ class Matrix:
         return iter(list(self.mat))
 
     def __getitem__(self, idx: Any):
+        if isinstance(idx, slice):  # flat slice: a vector of the selected entries
+            items = list(self.mat)[idx]
+            sp = _s().sp
+            return _wrap(sp.Matrix(1, len(items), items) if self.mat.rows == 1
+                         else sp.Matrix(len(items), 1, items))
         out = self.mat[idx]
         return _wrap(out) if isinstance(out, _s().sp.MatrixBase) else out
 
@@ -335,7 +340,7 @@ def _as_matrix(x: Any, shape: tuple[int, int] | None) -> Matrix:
 
 
 def _wrap(m: Any) -> Matrix:
-    cls = _shaped(m.rows, m.cols) if m.cols == 1 and 1 <= m.rows <= 9 else Matrix
+    cls = _shaped(m.rows, m.cols) if 1 <= m.rows <= 16 and 1 <= m.cols <= 16 else Matrix
     obj = object.__new__(cls)
     obj.mat = _s().sp.MutableDenseMatrix(m)
     return obj

@@ -49,6 +49,7 @@ class NumbaPrinter(PythonCodePrinter):
 
     # -- powers
     def _print_Pow(self, expr: Any, rational: bool = False) -> str:
+        # Every compound result is parenthesized: the Mul printer treats a Pow as one factor.
         base, e = expr.base, expr.exp
         b = self._paren(base)
         if e.is_Integer:
@@ -58,22 +59,22 @@ class NumbaPrinter(PythonCodePrinter):
             if k == 1:
                 return self._print(base)
             if 2 <= k <= 3 and base.is_Atom:
-                return "*".join([b] * k)
+                return "(" + "*".join([b] * k) + ")"
             if k == -1:
-                return f"1.0/{b}"
+                return f"(1.0/{b})"
             if -3 <= k <= -2 and base.is_Atom:
-                return f"1.0/({'*'.join([b] * -k)})"
-            return f"{b}**{k}"
+                return f"(1.0/({'*'.join([b] * -k)}))"
+            return f"{b}**{k}" if k > 0 else f"{b}**({k})"
         if e.is_Rational and e.q == 2:
             root = f"math.sqrt({self._print(base)})"
             k = int(e.p)
             if k == 1:
                 return root
             if k == -1:
-                return f"1.0/{root}"
+                return f"(1.0/{root})"
             if k > 0:
-                return f"{b}**{(k - 1) // 2}*{root}" if k > 3 else f"{b}*{root}"
-            return f"1.0/({b}**{(-k - 1) // 2}*{root})" if k < -3 else f"1.0/({b}*{root})"
+                return f"({b}**{(k - 1) // 2}*{root})" if k > 3 else f"({b}*{root})"
+            return f"(1.0/({b}**{(-k - 1) // 2}*{root}))" if k < -3 else f"(1.0/({b}*{root}))"
         if e.is_Rational and e.q == 3 and e.p == 1:
             return f"math.cbrt({self._print(base)})"
         return f"{b}**{self._paren(e)}"
