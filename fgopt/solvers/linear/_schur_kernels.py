@@ -26,7 +26,6 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-
 _FM = {"contract"}  # let LLVM fuse multiply-adds (no reassociation)
 
 

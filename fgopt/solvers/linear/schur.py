@@ -15,13 +15,13 @@ S; ``solve`` reduces the rhs, solves S and back-substitutes.
 
 The reduced system is solved by ``reduced=``
 
-* ``"dense"``: LAPACK Cholesky of S (column-major, lower) -- fastest for up to ~1500 unknowns
+* ``"dense"``: LAPACK Cholesky of S (column-major, lower) -- fastest for up to ~1000 unknowns
   (Ladybug-49: 441), as Ceres' DENSE_SCHUR;
 * ``"sparse"``: CHOLMOD supernodal on S in a fill-reducing order of the camera graph (SPARSE_SCHUR);
 * ``"pcg"``: conjugate gradients on S applied implicitly (``A x - B C^-1 B^T x``, S is never
   formed) with the Schur-Jacobi preconditioner (block diagonal of S), as Ceres' ITERATIVE_SCHUR:
   for problems whose S is too large to factor;
-* ``"auto"``: dense when S has at most ``dense_max`` unknowns or is nearly full, else sparse.
+* ``"auto"``: dense up to ``dense_max`` unknowns in S, PCG from ``pcg_min`` on, else sparse.
 
 Names for :func:`fgopt.solvers.make_linear_solver`: ``"schur"`` (auto), ``"schur_dense"``,
 ``"schur_sparse"``, ``"schur_pcg"``. :func:`choose_linear_solver` answers whether a pattern is
@@ -31,7 +31,7 @@ BA-shaped (and returns the solver if so).
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg.lapack as lapack
+from scipy.linalg import lapack
 
 from ...errors import FgoptError, NotPositiveDefiniteError
 from ...structure import HessianPattern, _sym_matvec, build_pattern, fill_reducing_order
@@ -48,14 +48,15 @@ class SchurSolver:
         eliminate: which variables to eliminate: ``None`` (the largest independent kind), a kind
             name (``"R3"``), or a boolean mask / index array over the pattern's variables. The set
             must be independent (no block of H couples two of its variables).
-        dense_max: ``"auto"`` picks the dense Cholesky of S up to this many unknowns.
+        dense_max: ``"auto"`` picks the dense Cholesky of S up to this many unknowns, PCG from
+            ``pcg_min`` unknowns on (S is then never formed), CHOLMOD in between.
         ordering: fill-reducing order of the camera graph for ``"sparse"`` (``amd | metis | ...``).
         pcg_rtol, pcg_max_iterations: PCG stops when ``|r| <= pcg_rtol |b|`` (Ceres' ITERATIVE_SCHUR
-            uses a loose forcing sequence; a tight default keeps LM's step exact).
+            uses a loose forcing sequence; a tight default keeps LM's step near exact).
     """
 
-    def __init__(self, reduced: str = "auto", eliminate=None, dense_max: int = 1500,
-                 ordering: str = "amd", pcg_rtol: float = 1e-10,
+    def __init__(self, reduced: str = "auto", eliminate=None, dense_max: int = 1000,
+                 pcg_min: int = 100_000, ordering: str = "amd", pcg_rtol: float = 1e-8,
                  pcg_max_iterations: int | None = None):
         if reduced not in REDUCED:
             raise FgoptError(f"SchurSolver: unknown reduced={reduced!r}; choose one of "
@@ -63,6 +64,7 @@ class SchurSolver:
         self.reduced = reduced
         self.eliminate = eliminate
         self.dense_max = int(dense_max)
+        self.pcg_min = int(pcg_min)
         self.ordering = ordering
         self.pcg_rtol = float(pcg_rtol)
         self.pcg_max_iterations = pcg_max_iterations
@@ -113,7 +115,8 @@ class SchurSolver:
         mode = self.reduced
         nS = int(f_dim.sum())
         if mode == "auto":
-            mode = "dense" if nS <= self.dense_max else "sparse"
+            mode = ("dense" if nS <= self.dense_max else
+                    "pcg" if nS >= self.pcg_min else "sparse")
         self.mode = mode
         if mode == "sparse" and nF > 2:
             co_i, co_j = _co_observation_pairs(edge_e, edge_f, e_vars.shape[0], nF)
@@ -404,7 +407,7 @@ def is_independent(pattern: HessianPattern, mask: np.ndarray) -> bool:
     return not np.any(mask[rv] & (rv != cv))
 
 
-def choose_linear_solver(pattern: HessianPattern) -> "SchurSolver | None":
+def choose_linear_solver(pattern: HessianPattern) -> SchurSolver | None:
     """A :class:`SchurSolver` when the problem is BA-shaped, else None.
 
     BA-shaped: some variable kind is independent (no factor couples two of its variables) and

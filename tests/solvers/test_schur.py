@@ -1,0 +1,239 @@
+"""The Schur-complement solver equals the full sparse Cholesky solve, and LM with it reaches the
+same cost.
+
+Problems: a synthetic BAL-style bundle adjustment (Snavely cameras in R^9, points in R^3: the
+fixed-size ``de = 3, df = 9`` kernel), a synthetic SE(3) pose / landmark graph with odometry
+between poses (generic kernel, ``df = 6``, camera-camera blocks in H), ``dubrovnik-3-7`` and
+Ladybug-49 from the shared data folder (skipped when absent).
+"""
+
+import numpy as np
+import pytest
+
+import fgopt
+from fgopt.errors import FgoptError, NotPositiveDefiniteError
+from fgopt.factors.library.bal_kernel import bal_kernel
+from fgopt.key import key
+from fgopt.problem import Problem
+from fgopt.solvers.linear.cholmod import CholmodSolver
+from fgopt.solvers.linear.schur import SchurSolver, choose_linear_solver
+
+MODES = ["dense", "sparse"]
+
+
+def bal_graph(cams, pts, obs):
+    """Graph + values from BAL arrays, with the hand-written kernel (stable while the symbolic
+    ``bal_reprojection`` evolves)."""
+    cb, pb = int(key("c", 0)), int(key("p", 0))
+    values = fgopt.Variables()
+    for i, row in enumerate(cams):
+        values.add(cb + i, np.array(row, dtype=float))
+    for j, row in enumerate(pts):
+        values.add(pb + j, np.array(row, dtype=float))
+    graph = fgopt.FactorGraph()
+    keys = np.column_stack([cb + obs[:, 0].astype(np.int64), pb + obs[:, 1].astype(np.int64)])
+    graph.add_batch(bal_kernel(), keys, np.ascontiguousarray(obs[:, 2:4]))
+    return graph, values
+
+
+def read_bal_file(path):
+    with open(path) as fh:
+        v = np.array(fh.read().split(), dtype=float)
+    nc, npt, nobs = (int(x) for x in v[:3])
+    obs = v[3:3 + 4 * nobs].reshape(nobs, 4)
+    start = 3 + 4 * nobs
+    cams = v[start:start + 9 * nc].reshape(nc, 9)
+    pts = v[start + 9 * nc:].reshape(npt, 3)
+    return bal_graph(cams, pts, obs)
+
+
+def synthetic_ba(nc=6, npt=40, seed=0):
+    rng = np.random.default_rng(seed)
+    cams = np.zeros((nc, 9))
+    cams[:, 0:3] = rng.normal(0, 0.05, (nc, 3))
+    cams[:, 3:6] = rng.normal(0, 0.3, (nc, 3))
+    cams[:, 6] = 500 + rng.normal(0, 10, nc)
+    cams[:, 7:9] = rng.normal(0, 1e-3, (nc, 2))
+    pts = np.column_stack([rng.uniform(-2, 2, npt), rng.uniform(-2, 2, npt),
+                           rng.uniform(-8, -4, npt)])  # BAL cameras look down -z
+    obs = []
+    for j in range(npt):
+        seen = rng.choice(nc, size=rng.integers(2, nc + 1), replace=False)
+        for i in seen:
+            obs.append((i, j))
+    obs = np.array(obs, dtype=float)
+    graph, _ = bal_graph(cams, pts, np.column_stack([obs, np.zeros((len(obs), 2))]))
+    res = graph.batches[0].kernel.residual(
+        (cams[obs[:, 0].astype(int)], pts[obs[:, 1].astype(int)]), np.zeros((len(obs), 2)))
+    meas = res + rng.normal(0, 0.5, res.shape)
+    noisy_c = cams + np.concatenate([rng.normal(0, 1e-3, (nc, 6)), np.zeros((nc, 3))], axis=1)
+    noisy_p = pts + rng.normal(0, 0.05, pts.shape)
+    return bal_graph(noisy_c, noisy_p, np.column_stack([obs, meas]))
+
+
+def pose_landmark_graph(n_poses=8, n_lm=30, seed=1):
+    rng = np.random.default_rng(seed)
+    values = fgopt.Variables()
+    graph = fgopt.FactorGraph()
+    poses = []
+    for i in range(n_poses):
+        T = fgopt.SE3.exp(np.concatenate([rng.normal(0, 0.1, 3), [i * 0.5, 0.0, 0.0]]))
+        poses.append(T)
+        values.add(key("x", i), fgopt.SE3.exp(rng.normal(0, 0.02, 6)) * T)
+    for j in range(n_lm):
+        values.add(key("l", j), rng.normal(0, 2, 3) + np.array([2.0, 0.0, 4.0]))
+    graph.add(fgopt.PriorFactor(key("x", 0), poses[0]))
+    for i in range(n_poses - 1):
+        graph.add(fgopt.BetweenFactor(key("x", i), key("x", i + 1),
+                                      poses[i].inverse() * poses[i + 1]))
+    from fgopt.factors.library.pose_point import pose_point_kernel
+
+    ks, ms = [], []
+    for j in range(n_lm):
+        for i in rng.choice(n_poses, size=rng.integers(1, 4), replace=False):
+            ks.append((int(key("x", int(i))), int(key("l", j))))
+            ms.append(rng.normal(0, 1, 3))
+    graph.add_batch(pose_point_kernel(3), np.array(ks, dtype=np.int64), np.array(ms))
+    return graph, values
+
+
+def damped_system(graph, values, ordering="amd", lam=1e-4):
+    P = Problem(graph, values, ordering=ordering)
+    P.linearize(P.initial_state())
+    H = P.H_data.copy()
+    d = P.pattern.diag_pos
+    H[d] += lam * np.clip(H[d], 1e-6, 1e32)
+    return P, H, -P.g.copy()
+
+
+def reference_solve(P, H, rhs):
+    ref = CholmodSolver()
+    ref.analyze(P.pattern)
+    ref.factorize(H)
+    return ref.solve(rhs)
+
+
+def check_equal(P, H, rhs, solver, rtol=1e-9):
+    x_ref = reference_solve(P, H, rhs)
+    solver.analyze(P.pattern)
+    solver.factorize(H)
+    x = solver.solve(rhs)
+    err = np.linalg.norm(x - x_ref) / np.linalg.norm(x_ref)
+    assert err < rtol, (solver.name, err)
+    return solver
+
+
+@pytest.mark.parametrize("ordering", ["amd", "natural"])
+@pytest.mark.parametrize("mode", MODES)
+def test_synthetic_ba_equals_cholmod(mode, ordering):
+    graph, values = synthetic_ba()
+    P, H, rhs = damped_system(graph, values, ordering)
+    s = check_equal(P, H, rhs, SchurSolver(reduced=mode))
+    assert s._fast and s.mode == mode
+
+
+def test_both_block_orientations_are_covered():
+    """Camera-point blocks sit in the point's columns (cameras after points: AMD) or in the
+    camera's (cameras first: natural order of the sorted keys)."""
+    graph, values = synthetic_ba()
+    seen = set()
+    for ordering in ("amd", "natural"):
+        P, H, rhs = damped_system(graph, values, ordering)
+        s = check_equal(P, H, rhs, SchurSolver())
+        seen |= set(np.unique(s._edge_orient).tolist())
+    assert seen == {0, 1}
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_generic_kernel_equals_fast_kernel(mode):
+    graph, values = synthetic_ba(seed=3)
+    P, H, rhs = damped_system(graph, values, "natural")
+    s = SchurSolver(reduced=mode)
+    s.analyze(P.pattern)
+    s.factorize(H)
+    x_fast = s.solve(rhs)
+    s._fast = False
+    s.factorize(H)
+    assert np.allclose(s.solve(rhs), x_fast, rtol=1e-10, atol=1e-12 * np.abs(x_fast).max())
+
+
+@pytest.mark.parametrize("mode", MODES + ["pcg"])
+def test_pose_landmark_graph(mode):
+    graph, values = pose_landmark_graph()
+    P, H, rhs = damped_system(graph, values)
+    s = SchurSolver(reduced=mode, eliminate="R3", pcg_rtol=1e-13)
+    check_equal(P, H, rhs, s, rtol=1e-9 if mode != "pcg" else 1e-7)
+    assert not s._fast and len(s._a_src) > 0
+
+
+def test_pcg_converges_to_direct_solution():
+    graph, values = synthetic_ba(seed=5)
+    P, H, rhs = damped_system(graph, values, lam=1e-2)
+    s = SchurSolver(reduced="pcg", pcg_rtol=1e-14)
+    check_equal(P, H, rhs, s, rtol=1e-8)
+    assert s.last_pcg_iterations > 0
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_dubrovnik_3_7_equals_cholmod(mode, data_file):
+    graph, values = read_bal_file(data_file("bal/dubrovnik-3-7-pre.txt"))
+    P, H, rhs = damped_system(graph, values)
+    check_equal(P, H, rhs, SchurSolver(reduced=mode))
+
+
+def test_eliminate_options_and_errors():
+    graph, values = synthetic_ba(nc=4, npt=12)
+    P, H, rhs = damped_system(graph, values)
+    kinds = P.pattern.kind_names
+    pts = np.asarray(P.pattern.var_kind) == kinds.index("R3")
+    for opt in ("R3", pts, np.nonzero(pts)[0]):
+        check_equal(P, H, rhs, SchurSolver(eliminate=opt))
+    with pytest.raises(FgoptError, match="not independent"):
+        SchurSolver(eliminate=np.ones_like(pts)).analyze(P.pattern)
+    with pytest.raises(FgoptError, match="not a variable kind"):
+        SchurSolver(eliminate="SE3").analyze(P.pattern)
+    with pytest.raises(FgoptError, match="unknown reduced"):
+        SchurSolver(reduced="qr")
+    s = SchurSolver()
+    s.analyze(P.pattern)
+    with pytest.raises(NotPositiveDefiniteError):
+        s.factorize(np.zeros_like(H))
+    Hbad = H.copy()
+    Hbad[P.pattern.diag_pos[np.asarray(P.pattern.var_offset)[~pts]]] *= -1.0
+    with pytest.raises(NotPositiveDefiniteError):
+        s.factorize(Hbad)
+
+
+def test_choose_linear_solver():
+    graph, values = synthetic_ba(nc=5, npt=60)
+    P = Problem(graph, values)
+    assert isinstance(choose_linear_solver(P.pattern), SchurSolver)
+    pg = fgopt.FactorGraph()
+    v = fgopt.Variables()
+    for i in range(5):
+        v.add(key("x", i), fgopt.SE2.exp(np.array([float(i), 0.0, 0.0])))
+    pg.add(fgopt.PriorFactor(key("x", 0), fgopt.SE2.exp(np.zeros(3))))
+    for i in range(4):
+        step = fgopt.SE2.exp(np.array([1.0, 0.0, 0.0]))
+        pg.add(fgopt.BetweenFactor(key("x", i), key("x", i + 1), step))
+    assert choose_linear_solver(Problem(pg, v).pattern) is None
+
+
+def test_lm_with_schur_matches_cholmod_synthetic():
+    graph, values = synthetic_ba(nc=8, npt=80, seed=7)
+    costs = []
+    for solver in (CholmodSolver(), SchurSolver(reduced="dense"), SchurSolver(reduced="sparse")):
+        r = fgopt.optimize(graph, values, method="lm", linear_solver=solver, max_iterations=30)
+        costs.append(r.final_cost)
+    assert costs[0] < 0.01 * r.initial_cost
+    assert np.allclose(costs, costs[0], rtol=1e-8), costs
+
+
+def test_lm_ladybug_schur_matches_cholmod(data_file):
+    graph, values = read_bal_file(data_file("bal/problem-49-7776-pre.txt"))
+    kw = {"method": "lm", "max_iterations": 5, "initial_lambda": 1e-4}
+    r_chol = fgopt.optimize(graph, values, linear_solver=CholmodSolver(), **kw)
+    r_schur = fgopt.optimize(graph, values, linear_solver=SchurSolver(), **kw)
+    assert r_schur.final_cost < 13500.0
+    assert np.isclose(r_schur.final_cost, r_chol.final_cost, rtol=1e-7), (
+        r_schur.final_cost, r_chol.final_cost)
