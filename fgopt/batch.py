@@ -32,8 +32,9 @@ class FactorBatch:
     sqrt_information: np.ndarray | None
     loss_code: int = 0
     loss_param: float = 0.0
-    #: Optional labels for error messages (e.g. "file.g2o:123" per row).
-    origin: list[str] | None = field(default=None, repr=False)
+    #: Optional labels for error messages: a list of strings per row, or ``(path, lines)`` with
+    #: an int array of line numbers (formatted "path:line" on demand; cheap for big files).
+    origin: "list[str] | tuple[str, np.ndarray] | None" = field(default=None, repr=False)
 
     def __post_init__(self):
         k = self.kernel
@@ -59,7 +60,12 @@ class FactorBatch:
             self.sqrt_information = R
 
     def _where(self, row: int) -> str:
-        return self.origin[row] if self.origin is not None else str(row)
+        if self.origin is None:
+            return f"row {row}"
+        if isinstance(self.origin, tuple):
+            path, lines = self.origin
+            return f"{path}:{int(lines[row])}"
+        return self.origin[row]
 
     def __len__(self) -> int:
         return self.keys.shape[0]

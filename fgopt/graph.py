@@ -40,7 +40,7 @@ class FactorGraph:
         return self
 
     def add_batch(self, kernel, keys, constants, sqrt_information=None, loss_code: int = 0,
-                  loss_param: float = 0.0, origin: list[str] | None = None) -> "FactorGraph":
+                  loss_param: float = 0.0, origin=None) -> "FactorGraph":
         """Add ``n`` factors of one kernel from arrays (see :class:`fgopt.batch.FactorBatch`).
 
         The vectorized way to build large graphs (file readers use it): no Python object per

@@ -7,7 +7,8 @@ from typing import Any, Iterator
 
 import numpy as np
 
-from .errors import DimensionMismatchError, DuplicateKeyError, KeyNotFoundError, NonFiniteError
+from .errors import (DimensionMismatchError, DuplicateKeyError, FgoptError, KeyNotFoundError,
+                     NonFiniteError)
 from .key import Key, as_key, key_str
 from .manifolds.base import ops_for
 
@@ -56,6 +57,34 @@ class Variables:
         ops_for(value)  # raises ManifoldError with advice for non-manifold values
         _check_finite(k, value)
         self._values[k] = _freeze(value)
+        return self
+
+    def add_rows(self, keys, kind, rows: np.ndarray) -> "Variables":
+        """Bulk-add ``n`` values of one batch kind from storage rows ``(n, storage_dim)``.
+
+        The vectorized path for file readers: finiteness and duplicates are checked once for all
+        rows; rows must already lie on the manifold (unit quaternions, unit (cos, sin)).
+        """
+        rows = np.array(rows, dtype=float).reshape(-1, kind.storage_dim)
+        rows.flags.writeable = False
+        key_arr = np.asarray(list(keys) if not isinstance(keys, np.ndarray) else keys)
+        if key_arr.size and (key_arr.dtype.kind not in "iu" or key_arr.min() < 0):
+            raise FgoptError(f"add_rows: keys must be non-negative ints, got {key_arr[:3]}...")
+        keys = list(map(Key, key_arr.tolist()))
+        if len(keys) != rows.shape[0]:
+            raise DimensionMismatchError(f"add_rows: {len(keys)} keys for {rows.shape[0]} rows")
+        bad = ~np.all(np.isfinite(rows), axis=1)
+        if np.any(bad):
+            i = int(np.nonzero(bad)[0][0])
+            raise NonFiniteError(f"value of {key_str(keys[i])} has a NaN or inf: {rows[i]}")
+        clash = [k for k in keys if k in self._values]
+        if clash or len(set(keys)) != len(keys):
+            k = clash[0] if clash else next(k for k in keys if keys.count(k) > 1)
+            raise DuplicateKeyError(f"variable {key_str(k)} is already present; use update()")
+        make = kind.wrap if kind.wrap is not None else kind.from_storage
+        values = self._values
+        for k, row in zip(keys, rows):
+            values[k] = make(row)
         return self
 
     def update(self, k: int, value: Any) -> "Variables":

@@ -257,8 +257,15 @@ def build_graph(rd, dim: int, add_prior: bool, repair: str | None,
     vkeys = np.where(v.is_point, lb, xb) + v.ids
     values = Variables()
     pkind = vector_kind(dim)
-    for k, is_pt, row in zip(vkeys.tolist(), v.is_point.tolist(), v.rows):
-        values.add(k, pkind.from_storage(row) if is_pt else kind.from_storage(row))
+    pts = np.asarray(v.is_point, dtype=bool)
+    if np.any(~pts):
+        pose_rows = np.array([r for r, is_pt in zip(v.rows, pts) if not is_pt], dtype=float)
+        nrot = 2 if dim == 2 else 4  # (cos, sin) or the quaternion: project onto the group
+        pose_rows[:, :nrot] /= np.linalg.norm(pose_rows[:, :nrot], axis=1, keepdims=True)
+        values.add_rows(vkeys[~pts].tolist(), kind, pose_rows)
+    if np.any(pts):
+        values.add_rows(vkeys[pts].tolist(), pkind,
+                        np.array([r for r, is_pt in zip(v.rows, pts) if is_pt], dtype=float))
     graph = FactorGraph()
     sqrt_infos = _checked_sqrt_information(rd, edges, repair, floor)
     for e, R in zip(edges, sqrt_infos):
@@ -266,8 +273,7 @@ def build_graph(rd, dim: int, add_prior: bool, repair: str | None,
             kern, keys = between_kernel(kind), np.column_stack([xb + e.i, xb + e.j])
         else:
             kern, keys = pose_point_kernel(dim), np.column_stack([xb + e.i, lb + e.j])
-        origin = [f"{rd.path}:{n}" for n in e.group.lines.tolist()]
-        graph.add_batch(kern, keys, e.meas, R, origin=origin)
+        graph.add_batch(kern, keys, e.meas, R, origin=(str(rd.path), e.group.lines))
     fixed = _fixed_keys(rd, v, vkeys)
     add_fixing_priors(graph, values, fixed, f"{rd.path}: FIX")
     if add_prior:

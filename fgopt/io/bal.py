@@ -25,6 +25,7 @@ import numpy as np
 from ..errors import FgoptError, FileFormatError
 from ..graph import FactorGraph
 from ..key import key, key_str
+from ..manifolds.base import vector_kind
 from ..variables import Variables
 from ._scan import scan, write_text
 
@@ -108,14 +109,12 @@ def read_bal(path: str | os.PathLike, data: bytes | None = None) -> tuple[Factor
     pts = sc.values[start + 9 * nc:].reshape(npt, 3)
     cb, pb = int(key("c", 0)), int(key("p", 0))
     values = Variables()
-    for i, row in enumerate(cams):
-        values.add(cb + i, row)
-    for j, row in enumerate(pts):
-        values.add(pb + j, row)
+    values.add_rows(range(cb, cb + nc), vector_kind(9), cams)
+    values.add_rows(range(pb, pb + npt), vector_kind(3), pts)
     graph = FactorGraph()
     keys = np.column_stack([cb + ci.astype(np.int64), pb + pj.astype(np.int64)])
-    origin = [f"{p}:{n}" for n in obs_lines.tolist()]
-    graph.add_batch(reprojection_kernel(), keys, obs[:, 2:4], None, origin=origin)
+    graph.add_batch(reprojection_kernel(), keys, obs[:, 2:4], None,
+                    origin=(str(p), np.asarray(obs_lines)))
     return graph, values
 
 

@@ -44,6 +44,9 @@ class BatchKind:
     local: Callable[[np.ndarray, np.ndarray], np.ndarray] = field(repr=False)
     from_storage: Callable[[np.ndarray], Any] = field(repr=False)
     to_storage: Callable[[Any], np.ndarray] = field(repr=False)
+    #: Build a value from an owned, read-only storage row already on the manifold (no checks,
+    #: no normalization): the fast path for bulk construction. ``None``: use ``from_storage``.
+    wrap: Callable[[np.ndarray], Any] | None = field(default=None, repr=False)
 
 
 @runtime_checkable
@@ -102,6 +105,7 @@ def vector_kind(n: int) -> BatchKind:
         local=_vector_local,
         from_storage=lambda row: np.array(row, dtype=float),
         to_storage=lambda v: np.asarray(v, dtype=float).reshape(n),
+        wrap=lambda row: row,  # rows handed to wrap are owned and read-only
     )
 
 

@@ -221,6 +221,7 @@ class LieGroupOps:
             local=K.LOCAL_BATCH[cls._GID],
             from_storage=cls.from_storage,
             to_storage=self.to_storage,
+            wrap=cls._wrap,
         )
 
     def dim(self, x: Any) -> int:

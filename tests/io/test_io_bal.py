@@ -58,7 +58,7 @@ def test_read_bal_values_keys_and_standard_cost(tmp_path):
     assert b.keys.tolist() == [[key("c", 0), key("p", 0)], [key("c", 1), key("p", 0)],
                                [key("c", 1), key("p", 2)], [key("c", 0), key("p", 1)]]
     assert b.sqrt_information is None
-    assert b.origin[0].endswith("p.txt:3") and b.origin[3].endswith("p.txt:6")
+    assert b._where(0).endswith("p.txt:3") and b._where(3).endswith("p.txt:6")
     expected = 0.0
     for (ci, pj), m in zip([(0, 0), (1, 0), (1, 2), (0, 1)], b.constants):
         e = _snavely(values.at(key("c", ci)), values.at(key("p", pj))) - m

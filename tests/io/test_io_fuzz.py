@@ -261,7 +261,7 @@ def check_g2o(text: str) -> None:
             got_fixed |= set(b.keys[:, 0].tolist())
             continue
         for r in range(len(b)):
-            line = int(b.origin[r].rsplit(":", 1)[1])
+            line = int(b._where(r).rsplit(":", 1)[1])
             got_edges.append((line, b.kernel.name.startswith("pose_point"), b.keys[r].tolist(),
                               b.constants[r], b.sqrt_information[r].T @ b.sqrt_information[r]))
     got_edges.sort(key=lambda e: e[0])
