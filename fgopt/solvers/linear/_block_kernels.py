@@ -16,8 +16,10 @@ from __future__ import annotations
 
 import llvmlite.binding as _llvm
 import numpy as np
+from llvmlite import ir
 from numba import njit, types
-from numba.extending import get_cython_function_address
+from numba.core import cgutils
+from numba.extending import get_cython_function_address, intrinsic
 
 
 def _bind(module: str, name: str, nargs: int) -> types.ExternalFunction:
@@ -42,6 +44,26 @@ def blas_workspace() -> tuple[np.ndarray, np.ndarray]:
     iw[:5] = [ord(c) for c in "LRNTU"]
     fw = np.array([1.0, -1.0, 0.0])
     return iw, fw
+
+
+@intrinsic
+def _prefetch(typingctx, arr, idx):
+    """Hint the CPU to fetch ``arr[idx]``'s cache line for writing (``llvm.prefetch``)."""
+    sig = types.void(arr, idx)
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [args[1]], wraparound=False)
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fnty = ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32])
+        fn = cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0")
+        builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 1), ir.Constant(i32, 3),
+                          ir.Constant(i32, 1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
 
 
 # ------------------------------------------------------------------ small dense kernels
@@ -96,7 +118,7 @@ def _syrk_small(L, p0, w, m, C):
 # ------------------------------------------------------------------ factorization
 @njit(cache=True)
 def factorize(H, hmap, L, C, pstart, width, rows, cb_ptr, cb_base, cb_ld, cb_src, cb_dim,
-              run_ptr, run_src, run_dst, run_len, iw, fw, small):
+              run_ptr, run_src, run_dst, run_len, iw, fw, small_panel, small_syrk):
     """Numeric factorization; returns -1, or the supernode whose pivot was not positive."""
     L[:] = 0.0
     for p in range(H.shape[0]):
@@ -111,25 +133,27 @@ def factorize(H, hmap, L, C, pstart, width, rows, cb_ptr, cb_base, cb_ld, cb_src
         m = rows[s]
         r = m - w
         p0 = pstart[s]
-        if w <= small:
+        iw[_I0] = w
+        iw[_I0 + 1] = m
+        iw[_I0 + 3] = r
+        if w <= small_panel:
             if _panel_small(L, p0, w, m) != 0:
                 return s
-            if r > 0:
-                _syrk_small(L, p0, w, m, C)
         else:
-            iw[_I0] = w
-            iw[_I0 + 1] = m
             iw[_I0 + 2] = 0
             _dpotrf(ip + 4 * _CL, ip + 4 * _I0, base + 8 * p0, ip + 4 * (_I0 + 1),
                     ip + 4 * (_I0 + 2))
             if iw[_I0 + 2] != 0:
                 return s
             if r > 0:
-                iw[_I0 + 3] = r
                 # B <- B L11^-T : side R, lower, transposed, non-unit; B is r x w at p0 + w
                 _dtrsm(ip + 4 * _CR, ip + 4 * _CL, ip + 4 * _CT, ip + 4 * _CN,
                        ip + 4 * (_I0 + 3), ip + 4 * _I0, fp, base + 8 * p0, ip + 4 * (_I0 + 1),
                        base + 8 * (p0 + w), ip + 4 * (_I0 + 1))
+        if r > 0:
+            if w <= small_syrk:
+                _syrk_small(L, p0, w, m, C)
+            else:
                 # C <- B B^T (lower), C is r x r with ld r
                 _dsyrk(ip + 4 * _CL, ip + 4 * _CN, ip + 4 * (_I0 + 3), ip + 4 * _I0, fp,
                        base + 8 * (p0 + w), ip + 4 * (_I0 + 1), fp + 16, cbase,
@@ -141,10 +165,34 @@ def factorize(H, hmap, L, C, pstart, width, rows, cb_ptr, cb_base, cb_ld, cb_src
 
 
 @njit(cache=True, inline="always")
+def _prefetch_block(L, jb, cb_base, cb_ld, cb_dim, run_ptr, run_dst, run_len):
+    """Prefetch the target lines of update column block ``jb``."""
+    tb = cb_base[jb]
+    ldt = cb_ld[jb]
+    for c in range(cb_dim[jb]):
+        dcol = _u(tb + c * ldt)
+        for q in range(run_ptr[jb], run_ptr[jb + 1]):
+            d = dcol + _u(run_dst[q])
+            e = d + _u(run_len[q])
+            while d < e:
+                _prefetch(L, d)
+                d += _u(8)
+            _prefetch(L, e - _u(1))
+
+
+@njit(cache=True, inline="always")
 def _scatter_update(L, C, r, s, cb_ptr, cb_base, cb_ld, cb_src, cb_dim, run_ptr, run_src,
                     run_dst, run_len):
-    """Subtract the lower triangle of ``C`` from the ancestors' panels (runs of rows)."""
-    for jb in range(cb_ptr[s], cb_ptr[s + 1]):
+    """Subtract the lower triangle of ``C`` from the ancestors' panels (runs of rows).
+
+    The targets of the next column block are prefetched while one is being subtracted.
+    """
+    jb_end = cb_ptr[s + 1]
+    for jb in range(cb_ptr[s], jb_end):
+        if jb == cb_ptr[s]:
+            _prefetch_block(L, jb, cb_base, cb_ld, cb_dim, run_ptr, run_dst, run_len)
+        if jb + 1 < jb_end:
+            _prefetch_block(L, jb + 1, cb_base, cb_ld, cb_dim, run_ptr, run_dst, run_len)
         tb = cb_base[jb]
         ldt = cb_ld[jb]
         oj = cb_src[jb]
@@ -162,44 +210,52 @@ def _scatter_update(L, C, r, s, cb_ptr, cb_base, cb_ld, cb_src, cb_dim, run_ptr,
 
 
 # ------------------------------------------------------------------ solve
-@njit(cache=True)
+@njit(cache=True, fastmath={"reassoc", "contract"})
 def solve_inplace(L, x, pstart, width, rows, col0, rix_ptr, rix, buf):
-    """Solve ``L L^T x = b`` in place (``x`` holds ``b`` in the factor's order)."""
+    """Solve ``L L^T x = b`` in place (``x`` holds ``b`` in the factor's order).
+
+    ``reassoc`` lets LLVM vectorize the dot products of the backward sweep (the summation order
+    is fixed by the compiled code, so results are reproducible run to run).
+    """
     S = width.shape[0]
     for s in range(S):                       # forward: L y = b
-        w = width[s]
-        m = rows[s]
-        p0 = pstart[s]
-        c0 = col0[s]
-        g0 = rix_ptr[s]
-        for i in range(m - w):
+        w = _u(width[s])
+        m = _u(rows[s])
+        r = m - w
+        p0 = _u(pstart[s])
+        c0 = _u(col0[s])
+        g0 = _u(rix_ptr[s]) + w
+        for i in range(r):
             buf[i] = 0.0
         for c in range(w):
             cc = p0 + c * m
             xc = x[c0 + c] / L[cc + c]
             x[c0 + c] = xc
-            for i in range(c + 1, w):
+            for i in range(c + _u(1), w):
                 x[c0 + i] -= L[cc + i] * xc
-            for i in range(m - w):
-                buf[i] += L[cc + w + i] * xc
-        for i in range(m - w):
-            x[rix[g0 + w + i]] -= buf[i]
+            cb = cc + w
+            for i in range(r):
+                buf[i] += L[cb + i] * xc
+        for i in range(r):
+            x[rix[g0 + i]] -= buf[i]
     for s in range(S - 1, -1, -1):           # backward: L^T x = y
-        w = width[s]
-        m = rows[s]
-        p0 = pstart[s]
-        c0 = col0[s]
-        g0 = rix_ptr[s]
-        for i in range(m - w):
-            buf[i] = x[rix[g0 + w + i]]
-        for c in range(w - 1, -1, -1):
-            cc = p0 + c * m
-            acc = x[c0 + c]
-            for i in range(m - w):
-                acc -= L[cc + w + i] * buf[i]
-            for i in range(c + 1, w):
-                acc -= L[cc + i] * x[c0 + i]
-            x[c0 + c] = acc / L[cc + c]
+        w = _u(width[s])
+        m = _u(rows[s])
+        r = m - w
+        p0 = _u(pstart[s])
+        c0 = _u(col0[s])
+        g0 = _u(rix_ptr[s]) + w
+        for i in range(r):
+            buf[i] = x[rix[g0 + i]]
+        for c in range(w - _u(1), -1, -1):
+            cc = p0 + _u(c) * m
+            cb = cc + w
+            acc = 0.0
+            for i in range(r):
+                acc += L[cb + i] * buf[i]
+            for i in range(_u(c) + _u(1), w):
+                acc += L[cc + i] * x[c0 + i]
+            x[c0 + _u(c)] = (x[c0 + _u(c)] - acc) / L[cc + _u(c)]
 
 
 # ------------------------------------------------------------------ symbolic maps

@@ -75,15 +75,17 @@ def analyze_blocks(pattern: HessianPattern, relax=DEFAULT_RELAX) -> BlockSymboli
 class BlockCholeskySolver:
     """Supernodal Cholesky on the variable-block structure of H (numba + BLAS).
 
-    ``small``: panels at most this many scalar columns wide use hand-written loops instead of
-    BLAS calls. ``relax``: relaxed-amalgamation thresholds ``((max width, max zero fraction),
+    ``small_panel`` / ``small_syrk``: panels at most this many scalar columns wide are factored /
+    form their update with hand-written loops instead of LAPACK/BLAS calls (whose call overhead
+    dominates for tiny blocks). ``relax``: relaxed-amalgamation thresholds ``((max width, max zero fraction),
     ...)``.
     """
 
     name = "block"
 
-    def __init__(self, small: int = 12, relax=DEFAULT_RELAX):
-        self.small = int(small)
+    def __init__(self, small_panel: int = 12, small_syrk: int = 6, relax=DEFAULT_RELAX):
+        self.small_panel = int(small_panel)
+        self.small_syrk = int(small_syrk)
         self.relax = relax
         self.symbolic: BlockSymbolic | None = None
 
@@ -131,7 +133,7 @@ class BlockCholeskySolver:
         self._ok = False
         fail = k.factorize(np.ascontiguousarray(H_data, dtype=np.float64), self._hmap, self.L,
                            self._C, sy.pstart, sy.width, sy.rows, *self._maps, self._iw,
-                           self._fw, self.small)
+                           self._fw, self.small_panel, self.small_syrk)
         if fail >= 0:
             v = int(sy.post_var[sy.sn[fail]])
             raise NotPositiveDefiniteError(
