@@ -1,0 +1,52 @@
+"""GNC survives 10 % random wrong loop closures and reaches the outlier-free solution."""
+
+import numpy as np
+import pytest
+
+import fgopt
+from fgopt import BetweenFactor, SE2
+from fgopt.datasets import manhattan_2d
+from fgopt.solvers import GNCParams
+from fgopt.solvers.gnc import gnc_weights
+
+
+@pytest.fixture(scope="module")
+def corrupted():
+    d = manhattan_2d(400, seed=1)
+    clean = fgopt.optimize(d.graph, d.initial)
+    rng = np.random.default_rng(0)
+    keys = d.initial.keys()
+    graph = fgopt.FactorGraph(list(d.graph))
+    noise = d.graph[1].loss
+    num_outliers = int(0.1 * len(d.graph))
+    for _ in range(num_outliers):
+        i, j = rng.choice(len(keys), 2, replace=False)
+        wrong = SE2.from_xytheta(*rng.uniform(-10, 10, 2), rng.uniform(-np.pi, np.pi))
+        graph.add(BetweenFactor(keys[i], keys[j], wrong, noise))
+    return d, clean, graph, num_outliers
+
+
+def _max_position_error(values, reference):
+    return max(np.linalg.norm(values.at(k).translation() - reference.at(k).translation())
+               for k in reference.keys())
+
+
+@pytest.mark.parametrize("loss", ["gm", "tls"])
+def test_gnc_reaches_outlier_free_solution(corrupted, loss):
+    d, clean, graph, num_outliers = corrupted
+    plain = fgopt.optimize(graph, d.initial)
+    assert _max_position_error(plain.values, clean.values) > 1.0  # outliers ruin plain LM
+    r = fgopt.optimize(graph, d.initial, method="gnc", params=GNCParams(loss=loss))
+    assert r.success, r.message
+    assert _max_position_error(r.values, clean.values) < 1e-3
+    assert num_outliers - 5 <= r.info["outliers"] <= num_outliers
+    assert np.isclose(r.final_cost, clean.final_cost, rtol=0.05)
+
+
+def test_weights_interpolate_between_convex_and_robust():
+    s = np.array([0.0, 0.5, 0.9, 4.0, 100.0])
+    assert np.all(np.diff(gnc_weights("gm", s, 1.0)) < 0)
+    assert np.allclose(gnc_weights("gm", s, 1e9), 1.0, atol=1e-6)  # large mu: least squares
+    w = gnc_weights("tls", s, 1e6)  # large mu: truncated least squares (hard 0/1 at s = 1)
+    assert np.allclose(w, [1, 1, 1, 0, 0], atol=1e-3)
+    assert np.all((gnc_weights("tls", s, 0.1) >= 0) & (gnc_weights("tls", s, 0.1) <= 1))
