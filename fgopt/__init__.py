@@ -29,3 +29,19 @@ from .solvers import optimize as optimize
 from .solvers.result import Result as Result
 from .solvers.result import Status as Status
 from .variables import Variables as Variables
+
+_LAZY = {"io": ".io", "plot": ".plot", "datasets": ".datasets", "symbolic": ".symbolic",
+         "solvers": ".solvers"}
+
+
+def __getattr__(name: str):
+    """Heavier parts load on first use: ``fgopt.io``, ``fgopt.plot``, ``fgopt.factor`` ..."""
+    import importlib
+
+    if name in _LAZY:
+        return importlib.import_module(_LAZY[name], __name__)
+    if name == "factor":
+        from .symbolic.factor import factor
+
+        return factor
+    raise AttributeError(f"module 'fgopt' has no attribute {name!r}")
