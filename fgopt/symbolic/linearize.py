@@ -5,8 +5,8 @@
 row-major), optionally also ``hess`` (``J^T J``, D x D) and ``rhs`` (``J^T r``, D) as in the
 SymForce paper's ``with_linearization`` (Sec. III-C).
 
-Two differentiation engines compute the same tangent-space Jacobians (method ``"retraction"``
-or ``"chain"``, see :mod:`fgopt.symbolic.jacobians`):
+Three differentiation engines compute the same tangent-space Jacobians (method
+``"retraction"`` or ``"chain"``, see :mod:`fgopt.symbolic.jacobians`):
 
 * ``"tree"``: SymPy differentiates the whole flattened expression (what SymForce does), then
   CSE. Best code for small functions; SymPy's tree traversals make it slow (tens of seconds)
@@ -16,24 +16,29 @@ or ``"chain"``, see :mod:`fgopt.symbolic.jacobians`):
   small SymPy ``diff``; a final global CSE merges everything. The seeds are the columns of
   ``storage_D_tangent`` (first-order retraction) or storage unit vectors followed by a product
   with ``storage_D_tangent`` (chain rule). Derivation time is linear in the program size.
+* ``"reverse"``: vector reverse mode on the same program (adjoints of all residual entries),
+  then ``(d res / d storage) storage_D_tangent``; shorter when the residual has fewer entries
+  than there are tangent directions and little Lie structure (e.g. BAL: 291 vs 367 ops).
 
 ``"auto"`` (default) uses ``"tree"`` for small algebraic functions (no transcendental
 functions or roots, at most :data:`TREE_MAX_OPS` operations in the flattened value), where
 SymPy's whole-expression simplification gives the shortest code (e.g. ``pose.inverse() *
-point``: 162 vs 273 ops), and ``"dag"`` otherwise (e.g. the SE(3) prior: 784 ops in 0.6 s vs
-1357 ops in 26 s).
+point``: 162 vs 273 ops); otherwise it derives with both ``"dag"`` and ``"reverse"`` and keeps
+the program with fewer operations (the tree engine would take e.g. 26 s and 1357 ops for the
+SE(3) prior, vs 0.6 s and 784 ops with ``"dag"``) (each takes about a second; numba's compile time grows with the
+op count, about 3 ms per operation).
 """
 
 from __future__ import annotations
 
 from typing import Any, Sequence
 
-from .cse import Program, count_ops, optimize, temp_symbols
+from .cse import Program, count_ops, optimize, temp_symbols, total_ops
 from .jacobians import METHODS, output_storage, tangent_jacobians
 from .lie import LieGroupBase
 from .ops import storage_D_tangent_of, storage_of, tangent_D_storage_of
 
-ENGINES = ("auto", "tree", "dag")
+ENGINES = ("auto", "tree", "dag", "reverse")
 #: "auto" differentiates whole algebraic expression trees up to this many operations.
 TREE_MAX_OPS = 400
 
@@ -62,20 +67,31 @@ def linearization_program(output: Any, args: Sequence[Any], method: str = "retra
         raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
     sp = _s().sp
     res = [_s().as_expr(e) for e in output_storage(output)]
-    if engine == "auto":
-        engine = "tree" if _is_small_algebraic(res) else "dag"
-    value = optimize(Program([], {"res": res})) if engine == "dag" else None
+    if engine == "auto" and _is_small_algebraic(res):
+        engine = "tree"
+    value = optimize(Program([], {"res": res})) if engine != "tree" else None
     if engine == "tree":
         jacs = tangent_jacobians(output, args, method) if len(args) > 0 else []
         jac = sp.Matrix.hstack(*jacs) if len(jacs) > 0 else sp.zeros(len(res), 0)
         stmts, res_out = [], res
-        if isinstance(output, LieGroupBase):
-            res_out = res  # the value stays the storage of the group element
-    else:
+    elif engine == "auto":  # forward and reverse mode: keep the shorter program
+        best = None
+        for fn in (_dag_jacobian, _reverse_jacobian):
+            cand = _finish(*fn(value, output, args, method), hessian)
+            if best is None or total_ops(cand) < total_ops(best):
+                best = cand
+        return best
+    elif engine == "dag":
         stmts, res_out, jac = _dag_jacobian(value, output, args, method)
-    prog = Program(list(stmts), {"res": list(res_out), "jac": list(jac)})
+    else:
+        stmts, res_out, jac = _reverse_jacobian(value, output, args, method)
+    return _finish(stmts, res_out, jac, hessian)
+
+
+def _finish(stmts: list, res: list, jac: Any, hessian: bool) -> Program:
+    prog = Program(list(stmts), {"res": list(res), "jac": list(jac)})
     if hessian:
-        _add_hessian(prog, len(res_out), jac.shape[1])
+        _add_hessian(prog, len(res), jac.shape[1])
     return optimize(prog)
 
 
@@ -171,6 +187,71 @@ def _dag_jacobian(value: Program, output: Any, args: Sequence[Any], method: str)
     if method == "chain":
         blocks = [J[:, start:start + D.shape[0]] * D for start, D in col_blocks]
         J = sp.Matrix.hstack(*blocks) if len(blocks) > 0 else sp.zeros(len(res), 0)
+    if isinstance(output, LieGroupBase):
+        J = tangent_D_storage_of(type(output).from_storage(res)) * J
+    return stmts, res, J
+
+
+def _reverse_jacobian(value: Program, output: Any, args: Sequence[Any], method: str):
+    """Vector reverse mode: adjoints of all outputs propagated back through the value program.
+
+    Gives ``d res / d storage`` for every argument, then ``J = (d res / d s) D`` per argument
+    (``D = storage_D_tangent``; the first-order retraction and the chain rule coincide here).
+    Fewer operations than forward mode when the residual has fewer entries than tangent
+    directions.
+    """
+    sp = _s().sp
+    remove = _s().remove_distributions
+    res = value.outputs["res"]
+    nres = len(res)
+    storages = [storage_of(arg) for arg in args]
+    active = {s for st in storages for s in st}
+    for t, e in value.stmts:  # temporaries that depend on a differentiated argument
+        if any(x in active for x in e.free_symbols):
+            active.add(t)
+    adj: dict = {}
+
+    def push(e, seeds: dict) -> None:
+        """Add ``d e / d x * seed_r`` to ``adj[x][r]`` for the active symbols x of e."""
+        for x in e.free_symbols:
+            if x not in active:
+                continue
+            p = remove(e.diff(x))
+            if p == 0:
+                continue
+            slot = adj.setdefault(x, {})
+            for r, seed in seeds.items():
+                slot.setdefault(r, []).append(p * seed)
+
+    for r, e in enumerate(res):
+        push(e, {r: sp.S.One})
+    stmts = list(value.stmts)
+    asyms = temp_symbols("_adj")
+
+    def finalize(x) -> dict:
+        out = {}
+        for r, terms in adj.pop(x, {}).items():
+            a = sp.Add(*terms)
+            if a == 0:
+                continue
+            if not a.is_Atom:
+                sym = next(asyms)
+                stmts.append((sym, a))
+                a = sym
+            out[r] = a
+        return out
+
+    for t, e in reversed(value.stmts):
+        if t in adj:
+            push(e, finalize(t))
+    blocks = []
+    for arg, st in zip(args, storages):
+        G = sp.zeros(nres, len(st))
+        for k, s in enumerate(st):
+            for r, a in finalize(s).items():
+                G[r, k] = a
+        blocks.append(G * storage_D_tangent_of(arg))
+    J = sp.Matrix.hstack(*blocks) if len(blocks) > 0 else sp.zeros(nres, 0)
     if isinstance(output, LieGroupBase):
         J = tangent_D_storage_of(type(output).from_storage(res)) * J
     return stmts, res, J
