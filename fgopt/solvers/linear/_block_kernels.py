@@ -31,6 +31,7 @@ def _bind(module: str, name: str, nargs: int) -> types.ExternalFunction:
 _dpotrf = _bind("scipy.linalg.cython_lapack", "dpotrf", 5)
 _dtrsm = _bind("scipy.linalg.cython_blas", "dtrsm", 11)
 _dsyrk = _bind("scipy.linalg.cython_blas", "dsyrk", 10)
+_dgemm = _bind("scipy.linalg.cython_blas", "dgemm", 13)
 
 # Argument block for the Fortran calls (every argument is passed by address):
 # int32 slots 0..4 hold the characters L R N T U, 8.. integers; float slots 1.0, -1.0, 0.0.
@@ -99,26 +100,26 @@ def _panel_small(L, p0, w, m):
 
 
 @njit(cache=True, inline="always")
-def _syrk_small(L, p0, w, m, C):
-    """Lower triangle of ``C = B B^T`` (``r x r``, column-major), ``B`` the panel's rows below."""
-    ru = _u(m - w)
-    b0 = _u(p0 + w)
+def _update_small(L, b0, w, m, n, k, C):
+    """Columns ``0..k`` of the lower part of ``C = B B^T``, ``B`` the ``n x w`` block at
+    ``L[b0]`` (``ld m``); ``C`` is ``n x k`` column-major (``ld n``)."""
+    nu = _u(n)
     mu = _u(m)
-    for j in range(ru):
-        cj = j * ru
-        for i in range(j, ru):
+    for j in range(_u(k)):
+        cj = j * nu
+        for i in range(j, nu):
             C[cj + i] = 0.0
-        for k in range(_u(w)):
-            kk = b0 + k * mu
-            f = L[kk + j]
-            for i in range(j, ru):
-                C[cj + i] += L[kk + i] * f
+        for kk in range(_u(w)):
+            col = _u(b0) + kk * mu
+            f = L[col + j]
+            for i in range(j, nu):
+                C[cj + i] += L[col + i] * f
 
 
 # ------------------------------------------------------------------ factorization
 @njit(cache=True)
 def factorize(H, hmap, L, C, pstart, width, rows, cb_ptr, cb_base, cb_ld, cb_src, cb_dim,
-              run_ptr, run_src, run_dst, run_len, iw, fw, small_panel, small_syrk):
+              run_ptr, run_src, run_dst, run_len, iw, fw, small_panel, small_syrk, chunk):
     """Numeric factorization; returns -1, or the supernode whose pivot was not positive."""
     L[:] = 0.0
     for p in range(H.shape[0]):
@@ -150,17 +151,33 @@ def factorize(H, hmap, L, C, pstart, width, rows, cb_ptr, cb_base, cb_ld, cb_src
                 _dtrsm(ip + 4 * _CR, ip + 4 * _CL, ip + 4 * _CT, ip + 4 * _CN,
                        ip + 4 * (_I0 + 3), ip + 4 * _I0, fp, base + 8 * p0, ip + 4 * (_I0 + 1),
                        base + 8 * (p0 + w), ip + 4 * (_I0 + 1))
-        if r > 0:
-            if w <= small_syrk:
-                _syrk_small(L, p0, w, m, C)
-            else:
-                # C <- B B^T (lower), C is r x r with ld r
-                _dsyrk(ip + 4 * _CL, ip + 4 * _CN, ip + 4 * (_I0 + 3), ip + 4 * _I0, fp,
-                       base + 8 * (p0 + w), ip + 4 * (_I0 + 1), fp + 16, cbase,
-                       ip + 4 * (_I0 + 3))
-        if r > 0:
-            _scatter_update(L, C, r, s, cb_ptr, cb_base, cb_ld, cb_src, cb_dim, run_ptr, run_src,
-                            run_dst, run_len)
+        if r > 0:   # the update B B^T, formed and scattered in chunks of whole column blocks
+            jb = cb_ptr[s]
+            jb_end = cb_ptr[s + 1]
+            while jb < jb_end:
+                c0 = cb_src[jb]
+                je = jb + 1
+                while je < jb_end and cb_src[je] + cb_dim[je] - c0 <= chunk:
+                    je += 1
+                k = cb_src[je - 1] + cb_dim[je - 1] - c0
+                n = r - c0
+                if w <= small_syrk:
+                    _update_small(L, p0 + w + c0, w, m, n, k, C)
+                else:
+                    iw[_I0 + 4] = k
+                    iw[_I0 + 5] = n
+                    iw[_I0 + 6] = n - k
+                    b = base + 8 * (p0 + w + c0)
+                    _dsyrk(ip + 4 * _CL, ip + 4 * _CN, ip + 4 * (_I0 + 4), ip + 4 * _I0, fp,
+                           b, ip + 4 * (_I0 + 1), fp + 16, cbase, ip + 4 * (_I0 + 5))
+                    if n > k:
+                        _dgemm(ip + 4 * _CN, ip + 4 * _CT, ip + 4 * (_I0 + 6),
+                               ip + 4 * (_I0 + 4), ip + 4 * _I0, fp, b + 8 * k,
+                               ip + 4 * (_I0 + 1), b, ip + 4 * (_I0 + 1), fp + 16, cbase + 8 * k,
+                               ip + 4 * (_I0 + 5))
+                _scatter_update(L, C, n, c0, jb, je, cb_base, cb_ld, cb_src, cb_dim, run_ptr,
+                                run_src, run_dst, run_len)
+                jb = je
     return -1
 
 
@@ -181,15 +198,16 @@ def _prefetch_block(L, jb, cb_base, cb_ld, cb_dim, run_ptr, run_dst, run_len):
 
 
 @njit(cache=True, inline="always")
-def _scatter_update(L, C, r, s, cb_ptr, cb_base, cb_ld, cb_src, cb_dim, run_ptr, run_src,
-                    run_dst, run_len):
-    """Subtract the lower triangle of ``C`` from the ancestors' panels (runs of rows).
+def _scatter_update(L, C, n, c0, jb_start, jb_end, cb_base, cb_ld, cb_src, cb_dim, run_ptr,
+                    run_src, run_dst, run_len):
+    """Subtract a chunk of the update from the ancestors' panels (runs of rows).
 
-    The targets of the next column block are prefetched while one is being subtracted.
+    The chunk holds update rows and columns ``c0..`` of column blocks ``jb_start..jb_end``,
+    column-major with ``ld n``. The targets of the next column block are prefetched while one
+    is being subtracted.
     """
-    jb_end = cb_ptr[s + 1]
-    for jb in range(cb_ptr[s], jb_end):
-        if jb == cb_ptr[s]:
+    for jb in range(jb_start, jb_end):
+        if jb == jb_start:
             _prefetch_block(L, jb, cb_base, cb_ld, cb_dim, run_ptr, run_dst, run_len)
         if jb + 1 < jb_end:
             _prefetch_block(L, jb + 1, cb_base, cb_ld, cb_dim, run_ptr, run_dst, run_len)
@@ -199,10 +217,10 @@ def _scatter_update(L, C, r, s, cb_ptr, cb_base, cb_ld, cb_src, cb_dim, run_ptr,
         q0 = run_ptr[jb]
         q1 = run_ptr[jb + 1]
         for c in range(cb_dim[jb]):
-            scol = _u((oj + c) * r)
+            scol = (oj + c - c0) * n - c0
             dcol = _u(tb + c * ldt)
             for q in range(q0, q1):
-                sr = scol + _u(run_src[q])
+                sr = _u(scol + run_src[q])
                 dr = dcol + _u(run_dst[q])
                 k0 = _u(c) if q == q0 else _u(0)
                 for k in range(k0, _u(run_len[q])):

@@ -246,3 +246,4 @@ def supernode_rows(sn, post, ipost, lp, li, dim_p):
             rpos[p] = acc
             acc += dim_p[rvi[p]]
     return rvp, rvi, rpos
+

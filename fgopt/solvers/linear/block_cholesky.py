@@ -83,7 +83,9 @@ class BlockCholeskySolver:
 
     name = "block"
 
-    def __init__(self, small_panel: int = 12, small_syrk: int = 6, relax=DEFAULT_RELAX):
+    def __init__(self, small_panel: int = 12, small_syrk: int = 6, chunk: int = 512,
+                 relax=DEFAULT_RELAX):
+        self.chunk = int(chunk)
         self.small_panel = int(small_panel)
         self.small_syrk = int(small_syrk)
         self.relax = relax
@@ -115,7 +117,9 @@ class BlockCholeskySolver:
         self._rix = np.repeat(sy.off[sy.rvi], rvd) + _ranges(rvd)
         self.L = np.zeros(int(sy.pstart[-1]))
         r = sy.rows - sy.width
-        self._C = np.zeros(max(1, int((r * r).max(initial=0))))
+        # update chunks: at most r x (chunk + widest variable) doubles
+        self._C = np.zeros(max(1, int((r * np.minimum(r, self.chunk + sy.dim.max(initial=1))).max(
+            initial=0))))
         self._buf = np.zeros(max(1, int(r.max(initial=0))))
         self._iw, self._fw = k.blas_workspace()
         self._ok = False
@@ -133,7 +137,8 @@ class BlockCholeskySolver:
         self._ok = False
         fail = k.factorize(np.ascontiguousarray(H_data, dtype=np.float64), self._hmap, self.L,
                            self._C, sy.pstart, sy.width, sy.rows, *self._maps, self._iw,
-                           self._fw, self.small_panel, self.small_syrk)
+                           self._fw, self.small_panel, self.small_syrk,
+                           self.chunk)
         if fail >= 0:
             v = int(sy.post_var[sy.sn[fail]])
             raise NotPositiveDefiniteError(
