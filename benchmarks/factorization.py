@@ -3,13 +3,15 @@
     python -m benchmarks.factorization [--datasets sphere2500,torus3D] [--orderings amd,metis]
                                        [--reps 9]
 
-For every dataset and every fill-reducing ordering of the variable graph (``Problem(ordering=)``),
-H (with LM damping ``diag *= 1.0001``) is factored by CHOLMOD simplicial, CHOLMOD supernodal
-(both told ``natural``: the problem already ordered the variables) and fgopt's
+Datasets: the 3D / 2D pose graphs of BENCHMARKS.md and Ladybug-49's full BA system. For every
+dataset and every fill-reducing ordering of the variable graph (``Problem(ordering=)``),
+H (with LM damping ``diag *= 1.0001``, plus ``1e-6``) is factored by CHOLMOD simplicial, CHOLMOD
+supernodal (both told ``natural``: the problem already ordered the variables) and fgopt's
 ``BlockCholeskySolver``, interleaved, ``--reps`` times after a warm-up. Printed: medians of the
-wall time (ms) and of the thread CPU time (the machine is shared: CPU time is the steadier figure),
-block / CHOLMOD-supernodal ratios, exact ``nnz(L)`` and the block solver's stored entries
-(relaxed supernodes hold explicit zeros), its multiply-adds, solve times, and the agreement of the solutions.
+wall time (ms) and of the thread CPU time (the machine is shared: CPU time is the steadier
+figure), block / CHOLMOD-supernodal ratios, exact ``nnz(L)`` and the block solver's stored
+entries (relaxed supernodes hold explicit zeros), its multiply-adds, solve times, and the
+agreement of the two solutions.
 Single-threaded (``OMP/OPENBLAS/NUMBA_NUM_THREADS=1`` unless already set).
 """
 
@@ -20,12 +22,12 @@ import os
 for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
-import argparse  # noqa: E402
-import time  # noqa: E402
-import warnings  # noqa: E402
-from pathlib import Path  # noqa: E402
+import argparse
+import time
+import warnings
+from pathlib import Path
 
-import numpy as np  # noqa: E402
+import numpy as np
 
 DATASETS = {
     "sphere2500": "pose3d/sphere2500.g2o",
@@ -33,6 +35,7 @@ DATASETS = {
     "garage": "pose3d/parking-garage.g2o",
     "cubicle": "pose3d/cubicle.g2o",
     "M3500": "pose2d/input_M3500_g2o.g2o",
+    "ladybug49": "bal/problem-49-7776-pre.txt",   # the full BA system (no Schur complement)
 }
 ORDERINGS = ("amd", "metis", "nesdis", "colamd")
 
@@ -45,12 +48,14 @@ def data_dir() -> Path:
 
 
 def damped_system(graph, values, ordering):
+    """H at the initial guess with LM damping (BA has no gauge prior: a tiny shift keeps it PD)."""
     import fgopt
 
     p = fgopt.Problem(graph, values, ordering=ordering)
     p.linearize(p.initial_state())
     H = p.H_data.copy()
     H[p.pattern.diag_pos] *= 1.0001
+    H[p.pattern.diag_pos] += 1e-6
     return p.pattern, H, p.g.copy()
 
 
@@ -94,9 +99,10 @@ def bench_one(pattern, H, g, reps):
     nnz_chol = int(simp.L().nnz)  # exact nnz(L): simplicial stores no explicit zeros
     med = {k: (1e3 * float(np.median(v[0])), 1e3 * float(np.median(v[1])))
            for k, v in times.items()}
-    return dict(med=med, nnz_chol=nnz_chol, nnz_block=block.nnz_factor, flops=_flops(block),
-                analyze=t_an, agree=float(np.linalg.norm(x_block - x_sup) / np.linalg.norm(x_sup)),
-                supernodes=int(block.symbolic.width.shape[0]))
+    agree = float(np.linalg.norm(x_block - x_sup) / np.linalg.norm(x_sup))
+    return {"med": med, "nnz_chol": nnz_chol, "nnz_block": block.nnz_factor,
+            "flops": _flops(block), "analyze": t_an, "agree": agree,
+            "supernodes": int(block.symbolic.width.shape[0])}
 
 
 def _flops(block) -> float:
@@ -130,15 +136,20 @@ def main(argv=None) -> None:
             continue
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            graph, values = read_g2o(path, add_prior=True, repair_information="clip")
+            if path.suffix == ".txt":
+                from fgopt.io.bal import read_bal
+
+                graph, values = read_bal(path)
+            else:
+                graph, values = read_g2o(path, add_prior=True, repair_information="clip")
         for order in args.orderings.split(","):
             pattern, H, g = damped_system(graph, values, order)
             r = bench_one(pattern, H, g, args.reps)
             m = r["med"]
             ratio = (m["block"][0] / m["super"][0], m["block"][1] / m["super"][1])
+            pair = {k: f"{v[0]:6.1f}/{v[1]:6.1f}" for k, v in m.items()}
             print(f"{name:10s} {order:6s} {r['nnz_chol']:9d} {r['nnz_block']:9d} "
-                  f"{r['flops'] / 1e6:6.0f} {m['simpl'][0]:6.1f}/{m['simpl'][1]:6.1f} "
-                  f"{m['super'][0]:6.1f}/{m['super'][1]:6.1f} {m['block'][0]:6.1f}/{m['block'][1]:6.1f} "
+                  f"{r['flops'] / 1e6:6.0f} {pair['simpl']} {pair['super']} {pair['block']} "
                   f"{ratio[0]:4.2f}/{ratio[1]:4.2f} {m['block_solve'][1]:9.2f} "
                   f"{m['super_solve'][1]:10.2f} {r['agree']:7.0e}", flush=True)
             if name not in best or m["block"][1] < best[name][1]:

@@ -12,9 +12,9 @@ from fgopt.structure import build_pattern, fill_reducing_order
 NO_RELAX = ((1 << 62, 0.0),)
 MUCH_RELAX = ((24, 1.0), (96, 0.5), (1 << 62, 0.3))
 # small_*=0: every panel goes through LAPACK/BLAS; 10**6: every panel through the numba loops
-CONFIGS = [dict(), dict(small_panel=0, small_syrk=0), dict(small_panel=10**6, small_syrk=10**6),
-           dict(relax=NO_RELAX), dict(relax=MUCH_RELAX, small_panel=3, small_syrk=9),
-           dict(chunk=7), dict(chunk=1, small_syrk=0)]          # updates in many column chunks
+CONFIGS = [{}, {"small_panel": 0, "small_syrk": 0}, {"small_panel": 10**6, "small_syrk": 10**6},
+           {"relax": NO_RELAX}, {"relax": MUCH_RELAX, "small_panel": 3, "small_syrk": 9},
+           {"chunk": 7}, {"chunk": 1, "small_syrk": 0}]      # updates in many column chunks
 
 
 def random_block_system(seed, num_vars=60, dims=(1, 2, 3, 6, 9), extra_edges=80,

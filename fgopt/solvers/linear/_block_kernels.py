@@ -276,6 +276,77 @@ def solve_inplace(L, x, pstart, width, rows, col0, rix_ptr, rix, buf):
             x[c0 + _u(c)] = (x[c0 + _u(c)] - acc) / L[cc + _u(c)]
 
 
+@njit(cache=True, fastmath={"contract"})
+def solve_multi_inplace(L, X, nrhs, pstart, width, rows, col0, rix_ptr, rix, buf, acc):
+    """``solve_inplace`` for ``nrhs`` right-hand sides: ``X`` is ``(n, nrhs)`` C-order, flat.
+
+    Every inner loop runs over the right-hand sides (contiguous), so it vectorizes.
+    """
+    S = width.shape[0]
+    k = _u(nrhs)
+    for s in range(S):                       # forward
+        w = _u(width[s])
+        m = _u(rows[s])
+        r = m - w
+        p0 = _u(pstart[s])
+        c0 = _u(col0[s])
+        g0 = _u(rix_ptr[s]) + w
+        for i in range(r * k):
+            buf[i] = 0.0
+        for c in range(w):
+            cc = p0 + c * m
+            xc = (c0 + c) * k
+            inv = 1.0 / L[cc + c]
+            for t in range(k):
+                X[xc + t] *= inv
+            for i in range(c + _u(1), w):
+                f = L[cc + i]
+                xi = (c0 + i) * k
+                for t in range(k):
+                    X[xi + t] -= f * X[xc + t]
+            for i in range(r):
+                f = L[cc + w + i]
+                bi = i * k
+                for t in range(k):
+                    buf[bi + t] += f * X[xc + t]
+        for i in range(r):
+            xi = _u(rix[g0 + i]) * k
+            bi = i * k
+            for t in range(k):
+                X[xi + t] -= buf[bi + t]
+    for s in range(S - 1, -1, -1):           # backward
+        w = _u(width[s])
+        m = _u(rows[s])
+        r = m - w
+        p0 = _u(pstart[s])
+        c0 = _u(col0[s])
+        g0 = _u(rix_ptr[s]) + w
+        for i in range(r):
+            xi = _u(rix[g0 + i]) * k
+            bi = i * k
+            for t in range(k):
+                buf[bi + t] = X[xi + t]
+        for c in range(w - _u(1), -1, -1):
+            cu = _u(c)
+            cc = p0 + cu * m
+            xc = (c0 + cu) * k
+            for t in range(k):
+                acc[t] = X[xc + t]
+            for i in range(r):
+                f = L[cc + w + i]
+                bi = i * k
+                for t in range(k):
+                    acc[t] -= f * buf[bi + t]
+            for i in range(cu + _u(1), w):
+                f = L[cc + i]
+                xi = (c0 + i) * k
+                for t in range(k):
+                    acc[t] -= f * X[xi + t]
+            inv = 1.0 / L[cc + cu]
+            for t in range(k):
+                X[xc + t] = acc[t] * inv
+
+
 # ------------------------------------------------------------------ symbolic maps
 @njit(cache=True)
 def build_maps(sn, rvp, rvi, rpos, dim, off, pstart, rows, width):

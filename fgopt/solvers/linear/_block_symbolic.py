@@ -187,7 +187,6 @@ def supernode_partition(n, parent, cnt, dim, below, relax_cols, relax_zeros):
     keep[nsn] = True
     cs, ce = nsn - 1, nsn            # current group [cs, ce)
     cw, cm, cz = w[nsn - 1], m[nsn - 1], 0.0
-    zs = 0.0
     for s in range(nsn - 2, -1, -1):
         ps = sparent[s]
         merged = False
