@@ -7,8 +7,9 @@ For ``f_safe(x, epsilon)`` meant to remove a singularity of ``f`` at ``x = x0``:
 2. ``L_x = lim_{x -> x0} f_safe(x, 0)`` (from both sides) is the correct value;
 3. ``L_eps = lim_{eps -> 0+} f_safe(x0, eps)`` must be finite and equal ``L_x``.
 
-The same test is run on the first derivative ``d f_safe / dx``. ``sign_no_zero`` terms are
-resolved per side (``+1`` right of ``x0``, ``-1`` left of it).
+The same test is run on the first derivative ``d f_safe / dx``. One-sided limits substitute
+``x = x0 +- u`` with ``u -> 0+`` (so ``|x - x0|`` and ``sqrt((x - x0)^2)`` simplify);
+``sign_no_zero`` terms are resolved per side (``+1`` right of ``x0``, ``-1`` left of it).
 """
 
 from __future__ import annotations
@@ -71,8 +72,10 @@ def check_removable_singularity(f: Any, x: Any, x0: Any = 0, epsilon: Any = None
         tag = "value" if order == 0 else f"derivative {order}"
         at = sp.simplify(_resolve_snz(g.subs(eps, 0), x, 1).subs(x, x0))
         lims = []
-        for side, d in ((1, "+"), (-1, "-")):
-            lims.append(sp.limit(_resolve_snz(g.subs(eps, 0), x, side), x, x0, dir=d))
+        u = sp.Dummy("u", positive=True)  # x = x0 + side * u, u -> 0+ (so |u| = u)
+        for side in (1, -1):
+            g_side = _resolve_snz(g.subs(eps, 0), x, side).subs(x, x0 + side * u)
+            lims.append(sp.limit(g_side, u, 0, dir="+"))
         lim_eps = sp.limit(_resolve_snz(g, x, 1).subs(x, x0), eps, 0, dir="+")
         report.values[order] = (at, lims, lim_eps)
         if at in (sp.zoo, sp.oo, -sp.oo):

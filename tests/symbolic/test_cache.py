@@ -1,0 +1,79 @@
+"""The on-disk kernel cache: a second process neither re-derives nor re-compiles."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+SCRIPT = textwrap.dedent('''
+    import json, sys, time
+    import numpy as np
+    import fgopt
+    from fgopt.symbolic import V2, Pose2, atan2, cache
+
+    @fgopt.factor
+    def landmark_obs(pose: Pose2, landmark: V2, measured: V2) -> V2:
+        d = pose.inverse() * landmark
+        return V2(d.norm(), atan2(d[1], d[0])) - measured
+
+    t = time.perf_counter()
+    f = landmark_obs(fgopt.key("x", 0), fgopt.key("l", 0), np.array([1.0, 0.1]))
+    args = (np.array([[1.0, 0.0, 0.5, 0.2]]), np.array([[3.0, 1.0]]))
+    res, jac = f.kernel.linearize(args, np.array([[1.0, 0.1]]))
+    res2 = f.kernel.residual(args, np.array([[1.0, 0.1]]))
+    load = time.perf_counter() - t
+    mod = sys.modules[f.kernel.linearize.__module__]
+    stats = [mod._linearize_kernel.stats, mod._residual_kernel.stats]
+    print(json.dumps({
+        "stats": cache.STATS, "sympy": "sympy" in sys.modules, "load": load,
+        "hits": sum(sum(s.cache_hits.values()) for s in stats),
+        "misses": sum(sum(s.cache_misses.values()) for s in stats),
+        "res": res.tolist(), "jac": jac.tolist(), "file": mod.__file__}))
+''')
+
+
+def _run(tmp_path: Path) -> dict:
+    script = tmp_path / "user_factor.py"
+    script.write_text(SCRIPT)
+    env = {**os.environ, "FGOPT_CACHE_DIR": str(tmp_path / "cache")}
+    out = subprocess.run([sys.executable, str(script)], env=env, capture_output=True, text=True,
+                         timeout=600, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_second_process_loads_without_deriving_or_compiling(tmp_path):
+    first = _run(tmp_path)
+    assert first["stats"]["derived"] == 1 and first["misses"] == 2
+    second = _run(tmp_path)
+    assert second["stats"] == {"derived": 0, "loaded": 1, "written": 0}
+    assert second["sympy"] is False  # nothing symbolic ran
+    assert second["misses"] == 0 and second["hits"] == 2  # numba loaded both kernels from disk
+    assert second["res"] == first["res"] and second["jac"] == first["jac"]
+    assert second["file"] == first["file"]
+    assert Path(first["file"]).parent == tmp_path / "cache" / "kernels"
+
+
+def test_editing_the_function_changes_the_key(tmp_path):
+    from fgopt.symbolic import V2, cache
+
+    def make(scale):
+        def f(x: V2) -> V2:
+            return x * scale
+
+        return f
+
+    def g(x: V2) -> V2:
+        return x * 2
+
+    def h(x: V2) -> V2:
+        return x * 3
+
+    key_g = cache.kernel_key(g, ("g",))
+    assert key_g == cache.kernel_key(g, ("g",))
+    assert key_g != cache.kernel_key(h, ("g",))  # different source
+    assert cache.kernel_key(make(2), ("f",)) != cache.kernel_key(make(3), ("f",))  # closure value
