@@ -297,6 +297,7 @@ class Problem:
             self._kind_tangent.append(idx)
         self.H_data = np.zeros(self.pattern.nnz)
         self.g = np.zeros(self.pattern.size)
+        self._spare: tuple[np.ndarray, np.ndarray] | None = None
 
     # ----------------------------------------------------------------- iteration API
     @property
@@ -342,7 +343,35 @@ class Problem:
         """Fill ``self.H_data`` (lower CSC of H) and ``self.g`` (J^T W r); return the cost."""
         if self.pattern is None:
             raise FgoptError("this Problem was built without structure")
-        H, g = self.H_data, self.g
+        total = self._linearize_into(state, self.H_data, self.g)
+        if not (np.isfinite(total) and np.all(np.isfinite(self.g))):
+            raise NonFiniteError(self.locate_nonfinite(state))
+        return total
+
+    def linearize_candidate(self, state: State) -> float:
+        """Linearize a trial state into spare buffers; return its cost (NaN if not finite).
+
+        Trust-region methods call this instead of ``cost`` so an accepted step needs no second
+        evaluation of the residuals: :meth:`accept_candidate` swaps the buffers in.
+        """
+        if self._spare is None:
+            self._spare = (np.zeros_like(self.H_data), np.zeros_like(self.g))
+        H, g = self._spare
+        try:
+            total = self._linearize_into(state, H, g)
+        except NonFiniteError:
+            return float("nan")
+        if not (np.isfinite(total) and np.all(np.isfinite(g)) and np.all(np.isfinite(H))):
+            return float("nan")
+        return total
+
+    def accept_candidate(self) -> None:
+        """Make the last :meth:`linearize_candidate` the current linearization."""
+        H, g = self._spare
+        self._spare = (self.H_data, self.g)
+        self.H_data, self.g = H, g
+
+    def _linearize_into(self, state: State, H: np.ndarray, g: np.ndarray) -> float:
         H[:] = 0.0
         g[:] = 0.0
         total = 0.0
@@ -369,8 +398,6 @@ class Problem:
             t_lin += time.perf_counter() - t0
         self.timing["linearize"] += t_lin
         self.timing["assemble"] += t_asm
-        if not (np.isfinite(total) and np.all(np.isfinite(g))):
-            raise NonFiniteError(self.locate_nonfinite(state))
         return float(total)
 
     def retract(self, state: State, delta: np.ndarray) -> State:

@@ -70,19 +70,18 @@ class LevenbergMarquardt:
             # predicted decrease of the model: -(g.d + 0.5 d.H.d) with (H + lam D) d = -g
             predicted = 0.5 * float(delta @ (lam * D * delta) - g @ delta)
             candidate = problem.retract(run.state, delta)
-            new_cost = problem.cost(candidate)
+            # Linearize the trial point right away (its cost comes with it): steps are usually
+            # accepted, and then the residuals need not be evaluated a second time.
+            new_cost = problem.linearize_candidate(candidate)
             rho = (old - new_cost) / predicted if predicted > 0 else -math.inf
             accepted = math.isfinite(new_cost) and rho > p.min_relative_decrease
             if accepted:
                 run.state = candidate
+                problem.accept_candidate()
+                run.cost = new_cost
                 lam = max(p.min_lambda, lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3))
                 nu = 2.0
-                done = run.converged_by_decrease(old, new_cost)
-                if done is None:
-                    run.relinearize()
-                    done = run.converged_by_gradient()
-                else:
-                    run.cost = new_cost
+                done = run.converged_by_decrease(old, new_cost) or run.converged_by_gradient()
                 stop = run.record(it, new_cost, lam, step_norm, True, old)
                 if done is not None:
                     return run.finish(Status.CONVERGED, done)
