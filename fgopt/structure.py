@@ -59,7 +59,7 @@ def fill_reducing_order(num_vars: int, pairs_i: np.ndarray, pairs_j: np.ndarray,
 
     Returns ``perm`` with ``perm[k]`` = the variable eliminated ``k``-th.
     """
-    if method == "natural" or num_vars <= 2:
+    if method == "natural" or num_vars <= 16:  # tiny problems: ordering costs more than fill
         return np.arange(num_vars)
     from sksparse.cholmod import analyze
 
