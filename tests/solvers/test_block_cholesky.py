@@ -123,11 +123,28 @@ def test_not_positive_definite_raises_and_recovers(config):
     assert rel(s.solve(b), np.linalg.solve(dense, b)) < 1e-9
 
 
-def test_nan_is_not_positive_definite():
+@pytest.mark.parametrize("config", CONFIGS[:3])
+def test_nan_pivot_is_not_positive_definite(config):
     pattern, data, _ = random_block_system(4)
-    s = BlockCholeskySolver()
+    s = BlockCholeskySolver(**config)
     s.analyze(pattern)
-    bad = data.copy()
-    bad[pattern.diag_pos[0]] = np.nan
+    for where in (0, pattern.size // 2, pattern.size - 1):
+        bad = data.copy()
+        bad[pattern.diag_pos[where]] = np.nan
+        with pytest.raises(NotPositiveDefiniteError):
+            s.factorize(bad)
+
+
+def test_misuse_raises_fgopt_errors():
+    pattern, data, _ = random_block_system(5, num_vars=10)
+    s = BlockCholeskySolver()
+    with pytest.raises(fgopt.errors.FgoptError):
+        s.factorize(data)                            # before analyze
+    s.analyze(pattern)
+    with pytest.raises(fgopt.errors.DimensionMismatchError):
+        s.factorize(data[:-1])
     with pytest.raises(NotPositiveDefiniteError):
-        s.factorize(bad)
+        s.solve(np.ones(pattern.size))               # before a successful factorize
+    s.factorize(data)
+    with pytest.raises(fgopt.errors.DimensionMismatchError):
+        s.solve(np.ones(pattern.size + 1))

@@ -146,6 +146,9 @@ def factorize(H, hmap, L, C, pstart, width, rows, cb_ptr, cb_base, cb_ld, cb_src
                     ip + 4 * (_I0 + 2))
             if iw[_I0 + 2] != 0:
                 return s
+            for c in range(w):   # OpenBLAS's potf2 tests ``ajj <= 0``, which lets NaN through
+                if not L[p0 + c * m + c] > 0.0:
+                    return s
             if r > 0:
                 # B <- B L11^-T : side R, lower, transposed, non-unit; B is r x w at p0 + w
                 _dtrsm(ip + 4 * _CR, ip + 4 * _CL, ip + 4 * _CT, ip + 4 * _CN,

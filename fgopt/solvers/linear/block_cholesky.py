@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...errors import NotPositiveDefiniteError
+from ...errors import DimensionMismatchError, FgoptError, NotPositiveDefiniteError
 from ...structure import HessianPattern
 from . import _block_symbolic as sym
 
@@ -53,6 +53,8 @@ def analyze_blocks(pattern: HessianPattern, relax=DEFAULT_RELAX) -> BlockSymboli
     var_offset = np.asarray(pattern.var_offset, np.int64)
     var_dim = np.asarray(pattern.var_dim, np.int64)
     V = var_offset.shape[0]
+    if V == 0 or pattern.size == 0:
+        raise FgoptError("block Cholesky: the pattern has no variables")
     vorder = np.argsort(var_offset, kind="stable")
     off_r, dim_r = var_offset[vorder], var_dim[vorder]
     col2rank = np.repeat(np.arange(V, dtype=np.int64), dim_r)
@@ -107,6 +109,7 @@ class BlockCholeskySolver:
         self.small_syrk = int(small_syrk)
         self.relax = relax
         self.symbolic: BlockSymbolic | None = None
+        self._ok = False
 
     def analyze(self, pattern: HessianPattern) -> None:
         from . import _block_kernels as k
@@ -151,8 +154,15 @@ class BlockCholeskySolver:
         from . import _block_kernels as k
 
         sy = self.symbolic
+        if sy is None:
+            raise FgoptError("block Cholesky: call analyze(pattern) before factorize()")
         self._ok = False
-        fail = k.factorize(np.ascontiguousarray(H_data, dtype=np.float64), self._hmap, self.L,
+        H_data = np.ascontiguousarray(H_data, dtype=np.float64)
+        if H_data.shape != self._hmap.shape:
+            raise DimensionMismatchError(
+                f"block Cholesky: H has {H_data.shape} entries, the analyzed pattern "
+                f"{self._hmap.shape[0]}")
+        fail = k.factorize(H_data, self._hmap, self.L,
                            self._C, sy.pstart, sy.width, sy.rows, *self._maps, self._iw,
                            self._fw, self.small_panel, self.small_syrk,
                            self.chunk)
@@ -171,6 +181,9 @@ class BlockCholeskySolver:
                                            "factorize()")
         sy = self.symbolic
         b = np.asarray(rhs, dtype=np.float64)
+        if b.ndim not in (1, 2) or b.shape[0] != self._perm.shape[0]:
+            raise DimensionMismatchError(
+                f"block Cholesky: rhs has shape {b.shape}, H is {self._perm.shape[0]} square")
         if b.ndim == 1:
             x = b[self._perm]
             k.solve_inplace(self.L, x, sy.pstart, sy.width, sy.rows, self._col0, self._rix_ptr,
