@@ -5,7 +5,8 @@ at ``L[pstart[s]:]``: the lower-trapezoidal columns of L for its variables, rows
 variables (own variables first). Factorization is right-looking: each panel is factored with
 LAPACK/BLAS (``dpotrf`` on the diagonal block, ``dtrsm`` below), then its whole update
 ``C = B B^T`` (``dsyrk``) is subtracted from the ancestors' panels through precomputed runs of
-contiguous rows. Small panels use hand-written loops instead of BLAS calls.
+contiguous rows. Narrow panels use numba loops (factorization) and LLVM-IR register tiles (update,
+``_block_simd.py``) instead of BLAS calls.
 
 BLAS/LAPACK come from scipy's ``cython_blas`` / ``cython_lapack`` (its bundled OpenBLAS). They
 are bound as named external symbols, so the compiled kernels stay cacheable (``cache=True``):
@@ -16,10 +17,11 @@ from __future__ import annotations
 
 import llvmlite.binding as _llvm
 import numpy as np
-from llvmlite import ir
 from numba import njit, types
-from numba.core import cgutils
-from numba.extending import get_cython_function_address, intrinsic
+from numba.extending import get_cython_function_address
+
+from ._block_simd import prefetch as _prefetch
+from ._block_simd import syrk_tile as _syrk_tile
 
 
 def _bind(module: str, name: str, nargs: int) -> types.ExternalFunction:
@@ -45,26 +47,6 @@ def blas_workspace() -> tuple[np.ndarray, np.ndarray]:
     iw[:5] = [ord(c) for c in "LRNTU"]
     fw = np.array([1.0, -1.0, 0.0])
     return iw, fw
-
-
-@intrinsic
-def _prefetch(typingctx, arr, idx):
-    """Hint the CPU to fetch ``arr[idx]``'s cache line for writing (``llvm.prefetch``)."""
-    sig = types.void(arr, idx)
-
-    def codegen(context, builder, signature, args):
-        aryty = signature.args[0]
-        ary = context.make_array(aryty)(context, builder, args[0])
-        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [args[1]], wraparound=False)
-        i8p = ir.IntType(8).as_pointer()
-        i32 = ir.IntType(32)
-        fnty = ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32])
-        fn = cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0")
-        builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 1), ir.Constant(i32, 3),
-                          ir.Constant(i32, 1)])
-        return context.get_dummy_value()
-
-    return sig, codegen
 
 
 # ------------------------------------------------------------------ small dense kernels
@@ -100,20 +82,17 @@ def _panel_small(L, p0, w, m):
 
 
 @njit(cache=True, inline="always")
-def _update_small(L, b0, w, m, n, k, C):
-    """Columns ``0..k`` of the lower part of ``C = B B^T``, ``B`` the ``n x w`` block at
-    ``L[b0]`` (``ld m``); ``C`` is ``n x k`` column-major (``ld n``)."""
-    nu = _u(n)
-    mu = _u(m)
-    for j in range(_u(k)):
-        cj = j * nu
-        for i in range(j, nu):
-            C[cj + i] = 0.0
-        for kk in range(_u(w)):
-            col = _u(b0) + kk * mu
-            f = L[col + j]
-            for i in range(j, nu):
-                C[cj + i] += L[col + i] * f
+def _update_tiles(L, b0, w, m, n, k, C, ldc):
+    """Columns ``0..k`` of the lower part of ``C = B B^T`` in 8 x 4 register tiles.
+
+    ``B`` is the ``n x w`` block at ``L[b0]`` (``ld m``); ``C`` is column-major with ``ldc``
+    (``n`` rounded up to 8). Tiles overhanging ``n`` / ``k`` read past ``B`` (into L's
+    padding at worst) and write into ``C``'s padding; those entries are never used.
+    """
+    for j0 in range(0, k, 4):
+        for i0 in range(j0 & ~7, n, 8):
+            _syrk_tile(L, _u(b0 + i0), _u(b0 + j0), _u(m), _u(w), C, _u(i0 + j0 * ldc),
+                       _u(ldc))
 
 
 # ------------------------------------------------------------------ factorization
@@ -165,8 +144,10 @@ def factorize(H, hmap, L, C, pstart, width, rows, cb_ptr, cb_base, cb_ld, cb_src
                 k = cb_src[je - 1] + cb_dim[je - 1] - c0
                 n = r - c0
                 if w <= small_syrk:
-                    _update_small(L, p0 + w + c0, w, m, n, k, C)
+                    ldc = (n + 7) & ~7
+                    _update_tiles(L, p0 + w + c0, w, m, n, k, C, ldc)
                 else:
+                    ldc = n
                     iw[_I0 + 4] = k
                     iw[_I0 + 5] = n
                     iw[_I0 + 6] = n - k
@@ -178,7 +159,7 @@ def factorize(H, hmap, L, C, pstart, width, rows, cb_ptr, cb_base, cb_ld, cb_src
                                ip + 4 * (_I0 + 4), ip + 4 * _I0, fp, b + 8 * k,
                                ip + 4 * (_I0 + 1), b, ip + 4 * (_I0 + 1), fp + 16, cbase + 8 * k,
                                ip + 4 * (_I0 + 5))
-                _scatter_update(L, C, n, c0, jb, je, cb_base, cb_ld, cb_src, cb_dim, run_ptr,
+                _scatter_update(L, C, ldc, c0, jb, je, cb_base, cb_ld, cb_src, cb_dim, run_ptr,
                                 run_src, run_dst, run_len)
                 jb = je
     return -1
@@ -201,12 +182,12 @@ def _prefetch_block(L, jb, cb_base, cb_ld, cb_dim, run_ptr, run_dst, run_len):
 
 
 @njit(cache=True, inline="always")
-def _scatter_update(L, C, n, c0, jb_start, jb_end, cb_base, cb_ld, cb_src, cb_dim, run_ptr,
+def _scatter_update(L, C, ldc, c0, jb_start, jb_end, cb_base, cb_ld, cb_src, cb_dim, run_ptr,
                     run_src, run_dst, run_len):
     """Subtract a chunk of the update from the ancestors' panels (runs of rows).
 
     The chunk holds update rows and columns ``c0..`` of column blocks ``jb_start..jb_end``,
-    column-major with ``ld n``. The targets of the next column block are prefetched while one
+    column-major with ``ldc``. The targets of the next column block are prefetched while one
     is being subtracted.
     """
     for jb in range(jb_start, jb_end):
@@ -220,7 +201,7 @@ def _scatter_update(L, C, n, c0, jb_start, jb_end, cb_base, cb_ld, cb_src, cb_di
         q0 = run_ptr[jb]
         q1 = run_ptr[jb + 1]
         for c in range(cb_dim[jb]):
-            scol = (oj + c - c0) * n - c0
+            scol = (oj + c - c0) * ldc - c0
             dcol = _u(tb + c * ldt)
             for q in range(q0, q1):
                 sr = _u(scol + run_src[q])

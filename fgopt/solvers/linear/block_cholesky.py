@@ -93,16 +93,16 @@ def analyze_blocks(pattern: HessianPattern, relax=DEFAULT_RELAX) -> BlockSymboli
 class BlockCholeskySolver:
     """Supernodal Cholesky on the variable-block structure of H (numba + BLAS).
 
-    ``small_panel`` / ``small_syrk``: panels at most this many scalar columns wide are factored /
-    form their update with hand-written loops instead of LAPACK/BLAS calls (whose call overhead
-    dominates for tiny blocks). ``chunk``: the update of a supernode is formed and scattered in
+    ``small_panel`` / ``small_syrk``: panels at most this many scalar columns wide are factored
+    with numba loops / form their update with register tiles instead of LAPACK/BLAS calls
+    (whose call overhead dominates for narrow panels). ``chunk``: the update of a supernode is formed and scattered in
     column chunks of about this many columns (bounds the workspace). ``relax``: relaxed
     amalgamation thresholds ``((max width, max zero fraction), ...)``, CHOLMOD's by default.
     """
 
     name = "block"
 
-    def __init__(self, small_panel: int = 12, small_syrk: int = 6, chunk: int = 512,
+    def __init__(self, small_panel: int = 12, small_syrk: int = 96, chunk: int = 512,
                  relax=DEFAULT_RELAX):
         self.chunk = int(chunk)
         self.small_panel = int(small_panel)
@@ -135,11 +135,11 @@ class BlockCholeskySolver:
         np.cumsum(rix_len, out=self._rix_ptr[1:])
         rvd = sy.dim[sy.rvi]
         self._rix = np.repeat(sy.off[sy.rvi], rvd) + _ranges(rvd)
-        self.L = np.zeros(int(sy.pstart[-1]))
+        self.L = np.zeros(int(sy.pstart[-1]) + 16)   # tail padding: register tiles read past
         r = sy.rows - sy.width
-        # update chunks: at most r x (chunk + widest variable) doubles
-        self._C = np.zeros(max(1, int((r * np.minimum(r, self.chunk + sy.dim.max(initial=1))).max(
-            initial=0))))
+        # update chunks: at most r x (chunk + widest variable) doubles, plus the tiles' padding
+        cols = np.minimum(r, self.chunk + sy.dim.max(initial=1)) + 4
+        self._C = np.zeros(max(1, int(((r + 8) * cols).max(initial=0))))
         self._buf = np.zeros(max(1, int(r.max(initial=0))))
         self._iw, self._fw = k.blas_workspace()
         self._ok = False
