@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import sys
 import typing
 from typing import Any, Callable, Iterable
 
@@ -62,11 +63,13 @@ def factor(fn: Callable | None = None, *, name: str | None = None, method: str =
         variables: argument names that are variables in the default pattern shown by
             ``.source`` before any instance exists (default: all).
     """
-    def wrap(f: Callable) -> SymbolicFactorType:
+    def wrap(f: Callable, scope: dict | None = None) -> SymbolicFactorType:
+        if scope is None:  # the defining scope: resolves string annotations of local names
+            scope = sys._getframe(1).f_locals
         return SymbolicFactorType(f, name=name, method=method, engine=engine, hessian=hessian,
-                                  cache=cache, variables=variables)
+                                  cache=cache, variables=variables, scope=scope)
 
-    return wrap if fn is None else wrap(fn)
+    return wrap if fn is None else wrap(fn, sys._getframe(1).f_locals)
 
 
 class SymbolicFactor(KernelFactor):
@@ -86,14 +89,15 @@ class SymbolicFactorType:
     """A factor type made by :func:`factor`; call it to make instances."""
 
     def __init__(self, fn: Callable, *, name: str | None, method: str, engine: str,
-                 hessian: bool, cache: bool, variables: Iterable[str] | None):
+                 hessian: bool, cache: bool, variables: Iterable[str] | None,
+                 scope: dict | None = None):
         functools.update_wrapper(self, fn)
         self.fn = fn
         self.name = name or fn.__name__
         self.method, self.engine, self.hessian, self.use_cache = method, engine, hessian, cache
         sig = inspect.signature(fn)
         try:
-            hints = typing.get_type_hints(fn)
+            hints = _type_hints(fn, scope)
         except Exception as exc:
             raise FgoptError(f"@fgopt.factor {self.name}: cannot resolve annotations: {exc}") from exc
         params = []
@@ -118,6 +122,7 @@ class SymbolicFactorType:
         self._storage_dims = tuple(tp.storage_dim() for _, tp in params)
         self._kernels: dict = {}
         self._sources: dict = {}
+        self._modules: dict = {}
         self._default_variables = tuple(variables) if variables is not None else None
 
     # ------------------------------------------------------------------ instances
@@ -197,7 +202,21 @@ class SymbolicFactorType:
             k = _kernel_from_module(module, self.params, pattern, self.name)
             self._kernels[pattern] = k
             self._sources[pattern] = k.source
+            self._modules[pattern] = module
         return k
+
+    def generated_module(self, variables: Any = None):
+        """The generated (imported) module of a pattern: kernels, wrappers and ``META``."""
+        self.kernel(variables)
+        return self._modules[self._pattern(variables)]
+
+    def linearize_hessian(self, variables: Any = None):
+        """``f(args, consts) -> (res, jac, J^T J, J^T r)`` (unwhitened); needs ``hessian=True``."""
+        module = self.generated_module(variables)
+        if not hasattr(module, "linearize_hessian"):
+            raise FgoptError(f"{self.name}: declare @fgopt.factor(hessian=True) to generate "
+                             "J^T J and J^T r")
+        return module.linearize_hessian
 
     def _module(self, pattern: tuple):
         parts = (self.name, tuple((n, tp.__module__, tp.__qualname__) for n, tp in self.params),
@@ -235,6 +254,20 @@ class SymbolicFactorType:
     def __repr__(self) -> str:
         sig = ", ".join(f"{n}: {tp.__name__}" for n, tp in self.params)
         return f"<fgopt factor {self.name}({sig})>"
+
+
+def _type_hints(fn: Callable, scope: dict | None) -> dict:
+    """Annotations, with string ones (``from __future__ import annotations``) resolved in the
+    function's globals, then the defining scope, then ``fgopt.symbolic``'s names."""
+    try:
+        return typing.get_type_hints(fn)
+    except NameError:
+        from .. import symbolic
+
+        ns = {k: getattr(symbolic, k) for k in dir(symbolic) if not k.startswith("_")}
+        ns.update(fn.__globals__)
+        ns.update(scope or {})
+        return typing.get_type_hints(fn, globalns=ns)
 
 
 def batch_kind_of(tp: type):

@@ -152,3 +152,21 @@ def test_user_factor_solved_with_lm():
         np.testing.assert_allclose(result.values.at(key("l", j)), lm, atol=1e-6)
     for i, p in enumerate(poses):
         np.testing.assert_allclose(result.values.at(key("x", i)).local(p), 0.0, atol=1e-6)
+
+
+def test_math_functions_compile_and_differentiate():
+    from fgopt.symbolic import Abs, Max, Min, acos, clamp, exp, log, safe_div, sign, sin, sqrt
+
+    @fgopt.factor(hessian=True)
+    def funky(x: fgopt.symbolic.V3, w: Scalar) -> fgopt.symbolic.V3:
+        return fgopt.symbolic.V3(
+            sqrt(x[0] ** 2 + w), acos(clamp(x[1], -0.5, 0.5)) + Abs(x[2]) * sign(w),
+            log(exp(x[0]) + Max(x[1], w)) + safe_div(x[2], w) + Min(x[0], 0.3) * sin(w))
+
+    f = funky(key("x", 0), key("w", 0))
+    args = (np.array([[0.3, 0.2, -0.7]]), np.array([[1.3]]))
+    consts = np.zeros((1, 0))
+    assert_jacobian_matches_fd(f.kernel, args, consts)
+    res, jac, hess, rhs = funky.linearize_hessian(("x", "w"))(args, consts)
+    np.testing.assert_allclose(hess[0], jac[0].T @ jac[0], atol=1e-12)
+    np.testing.assert_allclose(rhs[0], jac[0].T @ res[0], atol=1e-12)

@@ -1,0 +1,162 @@
+"""SymForce paper Sec. VIII-A: the sparse matrix-product experiment, ``X^T Y``.
+
+``X`` and ``Y`` share a random sparsity pattern (sizes / densities of the paper's SuiteSparse
+matrices: b1_ss 7x7 31 %, n3c4-b2 20x15 20 %, lp_sc105-like 100x100 7 %; the SuiteSparse files
+are not used, patterns are drawn with a fixed seed). Their nonzeros are random expressions of 5
+scalar symbols with about 5 arithmetic operations each (random trees of ``+ - * /``, in the
+spirit of Lample and Charton's generator). Per product we time
+
+* **flattened**: one generated numba kernel (CSE over entries and product) computing the
+  nonzeros of ``X^T Y`` directly from the 5 symbols, batched over ``n`` symbol vectors;
+* **scipy.sparse**: a numba kernel evaluates the nonzeros of X and of Y (batched), then per
+  product ``csr(X).T @ csr(Y)`` (scipy's per-call overhead included, as Eigen's in the paper);
+* **dense numpy**: the same entry kernel, then ``X.T @ Y`` per product, and batched
+  (``np.matmul`` over a ``(n, rows, cols)`` stack: numpy's best case).
+
+Times are ns per product (wall time / n). The 100x100 flattened kernel has ~10^4 ops and takes
+minutes to derive and compile (numba types every operation).
+
+    .venv/bin/python -m benchmarks.symbolic_matmul [--sizes 7x7:0.31,20x15:0.20,100x100:0.07]
+"""
+
+from __future__ import annotations
+
+import argparse
+import random
+import time
+
+import numpy as np
+
+
+def random_expr(rng: random.Random, syms: list, ops: int):
+    """A random expression tree over ``syms`` with about ``ops`` operations."""
+    if ops <= 0:
+        return rng.choice(syms) if rng.random() < 0.8 else rng.choice([2, 3, -1, 0.5])
+    op = rng.randrange(4)
+    left = rng.randint(0, ops - 1)
+    a, b = random_expr(rng, syms, left), random_expr(rng, syms, ops - 1 - left)
+    if op == 0:
+        return a + b
+    if op == 1:
+        return a - b
+    if op == 2:
+        return a * b
+    return a / (b * b + 1)
+
+
+def _pattern(rows: int, cols: int, density: float, seed: int) -> np.ndarray:
+    rs = np.random.default_rng(seed)
+    mask = rs.random((rows, cols)) < density
+    mask[rs.integers(rows), :] |= ~mask.any(axis=0)  # no empty column
+    return mask
+
+
+def _kernel(symbols: list, exprs: list, name: str):
+    """Batched numba kernel: (n, 5) symbol values -> (n, len(exprs)) outputs."""
+    import numba
+
+    from fgopt.symbolic.cse import Program, optimize, total_ops
+    from fgopt.symbolic.printer import to_source
+
+    prog = optimize(Program([], {"out": exprs}))
+    lines = ["import math", "import numba", "EPSILON = 2.220446049250313e-15",
+             "@numba.njit(cache=False, fastmath=False, error_model='numpy')",
+             f"def {name}(v, out):", "    for _i in range(v.shape[0]):"]
+    lines += [f"        {s.name} = v[_i, {k}]" for k, s in enumerate(symbols)]
+    lines += [f"        {s.name} = {to_source(e)}" for s, e in prog.stmts]
+    lines += [f"        out[_i, {k}] = {to_source(e)}" for k, e in enumerate(prog.outputs["out"])]
+    env: dict = {}
+    exec(compile("\n".join(lines) + "\n", f"<{name}>", "exec"), env)
+    del numba
+    return env[name], total_ops(prog)
+
+
+def run_case(rows: int, cols: int, density: float, n: int, seed: int = 0) -> dict:
+    import scipy.sparse as sps
+    import sympy
+
+    from fgopt.symbolic import symbols
+
+    syms = list(symbols("s0 s1 s2 s3 s4"))
+    mask = _pattern(rows, cols, density, seed)
+    nz = np.argwhere(mask)
+    rng = random.Random(seed)
+    xs = [sympy.sympify(random_expr(rng, syms, 5)) for _ in nz]
+    ys = [sympy.sympify(random_expr(rng, syms, 5)) for _ in nz]
+    X, Y = sympy.zeros(rows, cols), sympy.zeros(rows, cols)
+    for (i, j), ex, ey in zip(nz, xs, ys):
+        X[i, j], Y[i, j] = ex, ey
+    t0 = time.perf_counter()
+    P = X.T * Y
+    out_nz = [(i, j) for i in range(cols) for j in range(cols) if P[i, j] != 0]
+    flat, flat_ops = _kernel(syms, [P[i, j] for i, j in out_nz], "flat")
+    entries, entry_ops = _kernel(syms, xs + ys, "entries")
+    vals = np.random.default_rng(1).normal(size=(n, 5))
+    out = np.empty((n, len(out_nz)))
+    flat(vals, out)
+    ent = np.empty((n, 2 * len(nz)))
+    entries(vals, ent)
+    build = time.perf_counter() - t0
+
+    t = time.perf_counter()
+    flat(vals, out)
+    t_flat = (time.perf_counter() - t) / n * 1e9
+
+    k = len(nz)
+    csr_x = sps.csr_matrix((np.ones(k), (nz[:, 0], nz[:, 1])), shape=(rows, cols))
+    order = np.lexsort((nz[:, 1], nz[:, 0]))  # csr data order
+    m = min(n, 2000)
+    t = time.perf_counter()
+    entries(vals[:m], ent[:m])
+    for i in range(m):
+        Xs = sps.csr_matrix((ent[i, :k][order], csr_x.indices, csr_x.indptr), shape=(rows, cols))
+        Ys = sps.csr_matrix((ent[i, k:][order], csr_x.indices, csr_x.indptr), shape=(rows, cols))
+        prod = Xs.T @ Ys
+    t_sparse = (time.perf_counter() - t) / m * 1e9
+
+    Xd = np.zeros((n, rows, cols))
+    Yd = np.zeros((n, rows, cols))
+    t = time.perf_counter()
+    entries(vals[:m], ent[:m])
+    for i in range(m):
+        Xd[i, nz[:, 0], nz[:, 1]] = ent[i, :k]
+        Yd[i, nz[:, 0], nz[:, 1]] = ent[i, k:]
+        prod_d = Xd[i].T @ Yd[i]
+    t_dense = (time.perf_counter() - t) / m * 1e9
+    t = time.perf_counter()
+    entries(vals, ent)
+    Xd[:, nz[:, 0], nz[:, 1]] = ent[:, :k]
+    Yd[:, nz[:, 0], nz[:, 1]] = ent[:, k:]
+    prod_b = np.matmul(Xd.transpose(0, 2, 1), Yd)
+    t_batched = (time.perf_counter() - t) / n * 1e9
+    # all agree
+    ref = np.array([prod_b[-1][i, j] for i, j in out_nz])
+    np.testing.assert_allclose(out[-1], ref, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(prod_d, prod_b[m - 1], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(prod.toarray(), prod_b[m - 1], rtol=1e-9, atol=1e-9)
+    return {"size": f"{rows}x{cols}", "density": f"{mask.mean():.0%}", "nnz": k,
+            "out nnz": len(out_nz), "flat ops": flat_ops, "entry ops": entry_ops,
+            "flattened": t_flat, "scipy.sparse": t_sparse, "dense numpy": t_dense,
+            "dense batched": t_batched, "build s": build}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", default="7x7:0.31,20x15:0.20,100x100:0.07")
+    ap.add_argument("--n", type=int, default=20000)
+    args = ap.parse_args()
+    cols = ["size", "density", "nnz", "out nnz", "flat ops", "entry ops", "flattened",
+            "scipy.sparse", "dense numpy", "dense batched", "build s"]
+    print("## X^T Y, ns per product\n")
+    print("| " + " | ".join(cols) + " |")
+    print("|" + "---|" * len(cols))
+    for spec in args.sizes.split(","):
+        shape, dens = spec.split(":")
+        r, c = (int(v) for v in shape.split("x"))
+        row = run_case(r, c, float(dens), args.n)
+        print("| " + " | ".join(f"{row[k]:.1f}" if isinstance(row[k], float) else str(row[k])
+                                for k in cols) + " |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
