@@ -7,6 +7,7 @@ to rewrite the ``.ipynb`` files. ``tests/test_notebooks.py`` executes every note
 
 from __future__ import annotations
 
+import copy
 import sys
 import textwrap
 from pathlib import Path
@@ -681,15 +682,341 @@ NB03 = [
 ]
 
 
+# ----------------------------------------------------------------------------------------------
+# 04: g2o pose graphs
+# ----------------------------------------------------------------------------------------------
+NB04 = [
+    md("""
+    # 04 — Pose graphs from g2o files
+
+    Real benchmark pose graphs (Carlone et al.'s collection, as in the miniSAM paper's Table II):
+
+    * `pose2d/input_M3500_g2o.g2o`: Manhattan world, 3500 SE(2) poses, 5453 edges;
+    * `pose3d/sphere2500.g2o`: a robot on a sphere, 2500 SE(3) poses, 4949 edges.
+
+    `fgopt.io.read_g2o` reads them into a `FactorGraph` (vectorized batches of between factors)
+    and the initial `Variables` (the file's vertices). `add_prior=True` adds a tight prior on the
+    first pose to fix the gauge (needed for marginal covariances). We solve with LM, plot before /
+    after with `fgopt.plot`, show the cost history, and compute the marginal covariance of one
+    pose with `fgopt.marginals`.
+
+    The files are read from `$FGOPT_DATA` (default `../shared/data` next to the repository). If
+    the folder is absent, the notebook uses a generated Manhattan-world graph
+    (`fgopt.datasets.manhattan_2d`) and a generated 3D grid (`fgopt.datasets.grid_3d`) instead.
+    """),
+    code("""
+    import time
+
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    import fgopt
+    from fgopt import key
+    """),
+    DATA_CELL,
+    md("""
+    ## Load
+
+    `QUOTED` are the final costs other solvers (GTSAM, Ceres) reach on these files; fgopt's cost
+    is GTSAM's `graph.error` (`0.5 * sum` of squared whitened residuals).
+    """),
+    code("""
+    QUOTED = {"input_M3500_g2o.g2o": 68.957, "sphere2500.g2o": 675.70}
+    problems = {}
+    for rel in ["pose2d/input_M3500_g2o.g2o", "pose3d/sphere2500.g2o"]:
+        path = DATA / rel
+        if path.is_file():
+            t0 = time.perf_counter()
+            graph, initial = fgopt.io.read_g2o(path, add_prior=True)
+            print(f"read {rel} in {time.perf_counter() - t0:.2f} s: {graph}")
+            problems[path.name] = (graph, initial, None)
+        else:
+            print(f"{path} is absent: using a generated graph instead")
+    if "input_M3500_g2o.g2o" not in problems:
+        syn = fgopt.datasets.manhattan_2d(num_poses=3500, seed=0)
+        problems["manhattan_2d (generated)"] = (syn.graph, syn.initial, syn.truth)
+    if "sphere2500.g2o" not in problems:
+        syn = fgopt.datasets.grid_3d(num_poses=1000, seed=0)
+        problems["grid_3d (generated)"] = (syn.graph, syn.initial, syn.truth)
+    """),
+    md("""
+    ## Solve
+
+    Levenberg-Marquardt with the default linear solver (`"auto"`: CHOLMOD's sparse Cholesky for
+    problems of this size). `verbose=True` prints one row per iteration.
+    """),
+    code("""
+    results = {}
+    for name, (graph, initial, truth) in problems.items():
+        print(f"=== {name}")
+        t0 = time.perf_counter()
+        results[name] = fgopt.optimize(graph, initial, method="lm", verbose=True)
+        print(f"wall time {time.perf_counter() - t0:.2f} s\\n")
+    """),
+    code("""
+    def absolute_trajectory_error(values, truth):
+        \"\"\"RMS position error after aligning the first poses (both graphs have a prior there).\"\"\"
+        keys = sorted(truth.keys())
+        d = [values.at(k).local(truth.at(k)) for k in keys]
+        pos = np.array([v[-3:] if v.shape[0] == 6 else v[1:] for v in d])
+        return float(np.sqrt(np.mean(np.sum(pos ** 2, axis=1))))
+
+    print(f"{'problem':28s} {'status':10s} {'iters':>5s} {'initial cost':>14s} {'final cost':>12s} {'quoted':>8s} {'time (s)':>8s}")
+    for name, r in results.items():
+        quoted = QUOTED.get(name)
+        print(f"{name:28s} {r.status.value:10s} {r.iterations:5d} {r.initial_cost:14.6g} {r.final_cost:12.6g} "
+              f"{quoted if quoted else '-':>8} {r.timing['total']:8.2f}")
+        assert r.success, (name, r.message)
+        assert r.final_cost < 1e-3 * r.initial_cost
+        if quoted is not None:     # the same optimum as GTSAM / Ceres
+            assert abs(r.final_cost - quoted) < 1e-3 * quoted, (name, r.final_cost, quoted)
+        truth = problems[name][2]
+        if truth is not None:      # generated graphs: compare with the ground truth
+            ate = absolute_trajectory_error(r.values, truth)
+            print(f"    absolute trajectory error vs truth: {ate:.3f} m")
+            assert ate < 1.0
+    """),
+    md("""
+    ## Before / after and the cost history
+
+    `fgopt.plot.plot_pose_graph(graph, values, initial=...)` draws the optimized trajectory
+    over the initial guess (dashed) with the loop closures; `fgopt.plot.plot_cost_history` plots
+    the cost of every accepted iterate on a log scale.
+    """),
+    code("""
+    fig = plt.figure(figsize=(13, 4.2 * len(results)), layout="constrained")
+    for row, (name, r) in enumerate(results.items()):
+        graph, initial, _ = problems[name]
+        dim3 = initial.at(initial.keys()[0]).dim() == 6
+        ax0 = fig.add_subplot(len(results), 3, 3 * row + 1, projection="3d" if dim3 else None)
+        fgopt.plot.plot_pose_graph(graph, initial, ax=ax0, loop_closures=False, title=f"{name}: initial")
+        ax1 = fig.add_subplot(len(results), 3, 3 * row + 2, projection="3d" if dim3 else None)
+        fgopt.plot.plot_pose_graph(graph, r.values, ax=ax1, title=f"{name}: optimized")
+        fgopt.plot.plot_cost_history(r, ax=fig.add_subplot(len(results), 3, 3 * row + 3))
+    plt.show()
+    """),
+    md("""
+    ## Marginal covariance of one pose
+
+    At the optimum, the Gaussian approximation of the posterior has covariance `H^-1`
+    (`H = J^T W J`). `fgopt.marginals(result, [key])` factors `H` once and returns the blocks of
+    `H^-1` of the requested poses, in each pose's tangent space at the estimate: SE(2) order
+    `[theta, x, y]` (translation in the *body* frame, GTSAM's Pose2 convention), SE(3) `[w, v]`.
+    The first pose `x0` is pinned by the prior, so uncertainty grows with the distance (in the graph)
+    from it.
+    """),
+    code("""
+    name2d = next(n for n in results if problems[n][1].at(problems[n][1].keys()[0]).dim() == 3)
+    r = results[name2d]
+    k = key('x', 1000)
+    t0 = time.perf_counter()
+    cov = fgopt.marginals(r, [key('x', 0), k])
+    print(f"marginals in {time.perf_counter() - t0:.3f} s")
+    np.set_printoptions(precision=5, suppress=True)
+    print(f"covariance of x1000 ({name2d}), tangent order (theta, x, y):\\n{cov[k]}")
+    sig = np.sqrt(np.diag(cov[k]))
+    print(f"1-sigma: theta {np.degrees(sig[0]):.3f} deg, x {sig[1]:.3f} m, y {sig[2]:.3f} m")
+    sig0 = np.sqrt(np.diag(cov[key('x', 0)]))
+    print(f"1-sigma of the prior-pinned first pose x0: {sig0}")
+    assert np.all(np.linalg.eigvalsh(cov[k]) > 0)            # a proper covariance
+    assert np.allclose(cov[k], cov[k].T)
+    assert sig0.max() < 1e-2 < sig[1:].max()                 # x0 pinned, x1000 uncertain
+    """),
+    md("""
+    The 3-sigma position ellipse of `x1000` (body-frame covariance rotated into the world
+    frame with the pose's rotation), over the neighbouring optimized trajectory:
+    """),
+    code("""
+    pose = r.values.at(k)
+    Rw = pose.rotation().matrix()
+    P = Rw @ cov[k][1:, 1:] @ Rw.T
+    w, V = np.linalg.eigh(P)
+    a = np.linspace(0, 2 * np.pi, 100)
+    ell = pose.translation()[:, None] + 3 * V @ (np.sqrt(w)[:, None] * np.array([np.cos(a), np.sin(a)]))
+    xy = np.array([r.values.at(key('x', i)).translation() for i in range(900, 1101)])
+    fig, ax = plt.subplots(figsize=(6, 5))
+    ax.plot(xy[:, 0], xy[:, 1], ".-", ms=2, lw=0.5, label="x900..x1100")
+    ax.plot(ell[0], ell[1], "r-", label="3-sigma ellipse of x1000")
+    ax.plot(*pose.translation(), "r+", ms=12)
+    ax.set_aspect("equal"); ax.legend(); ax.set_title(f"marginal covariance ({name2d})")
+    plt.show()
+    """),
+]
+
+
+# ----------------------------------------------------------------------------------------------
+# 05: bundle adjustment
+# ----------------------------------------------------------------------------------------------
+NB05 = [
+    md("""
+    # 05 — Bundle adjustment on a BAL problem
+
+    *Bundle Adjustment in the Large* (Agarwal et al., 2010) problems: cameras with 9 parameters
+    `[r (angle-axis), t, f, k1, k2]` and 3D points; each observation is a 2D image point. The
+    predicted pixel is `f (1 + k1 |p|^2 + k2 |p|^4) p` with `p = -P_xy / P_z`, `P = R(r) X + t`.
+    `fgopt.io.read_bal` reads a file into one batch of generated reprojection factors
+    (`bal_reprojection`, an `@fgopt.factor` over an R^9 camera and an R^3 point) with unit noise,
+    so the cost is `0.5 * sum |e|^2` in pixels².
+
+    We use `bal/problem-49-7776-pre.txt` (Ladybug, 49 cameras, 7776 points, 31843 observations);
+    if it is absent we fall back to `bal/dubrovnik-3-7-pre.txt`, and to a synthetic scene without
+    the data folder. We report the initial / final cost and the RMS reprojection error, and plot
+    the cameras and points.
+    """),
+    code("""
+    import time
+
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    import fgopt
+    from fgopt import key
+    from fgopt.manifolds import vector_kind
+    """),
+    DATA_CELL,
+    md("""
+    ### A synthetic scene (only used without the data folder)
+
+    Cameras near the origin looking down their `-z` axis (BAL's convention) at a cloud of points,
+    projected with the BAL model in numpy, with 0.5 px noise; the initial guess perturbs cameras
+    and points. It is built with `graph.add_batch`, the same way `read_bal` builds its graph.
+    """),
+    code("""
+    def rotate(r, X):
+        \"\"\"Rotate the points X (n, 3) by the angle-axis vectors r (n, 3) (Rodrigues).\"\"\"
+        th = np.linalg.norm(r, axis=1, keepdims=True)
+        k = r / np.where(th > 0, th, 1.0)
+        return (X * np.cos(th) + np.cross(k, X) * np.sin(th)
+                + k * np.sum(k * X, axis=1, keepdims=True) * (1 - np.cos(th)))
+
+    def bal_project(cams, X):
+        \"\"\"BAL projection of points X (n, 3) by cameras (n, 9).\"\"\"
+        P = rotate(cams[:, :3], X) + cams[:, 3:6]
+        p = -P[:, :2] / P[:, 2:3]
+        r2 = np.sum(p ** 2, axis=1, keepdims=True)
+        return cams[:, 6:7] * (1 + cams[:, 7:8] * r2 + cams[:, 8:9] * r2 ** 2) * p
+
+    def synthetic_scene(num_cameras=12, num_points=400, seed=0):
+        rng = np.random.default_rng(seed)
+        cams = np.column_stack([0.05 * rng.normal(size=(num_cameras, 3)), rng.normal(size=(num_cameras, 3)),
+                                np.full(num_cameras, 500.0), np.zeros((num_cameras, 2))])
+        pts = rng.uniform([-4, -4, -14], [4, 4, -8], size=(num_points, 3))
+        ci, pj = np.meshgrid(np.arange(num_cameras), np.arange(num_points), indexing="ij")
+        ci, pj = ci.ravel(), pj.ravel()
+        meas = bal_project(cams[ci], pts[pj]) + 0.5 * rng.normal(size=(ci.shape[0], 2))
+        graph = fgopt.FactorGraph()
+        keys = np.column_stack([int(key('c', 0)) + ci, int(key('p', 0)) + pj])
+        graph.add_batch(fgopt.io.reprojection_kernel(), keys, meas)
+        noisy_cams = cams + np.concatenate([0.01 * rng.normal(size=(num_cameras, 6)), np.zeros((num_cameras, 3))], 1)
+        initial = fgopt.Variables()
+        initial.add_rows([int(key('c', i)) for i in range(num_cameras)], vector_kind(9), noisy_cams)
+        initial.add_rows([int(key('p', j)) for j in range(num_points)], vector_kind(3),
+                         pts + 0.1 * rng.normal(size=pts.shape))
+        return graph, initial
+    """),
+    md("## Load"),
+    code("""
+    candidates = ["bal/problem-49-7776-pre.txt", "bal/dubrovnik-3-7-pre.txt"]
+    path = next((DATA / c for c in candidates if (DATA / c).is_file()), None)
+    if path is not None:
+        t0 = time.perf_counter()
+        graph, initial = fgopt.io.read_bal(path)
+        source = path.name
+        print(f"read {path.name} in {time.perf_counter() - t0:.2f} s")
+    else:
+        print(f"no BAL file under {DATA}: using a synthetic scene")
+        graph, initial = synthetic_scene()
+        source = "synthetic scene"
+    batch = graph.batches[0]
+    cam_keys = sorted(k for k in initial.keys() if initial.at(k).shape[0] == 9)
+    print(f"{source}: {len(cam_keys)} cameras, {len(initial) - len(cam_keys)} points, "
+          f"{batch.keys.shape[0]} observations")
+    """),
+    md("""
+    ## Reprojection errors
+
+    The batch holds the observation keys `(camera, point)` and the measured pixels (its
+    constants); the kernel evaluates all residuals in one call. The RMS reprojection error is
+    over observations, `sqrt(mean |e|^2)` (pixels), so `cost = 0.5 * n * RMS^2`.
+    """),
+    code("""
+    def reprojection_errors(values):
+        cams = np.array([values.at(k) for k in batch.keys[:, 0]])
+        pts = np.array([values.at(k) for k in batch.keys[:, 1]])
+        res = batch.kernel.residual((cams, pts), batch.constants)
+        return np.linalg.norm(res, axis=1)
+
+    e0 = reprojection_errors(initial)
+    print(f"initial: cost {graph.error(initial):.6g}, RMS {np.sqrt(np.mean(e0 ** 2)):.3f} px, median {np.median(e0):.3f} px")
+    assert np.isclose(0.5 * np.sum(e0 ** 2), graph.error(initial), rtol=1e-9)
+    if path is None:   # the generated kernel agrees with the numpy BAL model
+        c = np.array([initial.at(k) for k in batch.keys[:, 0]])
+        x = np.array([initial.at(k) for k in batch.keys[:, 1]])
+        assert np.allclose(batch.kernel.residual((c, x), batch.constants), bal_project(c, x) - batch.constants)
+    """),
+    md("""
+    ## Solve
+
+    LM; `linear_solver="auto"` picks a sparse Cholesky for the (cameras + points) system. BA has a
+    7-DOF gauge freedom (similarity transform of the whole scene) that nothing fixes: LM's
+    damping keeps the steps well-posed.
+    """),
+    code("""
+    t0 = time.perf_counter()
+    result = fgopt.optimize(graph, initial, method="lm", verbose=True)
+    wall = time.perf_counter() - t0
+    print(f"wall time {wall:.1f} s")
+    """),
+    code("""
+    e1 = reprojection_errors(result.values)
+    rms0, rms1 = np.sqrt(np.mean(e0 ** 2)), np.sqrt(np.mean(e1 ** 2))
+    print(f"{'':8s} {'cost':>12s} {'RMS (px)':>9s} {'median (px)':>12s}")
+    print(f"{'initial':8s} {result.initial_cost:12.6g} {rms0:9.3f} {np.median(e0):12.3f}")
+    print(f"{'final':8s} {result.final_cost:12.6g} {rms1:9.3f} {np.median(e1):12.3f}")
+    print(f"{result.status.value} after {result.iterations} iterations, {wall:.1f} s")
+
+    assert result.status in (fgopt.Status.CONVERGED, fgopt.Status.MAX_ITERATIONS), result.message
+    assert np.isclose(0.5 * np.sum(e1 ** 2), result.final_cost, rtol=1e-6)
+    assert result.final_cost < 0.05 * result.initial_cost
+    if source == "problem-49-7776-pre.txt":
+        assert result.final_cost < 1.01 * 13344.3       # Ceres' final cost on this problem
+        assert rms1 < 1.0
+    elif path is None:
+        assert rms1 < 1.0                               # 0.5 px noise per coordinate
+    """),
+    md("""
+    ## Cameras and points
+
+    `fgopt.plot.plot_bundle` draws the camera centres (`-R^T t`) and the points (the view is
+    cropped to the bulk of the scene; BAL files have far outliers). Below: before and after, and
+    the distribution of reprojection errors.
+    """),
+    code("""
+    fig = plt.figure(figsize=(15, 4.8), layout="constrained")
+    fgopt.plot.plot_bundle(initial, ax=fig.add_subplot(1, 3, 1, projection="3d"), title="initial")
+    fgopt.plot.plot_bundle(result.values, ax=fig.add_subplot(1, 3, 2, projection="3d"), title="optimized")
+    ax = fig.add_subplot(1, 3, 3)
+    bins = np.logspace(-3, np.log10(max(e0.max(), 10)), 60)
+    ax.hist(e0, bins=bins, alpha=0.6, label=f"initial (RMS {rms0:.2f} px)")
+    ax.hist(e1, bins=bins, alpha=0.6, label=f"final (RMS {rms1:.2f} px)")
+    ax.set_xscale("log"); ax.set_xlabel("reprojection error (px)"); ax.set_ylabel("observations")
+    ax.legend(); ax.set_title(source)
+    plt.show()
+    """),
+]
+
+
 NOTEBOOKS = {
     "01_minisam_pose_graph.ipynb": NB01,
     "02_custom_factor.ipynb": NB02,
     "03_custom_manifold.ipynb": NB03,
+    "04_g2o_pose_graph.ipynb": NB04,
+    "05_bundle_adjustment.ipynb": NB05,
 }
 
 
 def build(name: str, cells: list) -> nbformat.NotebookNode:
-    nb = new_notebook(cells=cells)
+    nb = new_notebook(cells=copy.deepcopy(cells))
     stem = name.split("_")[0]
     for i, cell in enumerate(nb.cells):  # stable ids: regenerating gives no spurious diff
         cell.id = f"nb{stem}-{i:02d}"
