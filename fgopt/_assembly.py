@@ -9,7 +9,7 @@ precomputed positions (lower triangle only) and ``w J^T r`` into g. Returns the 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 from .factors.robust import rho_and_weight
 
@@ -157,3 +157,62 @@ def row_squared_norms(res, sqrt_info, unit):
                 s += acc * acc
         out[i] = s
     return out
+
+
+@njit(cache=True, parallel=True)
+def local_blocks_parallel(res, jac, sqrt_info, unit, loss_code, loss_param, Hl, gl, weights):
+    """Threaded first half of :func:`scatter_batch`: each factor's weighted ``J^T J`` (upper
+    triangle used) and ``J^T r`` into ``Hl (n, D, D)`` / ``gl (n, D)``; returns the cost.
+    Factors are independent here, so ``prange`` needs no synchronization."""
+    n, m = res.shape
+    D = jac.shape[2]
+    costs = np.empty(n)
+    stride = 0 if unit else 1  # unit noise passes a single identity block
+    for i in prange(n):
+        r = np.empty(m)
+        Jw = np.empty((m, D))
+        _whiten(res[i], jac[i], sqrt_info[i * stride], unit, r, Jw)
+        s = 0.0
+        for a in range(m):
+            s += r[a] * r[a]
+        rho, w = rho_and_weight(loss_code, loss_param, s)
+        costs[i] = rho
+        weights[i] = w
+        for c1 in range(D):
+            acc = 0.0
+            for a in range(m):
+                acc += Jw[a, c1] * r[a]
+            gl[i, c1] = w * acc
+            for c2 in range(c1, D):
+                acc = 0.0
+                for a in range(m):
+                    acc += Jw[a, c1] * Jw[a, c2]
+                Hl[i, c1, c2] = w * acc
+                Hl[i, c2, c1] = w * acc
+    return costs.sum()
+
+
+@njit(cache=True)
+def scatter_local_blocks(Hl, gl, arg_dims, arg_local_off, toff, pos, H_data, g):
+    """Serial second half: add precomputed local blocks into H's data and g."""
+    n = Hl.shape[0]
+    k = arg_dims.shape[0]
+    for i in range(n):
+        for p in range(k):
+            op, dp = arg_local_off[p], arg_dims[p]
+            for a in range(dp):
+                g[toff[i, p] + a] += gl[i, op + a]
+            for q in range(k):
+                if pos[i, p, q, 0] < 0:
+                    continue
+                oq, dq = arg_local_off[q], arg_dims[q]
+                if p == q:
+                    for b in range(dq):
+                        base = pos[i, p, q, b]
+                        for a in range(b, dp):
+                            H_data[base + a - b] += Hl[i, op + a, oq + b]
+                else:
+                    for b in range(dq):
+                        base = pos[i, p, q, b]
+                        for a in range(dp):
+                            H_data[base + a] += Hl[i, op + a, oq + b]

@@ -32,6 +32,7 @@ from .factors.noise import base_noise, loss_code_and_param
 from .key import Key, key_str
 from .manifolds.base import BatchKind, ops_for
 from .structure import HessianPattern, build_pattern, fill_reducing_order, scatter_positions
+from ._threads import PARALLEL_MIN_BATCH, linearize_batch_threaded
 from .variables import Variables
 
 
@@ -108,10 +109,12 @@ class Problem:
     """A graph compiled against initial values; see the module docstring."""
 
     def __init__(self, graph: Any, values: Variables, ordering: str | None = "amd",
-                 build_structure: bool = True):
+                 build_structure: bool = True, threads: int = 1):
         if len(graph) == 0:
             raise EmptyProblemError("the factor graph is empty: add factors before optimizing")
         self.timing = {"linearize": 0.0, "assemble": 0.0, "retract": 0.0, "cost": 0.0}
+        #: Threads for linearization (1 = serial). See :mod:`fgopt._threads`.
+        self.threads = max(1, int(threads))
         self._collect_variables(graph, values)
         self._collect_factors(graph)
         self.pattern: HessianPattern | None = None
@@ -378,6 +381,10 @@ class Problem:
         t_lin = t_asm = 0.0
         for b in self.batches:
             t0 = time.perf_counter()
+            if self.threads > 1 and len(b.source) >= PARALLEL_MIN_BATCH:
+                total += linearize_batch_threaded(self, b, state, H, g)
+                t_lin += time.perf_counter() - t0
+                continue
             res, jac = b.kernel.linearize(b.gather(state), b.source.constants)
             t1 = time.perf_counter()
             total += asm.scatter_batch(res, jac, b.sqrt_info, b.unit, b.source.loss_code,

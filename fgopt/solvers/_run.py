@@ -35,7 +35,8 @@ class Run:
             if not isinstance(initial, Variables):
                 raise FgoptError(
                     f"initial values must be fgopt.Variables, got {type(initial).__name__}")
-            problem = Problem(graph, initial, ordering=params.ordering)
+            problem = Problem(graph, initial, ordering=params.ordering,
+                              threads=getattr(params, "threads", 1))
         self.problem = problem
         if solver is None:
             choice = linear_solver if linear_solver is not None else params.linear_solver

@@ -56,6 +56,7 @@ class GNCParams:
     lm: LMParams = field(default_factory=LMParams)
     linear_solver: str = "auto"
     ordering: str = "amd"
+    threads: int = 1
     verbose: bool = False
     max_iterations: int = 100
     """Inner LM iteration limit per round."""
@@ -126,7 +127,7 @@ class GNC:
         t0 = time.perf_counter()
         if not isinstance(initial, Variables):
             raise FgoptError(f"initial values must be fgopt.Variables, got {type(initial).__name__}")
-        problem = Problem(graph, initial, ordering=p.ordering)
+        problem = Problem(graph, initial, ordering=p.ordering, threads=p.threads)
         solver = make_linear_solver(p.linear_solver, pattern=problem.pattern)
         solver.analyze(problem.pattern)
         lm = LevenbergMarquardt(dataclasses.replace(p.lm, max_iterations=p.max_iterations,

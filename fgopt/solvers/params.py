@@ -33,6 +33,8 @@ class LMParams(TerminationParams):
     linear_solver: str = "auto"
     ordering: str = "amd"
     """Fill-reducing order of the variable graph: amd | metis | nesdis | colamd | natural."""
+    threads: int = 1
+    """Threads for linearization (numba prange + nogil kernels); 1 = serial (the default)."""
     verbose: bool = False
 
 
@@ -40,6 +42,7 @@ class LMParams(TerminationParams):
 class GaussNewtonParams(TerminationParams):
     linear_solver: str = "auto"
     ordering: str = "amd"
+    threads: int = 1
     verbose: bool = False
 
 
@@ -52,4 +55,5 @@ class DoglegParams(TerminationParams):
     """Tiny diagonal damping so gauge-free problems (no prior) still factor."""
     linear_solver: str = "auto"
     ordering: str = "amd"
+    threads: int = 1
     verbose: bool = False

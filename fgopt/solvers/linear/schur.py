@@ -30,6 +30,8 @@ BA-shaped (and returns the solver if so).
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 from scipy.linalg import lapack
 
@@ -38,6 +40,7 @@ from ...structure import HessianPattern, _sym_matvec, build_pattern, fill_reduci
 from . import _schur_kernels as K
 
 REDUCED = ("auto", "dense", "sparse", "pcg")
+TIMING_KEYS = ("eliminate", "factor_S", "reduce_rhs", "solve_S", "back_substitute")
 
 
 class SchurSolver:
@@ -71,6 +74,7 @@ class SchurSolver:
         self.name = "schur" if reduced == "auto" else f"schur_{reduced}"
         self.mode: str | None = None       # the resolved reduced-system solver
         self.last_pcg_iterations = 0
+        self.timing = dict.fromkeys(TIMING_KEYS, 0.0)  # seconds, accumulated over calls
 
     # ------------------------------------------------------------------ analyze
     def analyze(self, pattern: HessianPattern) -> None:
@@ -252,6 +256,7 @@ class SchurSolver:
 
     # ------------------------------------------------------------------ factorize / solve
     def factorize(self, H_data: np.ndarray) -> None:
+        t0 = time.perf_counter()
         pcg = self.mode == "pcg"
         S = self._A if pcg else self._packed
         S[:] = 0.0
@@ -272,11 +277,20 @@ class SchurSolver:
             raise NotPositiveDefiniteError(
                 f"Schur: the diagonal block of eliminated variable #{bad} is not positive "
                 "definite (a point seen too few times / too little damping)")
+        t1 = time.perf_counter()
+        self.timing["eliminate"] += t1 - t0
+        try:
+            self._factor_reduced()
+        finally:
+            self.timing["factor_S"] += time.perf_counter() - t1
+
+    def _factor_reduced(self) -> None:
         if self.mode == "dense":
             if self._nS:
                 self._S_flat[:] = 0.0
                 self._S_flat[self._pk_dst] = self._packed[self._pk_src]
-                _, info = lapack.dpotrf(self._S, lower=1, clean=0, overwrite_a=1)
+                # in place (Fortran-contiguous float64); keep the returned array to be safe
+                self._L, info = lapack.dpotrf(self._S, lower=1, clean=0, overwrite_a=1)
                 if info != 0:
                     raise NotPositiveDefiniteError(
                         f"Schur: the reduced camera system is not positive definite (LAPACK "
@@ -295,25 +309,32 @@ class SchurSolver:
                     "definite")
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
+        t0 = time.perf_counter()
         rhs = np.ascontiguousarray(rhs, dtype=np.float64)
         rS = rhs[self._s_to_h]
         K.reduce_rhs(rhs, rS, self._e_off, self._e_dim, self._edge_ptr, self._edge_f,
                      self._f_soff, self._f_dim, self._w_ptr, self._W)
+        t1 = time.perf_counter()
         if self._nS == 0:
             xS = rS
         elif self.mode == "dense":
-            xS, info = lapack.dpotrs(self._S, rS, lower=1)
+            xS, info = lapack.dpotrs(self._L, rS, lower=1)
             if info != 0:
                 raise FgoptError(f"Schur: LAPACK dpotrs failed (info={info})")
         elif self.mode == "sparse":
             xS = self._chol.solve(rS)
         else:
             xS = self._pcg(rS)
+        t2 = time.perf_counter()
         x = np.empty(self._pattern.size)
         x[self._s_to_h] = xS
         K.back_substitute(rhs, xS, x, self._e_off, self._e_dim, self._c_ptr, self._Cinv,
                           self._edge_ptr, self._edge_f, self._f_soff, self._f_dim, self._w_ptr,
                           self._B)
+        tm = self.timing
+        tm["reduce_rhs"] += t1 - t0
+        tm["solve_S"] += t2 - t1
+        tm["back_substitute"] += time.perf_counter() - t2
         return x
 
     def _schur_matvec(self, x: np.ndarray) -> np.ndarray:
