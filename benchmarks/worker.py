@@ -118,7 +118,7 @@ def main(argv=None) -> int:
             samples = [warm]
             rec["timing_note"] = "single run (the warm-up run is the sample)"
         else:
-            if warm < 10 * args.min_sample:  # probe again: the warm-up includes JIT/codegen
+            if warm < 2.0:  # probe again: the warm-up may include JIT/codegen
                 runner.reset(state)
                 t0 = time.perf_counter()
                 runner.solve(state, args.mode)
