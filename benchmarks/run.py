@@ -163,13 +163,30 @@ def _time_cell(r, ref, with_iters=False):
         s += f" ({r.get('iterations')})"
     if ref is not None and ref.get("status") == "ok" and r["peer"] != "fgopt":
         s += f" ×{t / ref['solve_s']:.2g}"
+        if ref.get("run", 0) != by_first_run.get((r["problem"], r["mode"]), 0):
+            s += "²"
     if r.get("timing_note"):
         s += "¹"
     return s
 
 
+by_first_run: dict = {}
+
+
 def markdown(records: list[dict], meta: dict) -> str:
-    by = {(r["problem"], r["peer"], r["mode"]): r for r in records}
+    """Tables from worker records. Records merged from several runs carry ``run``: the fgopt
+    column shows the first run's fgopt, every ×N uses the fgopt of the record's own run (²)."""
+    by = {}
+    fg = {}
+    for r in records:
+        key = (r["problem"], r["peer"], r["mode"])
+        if r["peer"] == "fgopt":
+            fg[(r["problem"], r["mode"], r.get("run", 0))] = r
+            by.setdefault(key, r)
+        else:
+            by[key] = r
+    by_first_run.clear()
+    by_first_run.update({(k[0], k[2]): v.get("run", 0) for k, v in by.items() if k[1] == "fgopt"})
     problems = list(dict.fromkeys(r["problem"] for r in records))
     peers = list(dict.fromkeys(r["peer"] for r in records))
     peers = (["fgopt"] if "fgopt" in peers else []) + [p for p in peers if p != "fgopt"]
@@ -197,10 +214,11 @@ def markdown(records: list[dict], meta: dict) -> str:
         a("| " + " | ".join(head) + " |")
         a("|" + "---|" * len(head))
         for pb in problems:
-            ref = by.get((pb, "fgopt", mode))
             row = [PROBLEMS[pb].label]
             for p in peers:
-                row.append(_time_cell(by.get((pb, p, mode)), ref, with_iters=(mode == "converge")))
+                r = by.get((pb, p, mode))
+                ref = fg.get((pb, mode, r.get("run", 0))) if r else None
+                row.append(_time_cell(r, ref, with_iters=(mode == "converge")))
             q = QUOTED_CERES_CPP.get(pb)
             if q is None:
                 row.append("—")
@@ -251,6 +269,10 @@ def markdown(records: list[dict], meta: dict) -> str:
     errs = [f"- {LABEL.get(r['peer'], r['peer'])} on {PROBLEMS[r['problem']].label} "
             f"({r['mode']}): {r['status']}: {str(r.get('error', ''))[:300]}"
             for r in records if r.get("status") not in ("ok",)]
+    if len({r.get("run", 0) for r in records}) > 1:
+        a("")
+        a("² merged from several runs: ×N uses the fgopt time measured in that peer's own run "
+          "(the fgopt column shows the first run's).")
     a("")
     a("Notes:")
     a("- Iterations: GTSAM counts outer LM iterations; fgopt, pyceres and scipy count every "
@@ -273,6 +295,29 @@ def markdown(records: list[dict], meta: dict) -> str:
     a("")
     a(f"Versions: {versions}; Python {meta['host']['python']}; data {meta['data_dir']}.")
     return "\n".join(lines)
+
+
+def render(paths: list[str]) -> int:
+    """Print the tables of one or more saved result files (later files win per peer)."""
+    records, meta = [], None
+    for i, path in enumerate(paths):
+        with open(path) as fh:
+            d = json.load(fh)
+        for r in d["runs"]:
+            r["run"] = i
+            records.append(r)
+        if meta is None:
+            meta = d["meta"]
+        else:
+            meta["versions"].update(d["meta"].get("versions", {}))
+            meta["pinning"].update(d["meta"].get("pinning", {}))
+            lav = [x for x in (meta.get("loadavg_1min_range"), d["meta"].get("loadavg_1min_range"))
+                   if x]
+            if lav:
+                meta["loadavg_1min_range"] = [min(x[0] for x in lav), max(x[1] for x in lav)]
+            meta["date"] += " + " + d["meta"]["date"]
+    print(markdown(records, meta))
+    return 0
 
 
 def cpu_name() -> str:
@@ -310,7 +355,11 @@ def main(argv=None) -> int:
                     help='LMParams overrides for fgopt, e.g. "linear_solver=ldlt,ordering=metis"')
     ap.add_argument("--out", default=None, help="JSON path (default benchmarks/results/<date>.json)")
     ap.add_argument("--no-save", action="store_true")
+    ap.add_argument("--render", nargs="+", metavar="JSON",
+                    help="only print the tables of saved result files (merged in order)")
     args = ap.parse_args(argv)
+    if args.render:
+        return render(args.render)
     if args.repeats is None:
         args.repeats = 1 if args.quick else 3
     if args.timeout is None:
