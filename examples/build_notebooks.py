@@ -767,7 +767,7 @@ NB04 = [
         print(f"{name:28s} {r.status.value:10s} {r.iterations:5d} {r.initial_cost:14.6g} {r.final_cost:12.6g} "
               f"{quoted if quoted else '-':>8} {r.timing['total']:8.2f}")
         assert r.success, (name, r.message)
-        assert r.final_cost < 1e-3 * r.initial_cost
+        assert r.final_cost < 1e-2 * r.initial_cost
         if quoted is not None:     # the same optimum as GTSAM / Ceres
             assert abs(r.final_cost - quoted) < 1e-3 * quoted, (name, r.final_cost, quoted)
         truth = problems[name][2]
