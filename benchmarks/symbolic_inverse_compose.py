@@ -16,6 +16,11 @@ generated per-instance functions and the 3x6x6 product inside one numba loop).
 
 from __future__ import annotations
 
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # single thread, as the other benchmarks (README)
+
 import argparse
 import time
 
@@ -53,7 +58,7 @@ def symforce_counts() -> dict | None:
         symforce.set_epsilon_to_symbol()
         import symforce.symbolic as sf
         from symforce import ops
-    except Exception:  # pragma: no cover - optional
+    except Exception:  # noqa: BLE001 - optional peer, any import failure means absent
         return None
     pose, point = sf.Pose3.symbolic("pose"), sf.V3.symbolic("point")
     res = pose.inverse() * point
@@ -112,7 +117,7 @@ def chained(poses, points, res, jac):
                 jac[i, a, b] = acc
 ''')
     env: dict = {}
-    exec(compile("\n".join(src), "<chained>", "exec"), env)
+    exec(compile("\n".join(src), "<chained>", "exec"), env)  # noqa: S102 - generated code
     return env["chained"], numba
 
 
@@ -132,7 +137,7 @@ def timings(n: int, repeats: int = 20) -> dict:
     kernel.linearize((poses,), points)
     t = time.perf_counter()
     for _ in range(repeats):
-        res, jac = kernel.linearize((poses,), points)
+        _, jac = kernel.linearize((poses,), points)
     flat = (time.perf_counter() - t) / repeats / n * 1e9
     chained, _ = _chained_kernel()
     r2, j2 = np.empty((n, 3)), np.empty((n, 3, 6))

@@ -21,6 +21,11 @@ minutes to derive and compile (numba types every operation).
 
 from __future__ import annotations
 
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")  # single thread, as the other benchmarks (README)
+
 import argparse
 import random
 import time
@@ -66,7 +71,7 @@ def _kernel(symbols: list, exprs: list, name: str):
     lines += [f"        {s.name} = {to_source(e)}" for s, e in prog.stmts]
     lines += [f"        out[_i, {k}] = {to_source(e)}" for k, e in enumerate(prog.outputs["out"])]
     env: dict = {}
-    exec(compile("\n".join(lines) + "\n", f"<{name}>", "exec"), env)
+    exec(compile("\n".join(lines) + "\n", f"<{name}>", "exec"), env)  # noqa: S102
     del numba
     return env[name], total_ops(prog)
 

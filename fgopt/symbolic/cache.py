@@ -25,9 +25,10 @@ import sys
 import tempfile
 import textwrap
 import types
+from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 #: Counters for tests and benchmarks: kernels ``derived`` (SymPy ran), ``loaded`` from disk.
 STATS = {"derived": 0, "loaded": 0, "written": 0}
@@ -76,9 +77,7 @@ def _code_names(code: types.CodeType) -> set:
 def _hash_value(h: Any, v: Any, seen: set) -> None:
     if isinstance(v, types.FunctionType):
         _hash_function(h, v, seen)
-    elif isinstance(v, (int, float, complex, str, bytes, bool, type(None))):
-        h.update(repr(v).encode())
-    elif isinstance(v, tuple) and all(isinstance(x, (int, float, str, bool)) for x in v):
+    elif isinstance(v, (int, float, complex, str, bytes, bool, type(None))) or isinstance(v, tuple) and all(isinstance(x, (int, float, str, bool)) for x in v):
         h.update(repr(v).encode())
     elif type(v).__module__ == "numpy" and hasattr(v, "tobytes"):
         h.update(v.tobytes())
@@ -163,7 +162,7 @@ def load(name: str, key: str) -> types.ModuleType | None:
         return None
     try:
         module = _import(path, module_name(name, key))
-    except Exception:  # a corrupt / partial file: regenerate
+    except Exception:  # noqa: BLE001 - a corrupt / partial file: regenerate it
         return None
     STATS["loaded"] += 1
     return module

@@ -18,8 +18,9 @@ residual and Jacobian: noise models and robust losses are applied by the problem
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 from .cse import Program, total_ops
 
@@ -204,7 +205,7 @@ def python_function(symbols: Sequence[Any], exprs: Any, name: str = "f"):
                      for k, v in prog.outputs.items())
     lines.append(f"    return {{{outs}}}")
     env = {"math": math, "np": np, "EPSILON": EPSILON_VALUE}
-    exec(compile("\n".join(lines) + "\n", f"<fgopt python_function {name}>", "exec"), env)
+    exec(compile("\n".join(lines) + "\n", f"<fgopt python_function {name}>", "exec"), env)  # noqa: S102
     fn = env[name]
     if is_prog:
         return fn

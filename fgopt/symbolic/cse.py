@@ -9,8 +9,9 @@ result topologically and drops dead statements; :func:`total_ops` counts operati
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any, Iterable
+from typing import Any
 
 
 def _s():

@@ -52,7 +52,7 @@ def residual_of(ftype: Any, sym_args: list) -> list:
 def derive_source(ftype: Any, pattern: tuple) -> str:
     """Generated module source of ``ftype`` for the variable pattern ``pattern``."""
     sym_args = [symbolic_value(tp, name) for name, tp in ftype.params]
-    res, out = residual_of(ftype, sym_args)
+    res, _ = residual_of(ftype, sym_args)
     layouts, offset = [], 0
     for (name, tp), arg, is_var in zip(ftype.params, sym_args, pattern):
         symbols = tuple(storage_of(arg))

@@ -28,7 +28,8 @@ import functools
 import inspect
 import sys
 import typing
-from typing import Any, Callable, Iterable
+from collections.abc import Callable, Iterable
+from typing import Any
 
 import numpy as np
 
@@ -43,6 +44,7 @@ from .matrix import Matrix, Scalar
 from .ops import normalize_type
 
 _MISSING = object()
+_NO_CONSTANTS = np.zeros(0)
 _NUMERIC_TWIN = {"Rot2": "SO2", "Pose2": "SE2", "Rot3": "SO3", "Pose3": "SE3"}
 
 
@@ -143,18 +145,25 @@ class SymbolicFactorType:
         if len(missing) > 0:
             raise FgoptError(f"{self.name}: missing argument(s) {', '.join(missing)}")
         pattern = tuple(isinstance(v, Key) for v in values)
-        if not any(pattern):
-            raise FgoptError(f"{self.name}: no argument is a variable; pass fgopt.key(...) for "
-                             "the variables")
-        kernel = self._kernels.get(pattern) or self.kernel(pattern)
-        keys = [v for v in values if isinstance(v, Key)]
+        kernel = self._kernels.get(pattern)
+        if kernel is None:
+            if not any(pattern):
+                raise FgoptError(f"{self.name}: no argument is a variable; pass fgopt.key(...) "
+                                 "for the variables")
+            kernel = self.kernel(pattern)
+        keys = [v for v, is_var in zip(values, pattern) if is_var]
         consts = [self._constant(i, v) for i, v in enumerate(values) if not pattern[i]]
-        c = np.concatenate(consts) if len(consts) > 0 else np.zeros(0)
+        if len(consts) == 1:
+            c = consts[0]
+        else:
+            c = np.concatenate(consts) if len(consts) > 0 else _NO_CONSTANTS
         return SymbolicFactor(self, kernel, keys, c, loss)
 
     def _constant(self, i: int, value: Any) -> np.ndarray:
-        name, tp = self.params[i]
         s = self._storage_dims[i]
+        if type(value) is np.ndarray and value.shape == (s,) and value.dtype == np.float64:
+            return value  # fast path (KernelFactor copies it)
+        name, tp = self.params[i]
         if issubclass(tp, LieGroupBase) and hasattr(value, "to_storage"):
             twin = _NUMERIC_TWIN.get(tp.__name__)
             if twin is not None and type(value).__name__ != twin:

@@ -74,16 +74,16 @@ def sign_no_zero(x: Any):
 snz = sign_no_zero
 
 
-def Abs(x: Any):  # noqa: N802 - SymPy / SymForce name
+def Abs(x: Any):
     """``|x|`` (derivative ``sign(x)``)."""
     return _map1(_s().sp.Abs, x)
 
 
-def Min(*args: Any):  # noqa: N802
+def Min(*args: Any):
     return _s().sp.Min(*(_s().as_expr(a) for a in args))
 
 
-def Max(*args: Any):  # noqa: N802
+def Max(*args: Any):
     return _s().sp.Max(*(_s().as_expr(a) for a in args))
 
 
@@ -141,7 +141,7 @@ def safe_div(a: Any, b: Any, epsilon: Any = _DEFAULT):
     return s.as_expr(a) / (b + s.snz(b) * _eps(epsilon))
 
 
-def pow(x: Any, p: Any):  # noqa: A001 - math name
+def pow(x: Any, p: Any):
     return _s().as_expr(x) ** _s().as_expr(p)
 
 
@@ -159,7 +159,28 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = [
-    "sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sinh", "cosh", "tanh", "sqrt",
-    "exp", "log", "floor", "sign", "sign_no_zero", "snz", "Abs", "Min", "Max", "clamp",
-    "safe_div", "pow", "symbols",
+    "Abs",
+    "Max",
+    "Min",
+    "acos",
+    "asin",
+    "atan",
+    "atan2",
+    "clamp",
+    "cos",
+    "cosh",
+    "exp",
+    "floor",
+    "log",
+    "pow",
+    "safe_div",
+    "sign",
+    "sign_no_zero",
+    "sin",
+    "sinh",
+    "snz",
+    "sqrt",
+    "symbols",
+    "tan",
+    "tanh",
 ]

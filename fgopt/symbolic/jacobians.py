@@ -16,7 +16,8 @@ If ``f`` is itself a Lie group element, its storage Jacobian is mapped to its ta
 
 from __future__ import annotations
 
-from typing import Any, Callable, Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 from .lie import LieGroupBase
 from .ops import storage_D_tangent_of, storage_of, symbolic_value, tangent_D_storage_of

@@ -31,7 +31,8 @@ op count, about 3 ms per operation).
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 from .cse import Program, count_ops, optimize, temp_symbols, total_ops
 from .jacobians import METHODS, output_storage, tangent_jacobians

@@ -13,8 +13,9 @@ from scalars or sequences: ``V3(a, b, c)``, ``V3([a, b, c])``, ``V3()`` (zeros).
 from __future__ import annotations
 
 import numbers
-from functools import lru_cache
-from typing import Any, Iterator
+from collections.abc import Iterator
+from functools import cache
+from typing import Any
 
 
 def _s():
@@ -159,7 +160,7 @@ class Matrix:
     def __setitem__(self, idx: Any, value: Any) -> None:
         self.mat[idx] = value.mat if isinstance(value, Matrix) else value
 
-    def _component(i: int):  # noqa: N805 - property factory
+    def _component(i: int):
         return property(lambda self: self.mat[i], doc=f"entry {i}")
 
     x = _component(0)
@@ -169,7 +170,7 @@ class Matrix:
     del _component
 
     @property
-    def T(self) -> Matrix:  # noqa: N802
+    def T(self) -> Matrix:
         return _wrap(self.mat.T)
 
     def transpose(self) -> Matrix:
@@ -346,7 +347,7 @@ def _wrap(m: Any) -> Matrix:
     return obj
 
 
-@lru_cache(maxsize=None)
+@cache
 def _shaped(rows: int, cols: int) -> type[Matrix]:
     name = f"V{rows}" if cols == 1 else f"M{rows}{cols}" if rows < 10 and cols < 10 \
         else f"M{rows}x{cols}"

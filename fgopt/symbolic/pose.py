@@ -47,7 +47,7 @@ class Pose2(LieGroupBase):
     _STORAGE_DIM = 4
     _IDENTITY = (1, 0, 0, 0)
 
-    def __init__(self, R: Rot2 | None = None, t: Any = None):  # noqa: N803
+    def __init__(self, R: Rot2 | None = None, t: Any = None):
         from .matrix import V2
 
         self.R = Rot2() if R is None else R
@@ -134,7 +134,7 @@ class Pose3(LieGroupBase):
     _STORAGE_DIM = 7
     _IDENTITY = (0, 0, 0, 1, 0, 0, 0)
 
-    def __init__(self, R: Rot3 | None = None, t: Any = None):  # noqa: N803
+    def __init__(self, R: Rot3 | None = None, t: Any = None):
         from .matrix import V3
 
         self.R = Rot3() if R is None else R

@@ -155,7 +155,19 @@ def test_user_factor_solved_with_lm():
 
 
 def test_math_functions_compile_and_differentiate():
-    from fgopt.symbolic import Abs, Max, Min, acos, clamp, exp, log, safe_div, sign, sin, sqrt
+    from fgopt.symbolic import (
+        Abs,
+        Max,
+        Min,
+        acos,
+        clamp,
+        exp,
+        log,
+        safe_div,
+        sign,
+        sin,
+        sqrt,
+    )
 
     @fgopt.factor(hessian=True)
     def funky(x: fgopt.symbolic.V3, w: Scalar) -> fgopt.symbolic.V3:

@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 
 from fgopt.manifolds import SE2, SE3, SO3
-from fgopt.symbolic import V3, Pose2, Pose3, Rot3, linearization_program, tangent_jacobians
+from fgopt.symbolic import (
+    V3,
+    Pose2,
+    Pose3,
+    Rot3,
+    linearization_program,
+    tangent_jacobians,
+)
 from fgopt.symbolic.ops import storage_of
 
 from ._helpers import evaluator

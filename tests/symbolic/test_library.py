@@ -12,7 +12,10 @@ import pytest
 
 from fgopt.factors.library import range_bearing as rb
 from fgopt.factors.library import reprojection as rp
-from fgopt.factors.library.generated import generated_between_kernel, generated_prior_kernel
+from fgopt.factors.library.generated import (
+    generated_between_kernel,
+    generated_prior_kernel,
+)
 from fgopt.key import key
 from fgopt.manifolds import SE2, SE3, SO2, SO3, vector_kind
 

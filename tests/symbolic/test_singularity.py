@@ -4,8 +4,15 @@ from __future__ import annotations
 
 import sympy as sp
 
-from fgopt.symbolic import (V3, Pose2, Pose3, Rot3, check_removable_singularity, epsilon,
-                            sign_no_zero)
+from fgopt.symbolic import (
+    V3,
+    Pose2,
+    Pose3,
+    Rot3,
+    check_removable_singularity,
+    epsilon,
+    sign_no_zero,
+)
 
 x = sp.Symbol("x", real=True)
 

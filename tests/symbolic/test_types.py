@@ -6,8 +6,20 @@ import numpy as np
 import pytest
 
 from fgopt.manifolds import SE2, SE3, SO2, SO3
-from fgopt.symbolic import (M33, V2, V3, Matrix, Pose2, Pose3, Rot2, Rot3, Scalar, V1, V4,
-                            vector_type)
+from fgopt.symbolic import (
+    M33,
+    V1,
+    V2,
+    V3,
+    V4,
+    Matrix,
+    Pose2,
+    Pose3,
+    Rot2,
+    Rot3,
+    Scalar,
+    vector_type,
+)
 from fgopt.symbolic.ops import storage_of
 
 from ._helpers import evaluator

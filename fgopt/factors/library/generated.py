@@ -14,10 +14,22 @@ are usable directly too.
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
+
 from ...errors import ManifoldError
 from ...manifolds.base import SCALAR_KIND, BatchKind
-from ...symbolic import Pose2, Pose3, Rot2, Rot3, Scalar, V1, V3, V6, factor, vector_type
+from ...symbolic import (
+    V1,
+    V3,
+    V6,
+    Pose2,
+    Pose3,
+    Rot2,
+    Rot3,
+    Scalar,
+    factor,
+    vector_type,
+)
 from ..kernel import FactorKernel
 
 
@@ -69,7 +81,7 @@ def prior_pose3(x: Pose3, prior: Pose3) -> V6:
     return prior.between(x).log()
 
 
-@lru_cache(maxsize=None)
+@cache
 def vector_factor_types(n: int) -> tuple:
     """``(between, prior)`` factor types on R^n (``n = 0`` means the scalar kind)."""
     tp = Scalar if n == 0 else vector_type(n)

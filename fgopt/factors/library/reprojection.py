@@ -11,7 +11,7 @@ Residuals are unwhitened pixels (the noise model / robust loss is the instance's
 
 from __future__ import annotations
 
-from ...symbolic import PinholeCamera, Pose3, SnavelyCamera, V2, V3, V4, V9, factor
+from ...symbolic import V2, V3, V4, V9, PinholeCamera, Pose3, SnavelyCamera, factor
 
 
 @factor
