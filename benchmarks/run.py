@@ -385,6 +385,27 @@ def main(argv=None) -> int:
 
     started = dt.datetime.now()
     records = []
+    out = None
+    if not args.no_save:
+        if args.out:
+            out = Path(args.out)
+        else:
+            RESULTS.mkdir(parents=True, exist_ok=True)
+            out = RESULTS / f"{started:%Y-%m-%d}.json"
+            if out.exists():
+                out = RESULTS / f"{started:%Y-%m-%d-%H%M%S}.json"
+
+    def save(final: bool):
+        meta = make_meta(records, args, started, final)
+        if out is not None:
+            slim = [{k: v for k, v in r.items() if k not in ("traceback", "threads")}
+                    for r in records]
+            tmp = out.with_suffix(".json.tmp")
+            with open(tmp, "w") as fh:
+                json.dump({"meta": meta, "runs": slim}, fh, indent=1, default=float)
+            os.replace(tmp, out)
+        return meta
+
     for pb in datasets:
         for mode in modes:
             for peer in order:
@@ -403,7 +424,18 @@ def main(argv=None) -> int:
                           f"{r.get('final_cost'):.6g}", file=sys.stderr)
                 else:
                     print(f" {r.get('status')}: {str(r.get('error', ''))[:200]}", file=sys.stderr)
+                save(final=False)  # a killed run keeps what it measured
 
+    meta = save(final=True)
+    md = markdown(records, meta)
+    print(md)
+    if out is not None:
+        out.with_suffix(".md").write_text(md + "\n")
+        print(f"\nwrote {out} and {out.with_suffix('.md')}", file=sys.stderr)
+    return 0
+
+
+def make_meta(records, args, started, final: bool) -> dict:
     lav = [r["loadavg_1min"] for r in records if r.get("loadavg_1min") is not None]
     versions, pinning = {}, {}
     for r in records:
@@ -411,9 +443,9 @@ def main(argv=None) -> int:
             versions.setdefault(r["peer"], r["version"])
         if r.get("pinning"):
             pinning.setdefault(r["peer"], r["pinning"])
-    meta = {"date": started.strftime("%Y-%m-%d %H:%M"),
-            "host": {"cpu": cpu_name(), "cores": os.cpu_count(), "python": platform.python_version(),
-                     "platform": platform.platform()},
+    return {"date": started.strftime("%Y-%m-%d %H:%M"), "complete": final,
+            "host": {"cpu": cpu_name(), "cores": os.cpu_count(),
+                     "python": platform.python_version(), "platform": platform.platform()},
             "args": vars(args), "versions": versions, "pinning": pinning,
             "thread_env": {v: "1" for v in THREAD_VARS}, "data_dir": str(data_dir()),
             "quoted_ceres_cpp": {k: {"5it_s": v[0], "converge_s": v[1], "converge_iterations": v[2],
@@ -421,22 +453,6 @@ def main(argv=None) -> int:
                                  for k, v in QUOTED_CERES_CPP.items()},
             "wall_s": (dt.datetime.now() - started).total_seconds(),
             "loadavg_1min_range": [min(lav), max(lav)] if lav else None}
-    md = markdown(records, meta)
-    print(md)
-    if not args.no_save:
-        if args.out:
-            out = Path(args.out)
-        else:
-            RESULTS.mkdir(parents=True, exist_ok=True)
-            out = RESULTS / f"{started:%Y-%m-%d}.json"
-            if out.exists():
-                out = RESULTS / f"{started:%Y-%m-%d-%H%M%S}.json"
-        slim = [{k: v for k, v in r.items() if k != "traceback"} for r in records]
-        with open(out, "w") as fh:
-            json.dump({"meta": meta, "runs": slim}, fh, indent=1, default=float)
-        out.with_suffix(".md").write_text(md + "\n")
-        print(f"\nwrote {out} and {out.with_suffix('.md')}", file=sys.stderr)
-    return 0
 
 
 if __name__ == "__main__":
