@@ -34,6 +34,7 @@ DATA_CELL = code("""
     import os
     from pathlib import Path
 
+
     def find_data_dir() -> Path:
         \"\"\"$FGOPT_DATA, else ../shared/data next to the repository root.\"\"\"
         if os.environ.get("FGOPT_DATA"):
@@ -43,6 +44,7 @@ DATA_CELL = code("""
             if (root / "pyproject.toml").exists():
                 return root.parent / "shared" / "data"
         return here / "data"
+
 
     DATA = find_data_dir()
     print("data folder:", DATA, "(present)" if DATA.is_dir() else "(absent)")
@@ -928,7 +930,7 @@ NB05 = [
         graph, initial = synthetic_scene()
         source = "synthetic scene"
     batch = graph.batches[0]
-    cam_keys = sorted(k for k in initial.keys() if initial.at(k).shape[0] == 9)
+    cam_keys = sorted(k for k, val in initial.items() if val.shape[0] == 9)
     print(f"{source}: {len(cam_keys)} cameras, {len(initial) - len(cam_keys)} points, "
           f"{batch.keys.shape[0]} observations")
     """),
@@ -1039,7 +1041,6 @@ NB06 = [
     import numpy as np
     import sympy
 
-    import fgopt
     import fgopt.symbolic as fs
     from fgopt import SO3
     from fgopt.symbolic import V3, Rot3, symbols, tangent_jacobians
@@ -1218,7 +1219,7 @@ NB06 = [
     """),
     code("""
     DT, T_END, V = 0.01, 40.0, 20.0
-    N = int(round(T_END / DT))
+    N = round(T_END / DT)
     PHI_MAX = 0.45
     knots = [0, 5, 8, 28, 31, T_END]
 
@@ -1271,7 +1272,7 @@ NB06 = [
     U_meas[:, :3] += GYRO_BIAS + GYRO_SIGMA * rng.standard_normal((N, 3))
     U_meas[:, 3:] += ACC_BIAS + ACC_SIGMA * rng.standard_normal((N, 3))
 
-    GPS_SIGMA, GPS_EVERY = 1.5, int(round(0.2 / DT))
+    GPS_SIGMA, GPS_EVERY = 1.5, round(0.2 / DT)
     gps_steps = np.arange(GPS_EVERY, N + 1, GPS_EVERY)
     gps = truth[gps_steps, :3] + GPS_SIGMA * rng.standard_normal((gps_steps.shape[0], 3))
     print(f"{gps.shape[0]} GPS fixes, {N} IMU samples")

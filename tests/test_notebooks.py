@@ -23,8 +23,8 @@ nbclient = pytest.importorskip("nbclient")
 pytest.importorskip("ipykernel")
 pytest.importorskip("matplotlib")
 
-from jupyter_client.kernelspec import KernelSpec, KernelSpecManager  # noqa: E402
-from jupyter_client.manager import KernelManager  # noqa: E402
+from jupyter_client.kernelspec import KernelSpec, KernelSpecManager, NoSuchKernel
+from jupyter_client.manager import KernelManager
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = REPO / "examples"
@@ -42,7 +42,7 @@ class _ThisInterpreter(KernelSpecManager):
         argv = [sys.executable, "-m", "ipykernel_launcher", "-f", "{connection_file}"]
         try:  # keep the installed spec's metadata (e.g. its transport encryption support)
             spec = super().get_kernel_spec(kernel_name)
-        except Exception:
+        except NoSuchKernel:
             return KernelSpec(argv=argv, display_name=f"Python ({sys.executable})",
                               language="python", resource_dir=str(EXAMPLES))
         spec.argv = argv
