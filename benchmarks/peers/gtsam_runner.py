@@ -109,8 +109,9 @@ class GtsamRunner:
             params.setAbsoluteErrorTol(0.0)
             params.setErrorTol(0.0)
         opt = gtsam.LevenbergMarquardtOptimizer(state["graph"], state["initial"], params)
+        initial_error = opt.error()  # computed by the constructor already
         values = opt.optimize()
-        return SolveOutput(values, opt.iterations(), None, opt.error(), "")
+        return SolveOutput(values, opt.iterations(), initial_error, opt.error(), "")
 
     def estimate(self, state, out):
         import gtsam
