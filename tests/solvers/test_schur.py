@@ -157,21 +157,29 @@ def test_generic_kernel_equals_fast_kernel(mode):
     assert np.allclose(s.solve(rhs), x_fast, rtol=1e-10, atol=1e-12 * np.abs(x_fast).max())
 
 
-@pytest.mark.parametrize("mode", MODES + ["pcg"])
+PCG_TIGHT = {"pcg_rtol": 1e-14, "pcg_max_iterations": 10_000}
+
+
+@pytest.mark.parametrize("mode", [*MODES, "pcg-explicit", "pcg-implicit"])
 def test_pose_landmark_graph(mode):
     graph, values = pose_landmark_graph()
     P, H, rhs = damped_system(graph, values)
-    s = SchurSolver(reduced=mode, eliminate="R3", pcg_rtol=1e-13)
-    check_equal(P, H, rhs, s, rtol=1e-9 if mode != "pcg" else 1e-7)
+    if mode.startswith("pcg"):
+        s = SchurSolver(reduced="pcg", eliminate="R3", pcg_explicit=mode == "pcg-explicit",
+                        **PCG_TIGHT)
+    else:
+        s = SchurSolver(reduced=mode, eliminate="R3")
+    check_equal(P, H, rhs, s, rtol=1e-9 if mode in MODES else 1e-7)
     assert not s._fast and len(s._a_src) > 0
 
 
-def test_pcg_converges_to_direct_solution():
+@pytest.mark.parametrize("explicit", [True, False])
+def test_pcg_converges_to_direct_solution(explicit):
     graph, values = synthetic_ba(seed=5)
     P, H, rhs = damped_system(graph, values, lam=1e-2)
-    s = SchurSolver(reduced="pcg", pcg_rtol=1e-14)
+    s = SchurSolver(reduced="pcg", pcg_explicit=explicit, **PCG_TIGHT)
     check_equal(P, H, rhs, s, rtol=1e-8)
-    assert s.last_pcg_iterations > 0
+    assert s.last_pcg_iterations > 0 and s._explicit == explicit
 
 
 @pytest.mark.parametrize("mode", MODES)

@@ -369,3 +369,40 @@ def enumerate_pairs(edge_ptr, edge_f, pair_ptr, out_i, out_j):
                 out_i[p] = edge_f[ki]
                 out_j[p] = edge_f[kj]
                 p += 1
+
+
+@njit(cache=True, fastmath=_FM)
+def packed_matvec(packed, pk_off, r_off, c_off, dr, dc, x, y):
+    """``y = S x`` from the packed block store (lower blocks; a diagonal block's upper
+    triangle is not read)."""
+    for i in range(y.shape[0]):
+        y[i] = 0.0
+    for blk in range(pk_off.shape[0] - 1):
+        p = pk_off[blk]
+        ro, co, m, n = r_off[blk], c_off[blk], dr[blk], dc[blk]
+        diag = ro == co
+        for b in range(n):
+            xb = x[co + b]
+            acc = 0.0
+            col = p + b * m
+            if diag:
+                y[ro + b] += packed[col + b] * xb
+            for a in range(b + 1 if diag else 0, m):
+                v = packed[col + a]
+                y[ro + a] += v * xb
+                acc += v * x[ro + a]
+            y[co + b] += acc
+
+
+@njit(cache=True)
+def diagonal_blocks(packed, pk_off, diag_blk, f_dim, dg_ptr, Dg):
+    """Full row-major diagonal blocks of S (from their lower triangles in the packed store)."""
+    for f in range(f_dim.shape[0]):
+        p = pk_off[diag_blk[f]]
+        d = f_dim[f]
+        q = dg_ptr[f]
+        for b in range(d):
+            for a in range(b, d):
+                v = packed[p + b * d + a]
+                Dg[q + a * d + b] = v
+                Dg[q + b * d + a] = v

@@ -1,0 +1,178 @@
+"""Symbolic analysis of the Schur solver (numpy, once per problem): which blocks of H are the
+camera-point edges and where they sit, the block layout of the reduced system S, and the maps
+from H's data array into S's packed block store and from there into the factored matrix.
+
+Conventions of :mod:`fgopt.solvers.linear._schur_kernels`. ``E`` / ``F`` = eliminated / kept
+variables; F variables are numbered by H offset and placed in S in ``order`` (``f_soff``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...errors import FgoptError
+from ...structure import HessianPattern
+from . import _schur_kernels as K
+
+
+def ranges(lengths: np.ndarray) -> np.ndarray:
+    """concat(arange(l) for l in lengths), vectorized."""
+    lengths = np.asarray(lengths, dtype=np.int64)
+    total = int(lengths.sum())
+    if total == 0:
+        return np.zeros(0, dtype=np.int64)
+    starts = np.repeat(np.cumsum(lengths) - lengths, lengths)
+    return np.arange(total, dtype=np.int64) - starts
+
+
+def scalar_to_var(pattern: HessianPattern) -> np.ndarray:
+    order = np.argsort(pattern.var_offset, kind="stable")
+    return np.repeat(order, pattern.var_dim[order]).astype(np.int64)
+
+
+def column_entries(pattern: HessianPattern, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Data positions of every stored entry of columns ``cols``, and the column of each."""
+    starts, ends = pattern.indptr[cols], pattern.indptr[cols + 1]
+    pos = np.repeat(starts, ends - starts) + ranges(ends - starts)
+    return pos, np.repeat(cols, ends - starts)
+
+
+def off_diagonal_blocks(pattern: HessianPattern, var_at: np.ndarray):
+    """Every stored off-diagonal block once: ``(row var, column var, position of entry (0, 0))``.
+
+    A block lives in the columns of its column variable; its ``(0, 0)`` entry is in that
+    variable's first column, on the row variable's first row.
+    """
+    V = pattern.var_offset.shape[0]
+    pos, _ = column_entries(pattern, pattern.var_offset.astype(np.int64))
+    rows = pattern.indices[pos]
+    rv = var_at[rows]
+    cv = np.repeat(np.arange(V, dtype=np.int64),
+                   pattern.indptr[pattern.var_offset + 1] - pattern.indptr[pattern.var_offset])
+    keep = (rows == pattern.var_offset[rv]) & (rv != cv)
+    return rv[keep], cv[keep], pos[keep]
+
+
+def blocks(pattern: HessianPattern) -> tuple:
+    """``(var_at, row vars, column vars, (0, 0) positions)`` of the off-diagonal blocks."""
+    var_at = scalar_to_var(pattern)
+    return (var_at, *off_diagonal_blocks(pattern, var_at))
+
+
+def is_independent(pattern: HessianPattern, mask: np.ndarray, blk: tuple | None = None) -> bool:
+    """True when no stored block of H couples two variables of ``mask``."""
+    _, brv, bcv, _ = blocks(pattern) if blk is None else blk
+    return not np.any(mask[brv] & mask[bcv])
+
+
+def edges(pattern: HessianPattern, is_e: np.ndarray, blk: tuple) -> dict:
+    """E-F edges (orientation 0: block in e's columns, f after e; 1: in f's columns) and F-F
+    couplings. F variables are numbered by H offset, E variables likewise."""
+    var_off, V = pattern.var_offset, pattern.var_offset.shape[0]
+    var_at, brv, bcv, p00 = blk
+    if np.any(is_e[brv] & is_e[bcv]):
+        raise FgoptError("SchurSolver: the variables chosen for elimination are not "
+                         "independent (a factor couples two of them); pass eliminate=... "
+                         "or choose another linear solver")
+    f_vars = np.nonzero(~is_e)[0]
+    f_vars = f_vars[np.argsort(var_off[f_vars], kind="stable")]
+    e_vars = np.nonzero(is_e)[0]
+    e_vars = e_vars[np.argsort(var_off[e_vars], kind="stable")]
+    fidx = np.full(V, -1, dtype=np.int64)
+    fidx[f_vars] = np.arange(f_vars.shape[0])
+    eidx = np.full(V, -1, dtype=np.int64)
+    eidx[e_vars] = np.arange(e_vars.shape[0])
+    o0 = is_e[bcv] & ~is_e[brv]
+    o1 = is_e[brv] & ~is_e[bcv]
+    ff = ~is_e[brv] & ~is_e[bcv]
+    return {
+        "var_at": var_at, "e_vars": e_vars, "f_vars": f_vars,
+        "edge_e": np.concatenate([eidx[bcv[o0]], eidx[brv[o1]]]),
+        "edge_f": np.concatenate([fidx[brv[o0]], fidx[bcv[o1]]]),
+        "edge_p00": np.concatenate([p00[o0], p00[o1]]),
+        "edge_orient": np.concatenate([np.zeros(int(o0.sum()), np.int64),
+                                       np.ones(int(o1.sum()), np.int64)]),
+        "ff_i": fidx[brv[ff]], "ff_j": fidx[bcv[ff]]}
+
+
+def column_shift(pattern: HessianPattern, var_at: np.ndarray) -> np.ndarray:
+    """``cshift[c] = indptr[c] - indptr[c0] - (c - c0)``, ``c0`` = first column of c's variable."""
+    c = np.arange(pattern.size, dtype=np.int64)
+    c0 = pattern.var_offset[var_at]
+    return pattern.indptr[:-1] - pattern.indptr[c0] - (c - c0)
+
+
+def a_entries(pattern: HessianPattern, s_to_h: np.ndarray):
+    """Entries of ``H_FF``: data positions in H and their lower (row, col) in S scalars."""
+    h_to_s = np.full(pattern.size, -1, dtype=np.int64)
+    h_to_s[s_to_h] = np.arange(s_to_h.shape[0])
+    pos, col = column_entries(pattern, np.sort(s_to_h))
+    sr = h_to_s[pattern.indices[pos]]
+    keep = sr >= 0
+    sr, sc = sr[keep], h_to_s[col[keep]]
+    return pos[keep], np.maximum(sr, sc), np.minimum(sr, sc)
+
+
+def co_observation_pairs(edge_ptr: np.ndarray, edge_f: np.ndarray, nF: int):
+    """Unique pairs ``(f1 > f2)`` of F variables that share an E variable."""
+    k = np.diff(edge_ptr)
+    pair_ptr = np.concatenate([[0], np.cumsum(k * (k + 1) // 2)]).astype(np.int64)
+    pi = np.empty(int(pair_ptr[-1]), dtype=np.int64)
+    pj = np.empty_like(pi)
+    K.enumerate_pairs(edge_ptr, edge_f, pair_ptr, pi, pj)
+    keep = pi != pj
+    codes = np.unique(np.maximum(pi, pj)[keep] * nF + np.minimum(pi, pj)[keep])
+    return codes // nF, codes % nF
+
+
+def packed_blocks(nF, f_dim, f_soff, f_rank, edge_ptr, edge_f, ff_i, ff_j, a_row, a_col):
+    """The packed block store of S and the maps into it.
+
+    Blocks ``(row var br, column var bc)`` with ``rank(br) >= rank(bc)``: every diagonal block,
+    every pair of F variables sharing an E variable, every F-F coupling of H. Block ``b`` is a
+    column-major ``dr x dc`` array at ``pk_off[b]``. Returns a dict with the kernels' arrays
+    (``pair_ptr``, ``pair_blk``, ``blk_ptr``, ``blk_base``), ``a_dst`` (H_FF -> packed), the lower
+    entries of the store (``pk_src``) with their S ``srow`` / ``scol``, and the pairs
+    ``pi, pj`` / ``fi, fj`` (for a sparse pattern).
+    """
+    k = np.diff(edge_ptr)
+    pair_ptr = np.concatenate([[0], np.cumsum(k * (k + 1) // 2)]).astype(np.int64)
+    pi = np.empty(int(pair_ptr[-1]), dtype=np.int64)
+    pj = np.empty_like(pi)
+    K.enumerate_pairs(edge_ptr, edge_f, pair_ptr, pi, pj)  # rank(pi) >= rank(pj)
+    lo = f_rank[ff_i] >= f_rank[ff_j]
+    fi, fj = np.where(lo, ff_i, ff_j), np.where(lo, ff_j, ff_i)
+    codes = np.unique(np.concatenate([pj * nF + pi, fj * nF + fi,
+                                      np.arange(nF, dtype=np.int64) * (nF + 1)]))
+    bc, br = codes // nF, codes % nF
+    dr, dc = f_dim[br], f_dim[bc]
+    pk_off = np.concatenate([[0], np.cumsum(dr * dc)]).astype(np.int64)
+    blk_of = np.repeat(np.arange(codes.shape[0]), dr * dc)
+    loc = ranges(dr * dc)
+    srow = f_soff[br][blk_of] + loc % dr[blk_of]
+    scol = f_soff[bc][blk_of] + loc // dr[blk_of]
+    pk_src = np.nonzero(srow >= scol)[0]
+    f_of_s = np.repeat(np.argsort(f_rank), f_dim[np.argsort(f_rank)])
+    fr, fc = f_of_s[a_row], f_of_s[a_col]
+    blk = np.searchsorted(codes, fc * nF + fr)
+    return {
+        "pair_ptr": pair_ptr, "pair_blk": np.searchsorted(codes, pj * nF + pi),
+        "blk_ptr": np.concatenate([[0], np.cumsum(dc)]).astype(np.int64),
+        "blk_base": np.repeat(pk_off[:-1], dc) + ranges(dc) * np.repeat(dr, dc),
+        "pk_off": pk_off, "br": br, "bc": bc,
+        "a_dst": pk_off[blk] + (a_col - f_soff[fc]) * f_dim[fr] + (a_row - f_soff[fr]),
+        "pk_src": pk_src, "srow": srow[pk_src], "scol": scol[pk_src],
+        "pi": pi, "pj": pj, "fi": fi, "fj": fj}
+
+
+def csc_positions(pat: HessianPattern, row: np.ndarray, col: np.ndarray) -> np.ndarray:
+    """Data positions of lower entries ``(row, col)`` (``row >= col``) in a CSC pattern."""
+    n = pat.size
+    cols = np.repeat(np.arange(n, dtype=np.int64), np.diff(pat.indptr))
+    keys = cols * n + pat.indices  # sorted: columns ascending, rows sorted within
+    want = col * n + row
+    pos = np.searchsorted(keys, want)
+    if want.shape[0] and (pos.max(initial=0) >= keys.shape[0]
+                          or not np.array_equal(keys[pos], want)):
+        raise AssertionError("Schur: an entry is missing from the reduced pattern")
+    return pos
