@@ -69,8 +69,8 @@ NB01 = [
     We build it with fgopt's miniSAM-style API, solve it with Levenberg-Marquardt, Gauss-Newton
     and Dogleg, print the result table and plot the trajectory.
 
-    **Conventions.** fgopt's SE(2) tangent order is *rotation first*, `[theta, x, y]` (as GTSAM's
-    storage of Pose2 noise is `[x, y, theta]`, miniSAM/Sophus puts translation first). So
+    **Conventions.** fgopt's SE(2) tangent order is *rotation first*, `[theta, x, y]`, while
+    GTSAM's Pose2 and miniSAM's (Sophus) SE2 put the translation first, `[x, y, theta]`. So
     miniSAM's `DiagonalLoss.Sigmas([1.0, 1.0, 0.1])` (x, y, theta) is
     `Diagonal.sigmas([0.1, 1.0, 1.0])` here. Between residuals are `Log(m^-1 a^-1 b)`; the cost is
     `0.5 * sum |whitened residual|^2`.
