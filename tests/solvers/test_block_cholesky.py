@@ -11,10 +11,14 @@ from fgopt.structure import build_pattern, fill_reducing_order
 
 NO_RELAX = ((1 << 62, 0.0),)
 MUCH_RELAX = ((24, 1.0), (96, 0.5), (1 << 62, 0.3))
-# small_*=0: every panel goes through LAPACK/BLAS; 10**6: every panel through the numba loops
-CONFIGS = [{}, {"small_panel": 0, "small_syrk": 0}, {"small_panel": 10**6, "small_syrk": 10**6},
+# Kernel paths forced one at a time: LAPACK/BLAS only, loop panels + tile updates, tiles only;
+# then amalgamation variants and updates split into many column chunks.
+CONFIGS = [{},
+           {"small_panel": 0, "tile_panel": 0, "small_syrk": 0},
+           {"small_panel": 10**6, "small_syrk": 10**6},
+           {"small_panel": 0, "tile_panel": 10**6, "small_syrk": 10**6},
            {"relax": NO_RELAX}, {"relax": MUCH_RELAX, "small_panel": 3, "small_syrk": 9},
-           {"chunk": 7}, {"chunk": 1, "small_syrk": 0}]      # updates in many column chunks
+           {"chunk": 7}, {"chunk": 1, "small_syrk": 0}]
 
 
 def random_block_system(seed, num_vars=60, dims=(1, 2, 3, 6, 9), extra_edges=80,
@@ -123,7 +127,7 @@ def test_not_positive_definite_raises_and_recovers(config):
     assert rel(s.solve(b), np.linalg.solve(dense, b)) < 1e-9
 
 
-@pytest.mark.parametrize("config", CONFIGS[:3])
+@pytest.mark.parametrize("config", CONFIGS[:4])
 def test_nan_pivot_is_not_positive_definite(config):
     pattern, data, _ = random_block_system(4)
     s = BlockCholeskySolver(**config)

@@ -22,6 +22,7 @@ from numba.extending import get_cython_function_address
 
 from ._block_simd import prefetch as _prefetch
 from ._block_simd import syrk_tile as _syrk_tile
+from ._block_simd import syrk_tile_sub as _syrk_tile_sub
 
 
 def _bind(module: str, name: str, nargs: int) -> types.ExternalFunction:
@@ -82,6 +83,49 @@ def _panel_small(L, p0, w, m):
 
 
 @njit(cache=True, inline="always")
+def _panel_tiles(L, p0, w, m, T):
+    """Left-looking Cholesky of an ``m x w`` panel by blocks of 4 columns (register tiles).
+
+    Each block is first updated by all the columns left of it (8 x 4 tiles of ``syrk_tile_sub``,
+    in place; partial tiles at the panel's edges go through the scratch ``T``), then factored
+    right-looking within the block. Returns 0 or ``c + 1`` for a non-positive pivot in column c.
+    """
+    mu = _u(m)
+    for c0 in range(0, w, 4):
+        nb = min(4, w - c0)
+        if c0 > 0:
+            for i0 in range(c0, m, 8):
+                if i0 + 8 <= m and nb == 4:
+                    _syrk_tile_sub(L, _u(p0 + i0), _u(p0 + c0), mu, _u(c0), L,
+                                   _u(p0 + i0 + c0 * m), mu)
+                else:
+                    _syrk_tile(L, _u(p0 + i0), _u(p0 + c0), mu, _u(c0), T, _u(0), _u(8))
+                    nt = min(8, m - i0)
+                    for j in range(nb):
+                        col = p0 + (c0 + j) * m + i0
+                        for t in range(nt):
+                            L[col + t] -= T[t + j * 8]
+        for j in range(nb):
+            c = _u(c0 + j)
+            cc = _u(p0) + c * mu
+            d = L[cc + c]
+            if not d > 0.0:
+                return c0 + j + 1
+            d = np.sqrt(d)
+            L[cc + c] = d
+            inv = 1.0 / d
+            for i in range(c + _u(1), mu):
+                L[cc + i] *= inv
+            for j2 in range(j + 1, nb):
+                c2 = _u(c0 + j2)
+                f = L[cc + c2]
+                cc2 = _u(p0) + c2 * mu
+                for i in range(c2, mu):
+                    L[cc2 + i] -= L[cc + i] * f
+    return 0
+
+
+@njit(cache=True, inline="always")
 def _update_tiles(L, b0, w, m, n, k, C, ldc):
     """Columns ``0..k`` of the lower part of ``C = B B^T`` in 8 x 4 register tiles.
 
@@ -98,7 +142,8 @@ def _update_tiles(L, b0, w, m, n, k, C, ldc):
 # ------------------------------------------------------------------ factorization
 @njit(cache=True)
 def factorize(H, hmap, L, C, pstart, width, rows, cb_ptr, cb_base, cb_ld, cb_src, cb_dim,
-              run_ptr, run_src, run_dst, run_len, iw, fw, small_panel, small_syrk, chunk):
+              run_ptr, run_src, run_dst, run_len, iw, fw, small_panel, tile_panel, small_syrk,
+              chunk):
     """Numeric factorization; returns -1, or the supernode whose pivot was not positive."""
     L[:] = 0.0
     for p in range(H.shape[0]):
@@ -118,6 +163,9 @@ def factorize(H, hmap, L, C, pstart, width, rows, cb_ptr, cb_base, cb_ld, cb_src
         iw[_I0 + 3] = r
         if w <= small_panel:
             if _panel_small(L, p0, w, m) != 0:
+                return s
+        elif w <= tile_panel:
+            if _panel_tiles(L, p0, w, m, C) != 0:   # C is free until the update: scratch
                 return s
         else:
             iw[_I0 + 2] = 0

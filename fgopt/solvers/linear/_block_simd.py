@@ -39,14 +39,8 @@ def prefetch(typingctx, arr, idx):
     return sig, codegen
 
 
-@intrinsic
-def syrk_tile(typingctx, L, a, b, ld, w, C, c, ldc):
-    """An 8 x 4 tile of ``B B^T``: ``C[c + i + j ldc] = sum_k L[a + i + k ld] L[b + j + k ld]``.
-
-    ``i < 8``, ``j < 4``, ``k < w`` (all integer arguments unsigned 64-bit). Reads 8 rows from
-    ``a`` and 4 from ``b`` in each of ``w`` columns; writes the whole tile (callers pad ``C``).
-    """
-    sig = types.void(L, a, b, ld, w, C, c, ldc)
+def _tile_codegen(subtract):
+    """Codegen of an 8 x 4 tile of ``B B^T``, stored (``C = tile``) or subtracted (``C -= tile``)."""
 
     def codegen(context, builder, signature, args):
         Ld = context.make_array(signature.args[0])(context, builder, args[0]).data
@@ -95,9 +89,29 @@ def syrk_tile(typingctx, L, a, b, ld, w, C, c, ldc):
         builder.position_at_end(done)
         for j in range(4):
             pc = builder.gep(Cd, [builder.add(c_, builder.mul(ir.Constant(_I64, j), ldc_))])
-            builder.store(acc[2 * j], builder.bitcast(pc, v4p), align=8)
-            builder.store(acc[2 * j + 1],
-                          builder.bitcast(builder.gep(pc, [ir.Constant(_I64, 4)]), v4p), align=8)
+            for h, ptr in enumerate((pc, builder.gep(pc, [ir.Constant(_I64, 4)]))):
+                vp = builder.bitcast(ptr, v4p)
+                val = acc[2 * j + h]
+                if subtract:
+                    val = builder.fsub(builder.load(vp, align=8), val)
+                builder.store(val, vp, align=8)
         return context.get_dummy_value()
 
-    return sig, codegen
+    return codegen
+
+
+@intrinsic
+def syrk_tile(typingctx, L, a, b, ld, w, C, c, ldc):
+    """An 8 x 4 tile of ``B B^T``: ``C[c + i + j ldc] = sum_k L[a + i + k ld] L[b + j + k ld]``.
+
+    ``i < 8``, ``j < 4``, ``k < w`` (all integer arguments unsigned 64-bit). Reads 8 rows from
+    ``a`` and 4 from ``b`` in each of ``w`` columns; writes the whole tile (callers pad ``C``).
+    """
+    return types.void(L, a, b, ld, w, C, c, ldc), _tile_codegen(False)
+
+
+@intrinsic
+def syrk_tile_sub(typingctx, L, a, b, ld, w, C, c, ldc):
+    """``syrk_tile`` subtracted from ``C`` in place (``C`` may be ``L`` itself: all reads of the
+    product happen before the tile is written)."""
+    return types.void(L, a, b, ld, w, C, c, ldc), _tile_codegen(True)

@@ -93,17 +93,19 @@ def analyze_blocks(pattern: HessianPattern, relax=DEFAULT_RELAX) -> BlockSymboli
 class BlockCholeskySolver:
     """Supernodal Cholesky on the variable-block structure of H (numba + BLAS).
 
-    ``small_panel`` / ``small_syrk``: panels at most this many scalar columns wide are factored
-    with numba loops / form their update with register tiles instead of LAPACK/BLAS calls
-    (whose call overhead dominates for narrow panels). ``chunk``: the update of a supernode is formed and scattered in
+    Kernel choice by panel width ``w`` (scalar columns): the panel is factored by numba loops
+    if ``w <= small_panel``, by register tiles if ``w <= tile_panel``, else by LAPACK ``dpotrf``
+    + ``dtrsm``; its update is formed by register tiles if ``w <= small_syrk``, else by
+    ``dsyrk`` / ``dgemm`` (BLAS call overhead dominates for narrow panels). ``chunk``: the update of a supernode is formed and scattered in
     column chunks of about this many columns (bounds the workspace). ``relax``: relaxed
     amalgamation thresholds ``((max width, max zero fraction), ...)``, CHOLMOD's by default.
     """
 
     name = "block"
 
-    def __init__(self, small_panel: int = 12, small_syrk: int = 96, chunk: int = 512,
-                 relax=DEFAULT_RELAX):
+    def __init__(self, small_panel: int = 8, tile_panel: int = 192, small_syrk: int = 96,
+                 chunk: int = 512, relax=DEFAULT_RELAX):
+        self.tile_panel = int(tile_panel)
         self.chunk = int(chunk)
         self.small_panel = int(small_panel)
         self.small_syrk = int(small_syrk)
@@ -139,7 +141,7 @@ class BlockCholeskySolver:
         r = sy.rows - sy.width
         # update chunks: at most r x (chunk + widest variable) doubles, plus the tiles' padding
         cols = np.minimum(r, self.chunk + sy.dim.max(initial=1)) + 4
-        self._C = np.zeros(max(1, int(((r + 8) * cols).max(initial=0))))
+        self._C = np.zeros(max(64, int(((r + 8) * cols).max(initial=0))))
         self._buf = np.zeros(max(1, int(r.max(initial=0))))
         self._iw, self._fw = k.blas_workspace()
         self._ok = False
@@ -164,8 +166,8 @@ class BlockCholeskySolver:
                 f"{self._hmap.shape[0]}")
         fail = k.factorize(H_data, self._hmap, self.L,
                            self._C, sy.pstart, sy.width, sy.rows, *self._maps, self._iw,
-                           self._fw, self.small_panel, self.small_syrk,
-                           self.chunk)
+                           self._fw, self.small_panel, self.tile_panel,
+                           self.small_syrk, self.chunk)
         if fail >= 0:
             v = int(sy.post_var[sy.sn[fail]])
             raise NotPositiveDefiniteError(
