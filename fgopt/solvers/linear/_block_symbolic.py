@@ -246,3 +246,112 @@ def supernode_rows(sn, post, ipost, lp, li, dim_p):
             acc += dim_p[rvi[p]]
     return rvp, rvi, rpos
 
+
+# ------------------------------------------------------------------ symbolic maps
+@njit(cache=True)
+def build_maps(sn, rvp, rvi, rpos, dim, off, pstart, rows, width):
+    """Scatter runs of every supernode's update into its ancestors' panels.
+
+    For supernode ``s`` and each of its below variables ``b_j`` (a column block of the update
+    ``C``): the target panel column base and leading dimension, ``C``'s column offset and the
+    runs ``(C row offset, target row offset, length)`` of rows ``b_i, i >= j`` that are
+    contiguous in both ``C`` and the target panel.
+    """
+    S = sn.shape[0] - 1
+    V = dim.shape[0]
+    sn_of = np.empty(V, np.int64)
+    for s in range(S):
+        for j in range(sn[s], sn[s + 1]):
+            sn_of[j] = s
+    ncb = 0
+    for s in range(S):
+        ncb += (rvp[s + 1] - rvp[s]) - (sn[s + 1] - sn[s])
+    cb_ptr = np.zeros(S + 1, np.int64)
+    cb_base = np.empty(ncb, np.int64)
+    cb_ld = np.empty(ncb, np.int64)
+    cb_src = np.empty(ncb, np.int64)
+    cb_dim = np.empty(ncb, np.int64)
+    run_ptr = np.zeros(ncb + 1, np.int64)
+    cap = 4 * ncb + 16
+    run_src = np.empty(cap, np.int64)
+    run_dst = np.empty(cap, np.int64)
+    run_len = np.empty(cap, np.int64)
+    jb = 0
+    nr = 0
+    for s in range(S):
+        q_lo = rvp[s] + (sn[s + 1] - sn[s])    # first below variable of s
+        q_hi = rvp[s + 1]
+        w = width[s]
+        for qj in range(q_lo, q_hi):
+            bj = rvi[qj]
+            t = sn_of[bj]
+            t_lo, t_hi = rvp[t], rvp[t + 1]
+            col = off[bj] - off[sn[t]]
+            cb_base[jb] = pstart[t] + col * rows[t]
+            cb_ld[jb] = rows[t]
+            cb_src[jb] = rpos[qj] - w
+            cb_dim[jb] = dim[bj]
+            pt = t_lo
+            last_src = -1
+            last_end = -1
+            for qi in range(qj, q_hi):
+                bi = rvi[qi]
+                while rvi[pt] != bi:           # both lists are sorted; t's holds s's below rows
+                    pt += 1
+                    if pt >= t_hi:
+                        raise ValueError("block Cholesky: inconsistent supernode structures")
+                src = rpos[qi] - w
+                dst = rpos[pt]
+                if nr > 0 and run_ptr[jb] < nr and src == last_src and dst == last_end:
+                    run_len[nr - 1] += dim[bi]
+                else:
+                    if nr >= cap:
+                        cap *= 2
+                        run_src = _grow(run_src, cap)
+                        run_dst = _grow(run_dst, cap)
+                        run_len = _grow(run_len, cap)
+                    run_src[nr] = src
+                    run_dst[nr] = dst
+                    run_len[nr] = dim[bi]
+                    nr += 1
+                last_src = src + dim[bi]
+                last_end = dst + dim[bi]
+            jb += 1
+            run_ptr[jb] = nr
+        cb_ptr[s + 1] = jb
+    return (cb_ptr, cb_base, cb_ld, cb_src, cb_dim, run_ptr, run_src[:nr].copy(),
+            run_dst[:nr].copy(), run_len[:nr].copy())
+
+
+@njit(cache=True)
+def _grow(a, cap):
+    out = np.empty(cap, a.dtype)
+    out[:a.shape[0]] = a
+    return out
+
+
+@njit(cache=True)
+def build_hmap(indptr, indices, new_of_old, var_of_new, sn_of, off, sn, rvp, rvi, rpos,
+               pstart, rows):
+    """Position in the panels of every stored entry of H's lower CSC (pattern order)."""
+    n = indptr.shape[0] - 1
+    hmap = np.empty(indices.shape[0], np.int64)
+    for j in range(n):
+        for p in range(indptr[j], indptr[j + 1]):
+            I = new_of_old[indices[p]]
+            J = new_of_old[j]
+            if I < J:
+                I, J = J, I
+            vJ = var_of_new[J]
+            vI = var_of_new[I]
+            s = sn_of[vJ]
+            c = J - off[sn[s]]
+            lo, hi = rvp[s], rvp[s + 1]
+            while hi - lo > 1:                 # binary search of vI in s's sorted rows
+                mid = (lo + hi) // 2
+                if rvi[mid] <= vI:
+                    lo = mid
+                else:
+                    hi = mid
+            hmap[p] = pstart[s] + c * rows[s] + rpos[lo] + (I - off[vI])
+    return hmap

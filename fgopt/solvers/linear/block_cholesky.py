@@ -120,7 +120,7 @@ class BlockCholeskySolver:
         self.symbolic = sy
         S = sy.sn.shape[0] - 1
         sn_of = np.repeat(np.arange(S, dtype=np.int64), np.diff(sy.sn))
-        self._maps = k.build_maps(sy.sn, sy.rvp, sy.rvi, sy.rpos, sy.dim, sy.off, sy.pstart,
+        self._maps = sym.build_maps(sy.sn, sy.rvp, sy.rvi, sy.rpos, sy.dim, sy.off, sy.pstart,
                                   sy.rows, sy.width)
         # scalar permutation: new (factor) order -> pattern order
         old_off = np.asarray(pattern.var_offset, np.int64)[sy.post_var]
@@ -128,7 +128,7 @@ class BlockCholeskySolver:
         new_of_old = np.empty(pattern.size, np.int64)
         new_of_old[self._perm] = np.arange(pattern.size)
         var_of_new = np.repeat(np.arange(sy.n_var, dtype=np.int64), sy.dim)
-        self._hmap = k.build_hmap(pattern.indptr, pattern.indices, new_of_old, var_of_new, sn_of,
+        self._hmap = sym.build_hmap(pattern.indptr, pattern.indices, new_of_old, var_of_new, sn_of,
                                   sy.off, sy.sn, sy.rvp, sy.rvi, sy.rpos, sy.pstart, sy.rows)
         self._col0 = sy.off[sy.sn[:-1]]
         # global (factor-order) scalar index of every panel row
