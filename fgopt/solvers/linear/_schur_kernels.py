@@ -70,9 +70,11 @@ def _chol_inverse(C, d, L, out):
 def eliminate(H, indptr, cshift, e_off, e_dim, c_ptr, edge_ptr, edge_f, edge_p00, edge_orient,
               f_hoff, f_dim, w_ptr, pair_ptr, pair_blk, blk_ptr, blk_base, Cinv, B, W, S,
               accumulate):
-    """Invert every ``C_e``, store ``B_k`` and ``W_k``, subtract ``W_k B_l^T`` from S.
+    """Invert every ``C_e``, store ``B_k``, subtract ``W_k B_l^T`` from S.
 
-    ``B_k`` / ``W_k`` are stored column-major per edge: entry ``(a, c)`` at ``w_ptr[k] + c df + a``.
+    ``B_k`` is stored column-major per edge: entry ``(a, c)`` at ``w_ptr[k] + c df + a``. ``W`` is
+    scratch for one e's ``W_k`` (same layout, offsets relative to its first edge): the solve
+    only needs ``B`` and ``C_e^-1``.
     ``S`` must already hold ``A_FF``; with ``accumulate=False`` S is left alone (implicit
     Schur). Returns -1, or the index of an ``e`` whose ``C_e`` is not positive definite.
     """
@@ -113,18 +115,19 @@ def eliminate(H, indptr, cshift, e_off, e_dim, c_ptr, edge_ptr, edge_f, edge_p00
                     pa = p00 + cshift[fo + a]
                     for b in range(d):
                         B[wp + b * df + a] = H[pa + b]
+            ww = wp - w_ptr[k0]
             for b in range(d):
                 for a in range(df):
                     t = 0.0
                     for c in range(d):
                         t += B[wp + c * df + a] * Ci[c, b]
-                    W[wp + b * df + a] = t
+                    W[ww + b * df + a] = t
         if not accumulate:
             continue
         p = pair_ptr[i]
         for ki in range(k0, k1):
             dfi = f_dim[edge_f[ki]]
-            wi = w_ptr[ki]
+            wi = w_ptr[ki] - w_ptr[k0]
             for kj in range(k0, ki + 1):
                 dfj = f_dim[edge_f[kj]]
                 bj = w_ptr[kj]
@@ -181,16 +184,17 @@ def eliminate_e3f9(H, indptr, cshift, e_off, c_ptr, edge_ptr, edge_f, edge_p00, 
                     pa = p00 + cshift[fo + a]
                     for b in range(3):
                         B[wp + b * 9 + a] = H[pa + b]
+            ww = wp - w_ptr[k0]
             for b in range(3):
                 c0, c1, c2 = Ci[0, b], Ci[1, b], Ci[2, b]
                 for a in range(9):
-                    W[wp + b * 9 + a] = (B[wp + a] * c0 + B[wp + 9 + a] * c1
+                    W[ww + b * 9 + a] = (B[wp + a] * c0 + B[wp + 9 + a] * c1
                                          + B[wp + 18 + a] * c2)
         if not accumulate:
             continue
         p = pair_ptr[i]
         for ki in range(k0, k1):
-            wi = w_ptr[ki]
+            wi = w_ptr[ki] - w_ptr[k0]
             # W_ki in registers (numba does not SLP-vectorize: unrolled scalar code
             # with operands in locals is ~2.5x faster than loops over memory)
             w00, w10, w20, w30, w40, w50, w60, w70, w80 = W[wi:wi + 9]
@@ -217,20 +221,30 @@ def eliminate_e3f9(H, indptr, cshift, e_off, c_ptr, edge_ptr, edge_f, edge_p00, 
 
 
 @njit(cache=True, fastmath=_FM)
-def reduce_rhs(rhs, rS, e_off, e_dim, edge_ptr, edge_f, f_soff, f_dim, w_ptr, W):
-    """``rS -= sum_k W_k rhs_e`` (``rS`` holds ``rhs_F`` in S order on entry)."""
+def reduce_rhs(rhs, rS, e_off, e_dim, c_ptr, Cinv, edge_ptr, edge_f, f_soff, f_dim, w_ptr, B):
+    """``rS -= sum_k B_k C_e^-1 rhs_e`` (``rS`` holds ``rhs_F`` in S order on entry)."""
+    maxd = 1
+    for i in range(e_off.shape[0]):
+        maxd = max(maxd, e_dim[i])
+    y = np.empty(maxd)
     for i in range(e_off.shape[0]):
         d = e_dim[i]
         o = e_off[i]
+        cp = c_ptr[i]
+        for a in range(d):
+            t = 0.0
+            for c in range(d):
+                t += Cinv[cp + a * d + c] * rhs[o + c]
+            y[a] = t
         for k in range(edge_ptr[i], edge_ptr[i + 1]):
             f = edge_f[k]
             df = f_dim[f]
             so = f_soff[f]
             wp = w_ptr[k]
             for c in range(d):
-                rc = rhs[o + c]
+                yc = y[c]
                 for a in range(df):
-                    rS[so + a] -= W[wp + c * df + a] * rc
+                    rS[so + a] -= B[wp + c * df + a] * yc
 
 
 @njit(cache=True, fastmath=_FM)
@@ -306,20 +320,34 @@ def implicit_schur_matvec(xS, out, e_dim, c_ptr, Cinv, edge_ptr, edge_f, f_soff,
 
 
 @njit(cache=True, fastmath=_FM)
-def schur_block_diagonal(Dg, dg_ptr, e_dim, edge_ptr, edge_f, f_dim, w_ptr, B, W):
-    """``Dg[f] -= sum_{k: f} W_k B_k^T`` (full ``df x df`` blocks, row-major; holds ``A_ff``)."""
+def schur_block_diagonal(Dg, dg_ptr, e_dim, c_ptr, Cinv, edge_ptr, edge_f, f_dim, w_ptr, B):
+    """``Dg[f] -= sum_{k: f} B_k C_e^-1 B_k^T`` (full ``df x df`` blocks, row-major; holds
+    ``A_ff`` on entry)."""
+    maxd = 1
+    for i in range(e_dim.shape[0]):
+        maxd = max(maxd, e_dim[i])
+    w = np.empty(16 * maxd)
     for i in range(e_dim.shape[0]):
         d = e_dim[i]
+        cp = c_ptr[i]
         for k in range(edge_ptr[i], edge_ptr[i + 1]):
             f = edge_f[k]
             df = f_dim[f]
             dp = dg_ptr[f]
             wp = w_ptr[k]
+            if w.shape[0] < df * d:
+                w = np.empty(df * d)
+            for c in range(d):  # w = B_k C_e^-1 (column-major)
+                for a in range(df):
+                    t = 0.0
+                    for q in range(d):
+                        t += B[wp + q * df + a] * Cinv[cp + q * d + c]
+                    w[c * df + a] = t
             for b in range(df):
                 for c in range(d):
                     x = B[wp + c * df + b]
                     for a in range(df):
-                        Dg[dp + b * df + a] -= W[wp + c * df + a] * x
+                        Dg[dp + b * df + a] -= w[c * df + a] * x
 
 
 @njit(cache=True)

@@ -126,7 +126,8 @@ class SchurSolver:
         self._cshift = L.column_shift(pattern, ed["var_at"])
         self._Cinv = np.empty(int(self._c_ptr[-1]))
         self._B = np.empty(int(self._w_ptr[-1]))
-        self._W = np.empty(int(self._w_ptr[-1]))
+        k_w = np.diff(self._w_ptr[edge_ptr]) if nE else np.zeros(1, np.int64)
+        self._W = np.empty(int(k_w.max(initial=1)))  # one e's W_k = B_k C_e^-1 (scratch)
         self._fast = bool(nE and np.all(e_dim == 3) and np.all(f_dim[edge_f] == 9))
         f_soff = np.zeros(nF, dtype=np.int64)  # offsets in S (rank order)
         f_soff[order] = np.concatenate([[0], np.cumsum(f_dim[order])[:-1]]) if nF else []
@@ -246,9 +247,9 @@ class SchurSolver:
                                   self._dg_ptr, self._Dg)
             else:
                 self._Dg[:] = self._A[self._dg_src]
-                K.schur_block_diagonal(self._Dg, self._dg_ptr, self._e_dim, self._edge_ptr,
-                                       self._edge_f, self._f_dim, self._w_ptr, self._B,
-                                       self._W)
+                K.schur_block_diagonal(self._Dg, self._dg_ptr, self._e_dim, self._c_ptr,
+                                       self._Cinv, self._edge_ptr, self._edge_f, self._f_dim,
+                                       self._w_ptr, self._B)
             bad = K.invert_blocks(self._Dg, self._dg_ptr, self._f_dim, self._Minv)
             if bad >= 0:
                 raise NotPositiveDefiniteError(
@@ -259,8 +260,9 @@ class SchurSolver:
         t0 = self.clock()
         rhs = np.ascontiguousarray(rhs, dtype=np.float64)
         rS = rhs[self._s_to_h]
-        K.reduce_rhs(rhs, rS, self._e_off, self._e_dim, self._edge_ptr, self._edge_f,
-                     self._f_soff, self._f_dim, self._w_ptr, self._W)
+        K.reduce_rhs(rhs, rS, self._e_off, self._e_dim, self._c_ptr, self._Cinv,
+                     self._edge_ptr, self._edge_f, self._f_soff, self._f_dim, self._w_ptr,
+                     self._B)
         t1 = self.clock()
         if self._nS == 0:
             xS = rS
