@@ -9,7 +9,9 @@ odometry, so it drifts. ``grid_3d`` does the same in a 3D grid with SE(3) poses.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -19,6 +21,15 @@ from .graph import FactorGraph
 from .key import key
 from .manifolds import SE2, SE3, SO3
 from .variables import Variables
+
+
+def data_dir() -> Path:
+    """The real benchmark data folder: env ``FGOPT_DATA``, else ``../shared/data`` beside the
+    repository (it may not exist: callers skip or fall back to the generators below)."""
+    env = os.environ.get("FGOPT_DATA")
+    if env:
+        return Path(env)
+    return Path(__file__).resolve().parents[2] / "shared" / "data"
 
 
 @dataclass
