@@ -245,3 +245,13 @@ def test_lm_ladybug_schur_matches_cholmod(data_file):
     assert r_schur.final_cost < 13500.0
     assert np.isclose(r_schur.final_cost, r_chol.final_cost, rtol=1e-7), (
         r_schur.final_cost, r_chol.final_cost)
+
+
+def test_auto_mode_rule():
+    graph, values = synthetic_ba(nc=6, npt=40)  # every camera pair shares a point: S is full
+    P, H, rhs = damped_system(graph, values)
+    for kw, mode in (({}, "dense"), ({"dense_max": 20}, "dense"), ({"dense_max": 5}, "sparse"),
+                     ({"dense_max": 5, "pcg_min": 50}, "pcg")):
+        s = SchurSolver(**kw, pcg_rtol=1e-14, pcg_max_iterations=10_000)
+        check_equal(P, H, rhs, s, rtol=1e-8)
+        assert s.mode == mode and s.name == "schur", (kw, s.mode)
