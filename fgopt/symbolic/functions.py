@@ -98,7 +98,7 @@ def sqrt(x: Any, epsilon: Any = _DEFAULT):
     sp = _s().sp
     if e == 0:
         return _map1(sp.sqrt, x)
-    return _map1(lambda a: sp.sqrt(sp.Max(a, e**2)), x)
+    return _map1(lambda a: sp.sqrt(Max(a, e**2)), x)
 
 
 def log(x: Any, epsilon: Any = _DEFAULT):
@@ -107,7 +107,7 @@ def log(x: Any, epsilon: Any = _DEFAULT):
     sp = _s().sp
     if e == 0:
         return _map1(sp.log, x)
-    return _map1(lambda a: sp.log(sp.Max(a, e)), x)
+    return _map1(lambda a: sp.log(Max(a, e)), x)
 
 
 def acos(x: Any, epsilon: Any = _DEFAULT):
@@ -115,7 +115,7 @@ def acos(x: Any, epsilon: Any = _DEFAULT):
     sp = _s().sp
     if _eps(epsilon) == 0:
         return _map1(sp.acos, x)
-    return _map1(lambda a: sp.acos(sp.Max(-1, sp.Min(1, a))), x)
+    return _map1(lambda a: sp.acos(Max(-1, Min(1, a))), x)
 
 
 def asin(x: Any, epsilon: Any = _DEFAULT):
@@ -123,7 +123,7 @@ def asin(x: Any, epsilon: Any = _DEFAULT):
     sp = _s().sp
     if _eps(epsilon) == 0:
         return _map1(sp.asin, x)
-    return _map1(lambda a: sp.asin(sp.Max(-1, sp.Min(1, a))), x)
+    return _map1(lambda a: sp.asin(Max(-1, Min(1, a))), x)
 
 
 def atan2(y: Any, x: Any, epsilon: Any = _DEFAULT):
