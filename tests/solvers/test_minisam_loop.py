@@ -13,7 +13,7 @@ from fgopt.noise import Diagonal
 from fgopt.solvers import make_linear_solver
 
 METHODS = ["lm", "gn", "dogleg"]
-SOLVERS = ["cholmod", "ldlt", "pcg", "dense"]
+SOLVERS = ["cholmod", "block", "ldlt", "pcg", "dense"]
 
 
 def minisam_loop():
