@@ -7,8 +7,8 @@ imports it (no SymPy), and numba loads the compiled code: nothing is re-derived 
 
 The key hashes the factor function's code (its source, or bytecode when the source is not
 available, plus the code / values of the globals it references), its argument types, the
-variable pattern and options, fgopt's version and the source of ``fgopt.symbolic`` itself
-(so editing the code generator invalidates old entries).
+variable pattern and options, fgopt's version and the source of the ``fgopt.symbolic``
+modules that generate code (:data:`FINGERPRINT_MODULES`; editing them invalidates old entries).
 
 Cache directory: ``$FGOPT_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/fgopt`` or
 ``~/.cache/fgopt``; a temporary directory if that is not writable.
@@ -54,15 +54,23 @@ def cache_dir() -> Path:
     return path
 
 
+#: Modules whose source defines what generated kernels compute (hashed into every key). Other
+#: files in this package (e.g. another back end) do not invalidate cached kernels.
+FINGERPRINT_MODULES = ("_sym", "cameras", "codegen", "cse", "derive", "factor", "functions",
+                       "jacobians", "lie", "linearize", "matrix", "ops", "pose", "printer", "rot",
+                       "runtime", "cache")
+
+
 @lru_cache(maxsize=1)
 def package_fingerprint() -> str:
-    """Hash of fgopt's version and the source files of ``fgopt.symbolic``."""
+    """Hash of fgopt's version and the sources of :data:`FINGERPRINT_MODULES`."""
     from .. import __version__
 
     h = hashlib.sha256(__version__.encode())
-    for path in sorted(Path(__file__).parent.glob("*.py")):
-        h.update(path.name.encode())
-        h.update(path.read_bytes())
+    here = Path(__file__).parent
+    for name in FINGERPRINT_MODULES:
+        h.update(name.encode())
+        h.update((here / f"{name}.py").read_bytes())
     return h.hexdigest()
 
 
@@ -99,7 +107,7 @@ def _hash_function(h: Any, fn: Callable, seen: set) -> None:
     for d in (fn.__defaults__ or ()) + tuple((fn.__kwdefaults__ or {}).values()):
         _hash_value(h, d, seen)
     module = getattr(fn, "__module__", "") or ""
-    if module.startswith("fgopt.symbolic"):
+    if module.startswith("fgopt.symbolic.") and module.rsplit(".", 1)[1] in FINGERPRINT_MODULES:
         return  # covered by package_fingerprint
     for name in sorted(_code_names(code)):
         if name in fn.__globals__:
