@@ -109,6 +109,11 @@ def vector_kind(n: int) -> BatchKind:
     )
 
 
+def is_vector_kind(kind: BatchKind) -> bool:
+    """True for the vector-space kinds (``vector_kind(n)`` and ``SCALAR_KIND``)."""
+    return kind is SCALAR_KIND or kind is vector_kind(kind.dim)
+
+
 SCALAR_KIND = BatchKind(
     name="scalar",
     dim=1,

@@ -1,11 +1,12 @@
-"""Levenberg-Marquardt with diagonal damping and a gain-ratio lambda policy.
+"""Levenberg-Marquardt with a gain-ratio trust-region test.
 
-Each iteration solves ``(H + lambda D) delta = -g`` with ``D = clip(diag H, min, max)`` (Ceres'
-and GTSAM's "diagonal damping"), predicts the decrease of the quadratic model
+Each iteration solves ``(H + lambda D) delta = -g``, with ``D = clip(diag H, min, max)`` (Ceres'
+scale-invariant "diagonal damping") or ``D = I`` (GTSAM's default), predicts the decrease of the quadratic model
 ``L(delta) = 0.5 |J delta + r|^2``, and accepts when ``rho = actual / predicted`` exceeds
 ``min_relative_decrease``. On success lambda shrinks by ``max(1/3, 1 - (2 rho - 1)^3)``
-(Nielsen, as Ceres); on failure it grows by a factor ``nu`` that doubles each consecutive
-failure. Damping changes only H's diagonal, so the linear solver's analysis is reused.
+(Nielsen, as Ceres) or by a fixed factor 10 (GTSAM); on failure it grows by a factor ``nu`` that
+doubles each consecutive failure (or by 10). ``LMParams.damping="auto"`` picks GTSAM's pair for
+pure Lie-group problems and Ceres' for problems with vector variables (BA); see LMParams. Damping changes only H's diagonal, so the linear solver's analysis is reused.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import NotPositiveDefiniteError
+from ..manifolds.base import is_vector_kind
 from ..variables import Variables
 from ._run import Callback, Run
 from .params import LMParams
@@ -41,6 +43,10 @@ class LevenbergMarquardt:
     def iterate(self, run: Run) -> Result:
         p = self.params
         problem = run.problem
+        identity = p.damping == "identity" or (
+            p.damping == "auto" and not any(is_vector_kind(k) for k in problem.kinds)
+            and len(problem._slow_vars) == 0)
+        by_factor = p.lambda_policy == "factor" or (p.lambda_policy == "auto" and identity)
         diag_pos = problem.pattern.diag_pos
         lam, nu = p.initial_lambda, 2.0
         msg = run.converged_by_gradient()
@@ -48,7 +54,10 @@ class LevenbergMarquardt:
             return run.finish(Status.CONVERGED, msg)
         for it in range(1, p.max_iterations + 1):
             H, g = problem.H_data, problem.g
-            D = np.clip(H[diag_pos], p.min_diagonal, p.max_diagonal)
+            if identity:
+                D = np.ones(diag_pos.shape[0])
+            else:
+                D = np.clip(H[diag_pos], p.min_diagonal, p.max_diagonal)
             Hd = H.copy()
             Hd[diag_pos] += lam * D
             old = run.cost
@@ -79,7 +88,10 @@ class LevenbergMarquardt:
                 run.state = candidate
                 problem.accept_candidate()
                 run.cost = new_cost
-                lam = max(p.min_lambda, lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3))
+                if by_factor:
+                    lam = max(p.min_lambda, lam / p.lambda_factor)
+                else:
+                    lam = max(p.min_lambda, lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3))
                 nu = 2.0
                 done = run.converged_by_decrease(old, new_cost) or run.converged_by_gradient()
                 stop = run.record(it, new_cost, lam, step_norm, True, old)
@@ -87,7 +99,10 @@ class LevenbergMarquardt:
                     return run.finish(Status.CONVERGED, done)
             else:
                 stop = run.record(it, new_cost, lam, step_norm, False, old)
-                lam, nu = lam * nu, nu * 2
+                if by_factor:
+                    lam *= p.lambda_factor
+                else:
+                    lam, nu = lam * nu, nu * 2
                 if lam > p.max_lambda:
                     return run.finish(Status.CONVERGED if step_norm < 1e-8 else Status.FAILED,
                                       "no step decreases the cost (damping exceeded max_lambda)")
