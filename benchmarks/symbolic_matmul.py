@@ -13,8 +13,9 @@ spirit of Lample and Charton's generator). Per product we time
 * **dense numpy**: the same entry kernel, then ``X.T @ Y`` per product, and batched
   (``np.matmul`` over a ``(n, rows, cols)`` stack: numpy's best case).
 
-Times are ns per product (wall time / n). The 100x100 flattened kernel has ~10^4 ops and takes
-minutes to derive and compile (numba types every operation).
+Times are ns per product (wall time / n). The 100x100 flattened program has ~1.3 10^4 ops; numba
+types and lowers every operation (~5-9 ms each), so it is compiled as chunks of <= 2500 ops and
+takes minutes to build.
 
     .venv/bin/python -m benchmarks.symbolic_matmul [--sizes 7x7:0.31,20x15:0.20,100x100:0.07]
 """
@@ -56,24 +57,59 @@ def _pattern(rows: int, cols: int, density: float, seed: int) -> np.ndarray:
     return mask
 
 
-def _kernel(symbols: list, exprs: list, name: str):
-    """Batched numba kernel: (n, 5) symbol values -> (n, len(exprs)) outputs."""
+def _kernel(symbols: list, exprs: list, name: str, max_ops: int = 2500):
+    """Batched numba kernel: (n, 5) symbol values -> (n, len(exprs)) outputs.
+
+    Programs above ``max_ops`` operations are split into several njit functions by output
+    chunks (each with the statements it needs; numba's compile time and memory grow quickly
+    with function size), called one after the other.
+    """
     import numba
 
-    from fgopt.symbolic.cse import Program, optimize, total_ops
+    from fgopt.symbolic.cse import Program, optimize, prune, total_ops
     from fgopt.symbolic.printer import to_source
 
     prog = optimize(Program([], {"out": exprs}))
-    lines = ["import math", "import numba", "EPSILON = 2.220446049250313e-15",
-             "@numba.njit(cache=False, fastmath=False, error_model='numpy')",
-             f"def {name}(v, out):", "    for _i in range(v.shape[0]):"]
-    lines += [f"        {s.name} = v[_i, {k}]" for k, s in enumerate(symbols)]
-    lines += [f"        {s.name} = {to_source(e)}" for s, e in prog.stmts]
-    lines += [f"        out[_i, {k}] = {to_source(e)}" for k, e in enumerate(prog.outputs["out"])]
-    env: dict = {}
-    exec(compile("\n".join(lines) + "\n", f"<{name}>", "exec"), env)  # noqa: S102
+    ops = total_ops(prog)
+    nchunks = max(1, -(-ops // max_ops))
+    size = -(-len(exprs) // nchunks)
+    funcs = []
+    for c in range(nchunks):
+        outs = prog.outputs["out"][c * size:(c + 1) * size]
+        stmts = prune(prog.stmts, outs)
+        fname = f"{name}_{c}"
+        lines = ["import math", "import numba", "EPSILON = 2.220446049250313e-15",
+                 "@numba.njit(cache=False, fastmath=False, error_model='numpy')",
+                 f"def {fname}(v, out):", "    for _i in range(v.shape[0]):"]
+        lines += [f"        {s.name} = v[_i, {k}]" for k, s in enumerate(symbols)]
+        lines += [f"        {s.name} = {to_source(e)}" for s, e in stmts]
+        lines += [f"        out[_i, {c * size + k}] = {to_source(e)}" for k, e in enumerate(outs)]
+        env: dict = {}
+        exec(compile("\n".join(lines) + "\n", f"<{fname}>", "exec"), env)  # noqa: S102
+        funcs.append(env[fname])
     del numba
-    return env[name], total_ops(prog)
+    if len(funcs) == 1:
+        return funcs[0], ops
+
+    def run(v, out):
+        for f in funcs:
+            f(v, out)
+
+    return run, ops
+
+
+def _sparse_product(nz: np.ndarray, xs: list, ys: list) -> dict:
+    """Nonzeros of X^T Y: ``{(i, j): sum_k X[k, i] Y[k, j]}`` over the shared pattern."""
+    import sympy
+
+    by_row: dict = {}
+    for (k, i), ex in zip(nz, xs):
+        by_row.setdefault(int(k), []).append((int(i), ex))
+    terms: dict = {}
+    for (k, j), ey in zip(nz, ys):
+        for i, ex in by_row.get(int(k), []):
+            terms.setdefault((i, int(j)), []).append(ex * ey)
+    return {ij: sympy.Add(*t) for ij, t in sorted(terms.items())}
 
 
 def run_case(rows: int, cols: int, density: float, n: int, seed: int = 0) -> dict:
@@ -88,13 +124,10 @@ def run_case(rows: int, cols: int, density: float, n: int, seed: int = 0) -> dic
     rng = random.Random(seed)
     xs = [sympy.sympify(random_expr(rng, syms, 5)) for _ in nz]
     ys = [sympy.sympify(random_expr(rng, syms, 5)) for _ in nz]
-    X, Y = sympy.zeros(rows, cols), sympy.zeros(rows, cols)
-    for (i, j), ex, ey in zip(nz, xs, ys):
-        X[i, j], Y[i, j] = ex, ey
     t0 = time.perf_counter()
-    P = X.T * Y
-    out_nz = [(i, j) for i in range(cols) for j in range(cols) if P[i, j] != 0]
-    flat, flat_ops = _kernel(syms, [P[i, j] for i, j in out_nz], "flat")
+    P = _sparse_product(nz, xs, ys)
+    out_nz = list(P)
+    flat, flat_ops = _kernel(syms, [P[ij] for ij in out_nz], "flat")
     entries, entry_ops = _kernel(syms, xs + ys, "entries")
     vals = np.random.default_rng(1).normal(size=(n, 5))
     out = np.empty((n, len(out_nz)))

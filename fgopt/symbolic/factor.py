@@ -59,7 +59,8 @@ def factor(fn: Callable | None = None, *, name: str | None = None, method: str =
         name: factor name (default ``fn.__name__``).
         method: tangent-space Jacobian method, ``"retraction"`` (first-order retraction, the
             default) or ``"chain"`` (symbolic chain rule).
-        engine: ``"auto"``, ``"tree"`` or ``"dag"`` (see :mod:`fgopt.symbolic.linearize`).
+        engine: ``"auto"``, ``"tree"``, ``"dag"`` or ``"reverse"`` (see
+            :mod:`fgopt.symbolic.linearize`).
         hessian: also generate ``linearize_hessian`` (``J^T J`` and ``J^T r`` per instance).
         cache: use the on-disk kernel cache.
         variables: argument names that are variables in the default pattern shown by
