@@ -29,7 +29,7 @@ from typing import Any
 from .cse import Program, optimize, prune, total_ops
 
 #: Bumped when the emitted source changes meaning (part of the cache key).
-FIXED_CODEGEN_VERSION = "1"
+FIXED_CODEGEN_VERSION = "2"
 
 
 @dataclass(frozen=True)
@@ -299,7 +299,8 @@ def _lm(x0, aux, prm, hist, H, g):
     each pass of the outer loop linearizes a point, then decides, then proposes the next step.
     prm: max_iterations, relative_tolerance, absolute_tolerance, gradient_tolerance,
     step_tolerance, initial_lambda, min_lambda, max_lambda, min_diagonal, max_diagonal,
-    min_relative_decrease. hist (max_iterations, 7): cost, candidate cost, relative decrease,
+    min_relative_decrease, identity damping (1/0), lambda by factor (1/0), lambda_factor.
+    hist (max_iterations, 7): cost, candidate cost, relative decrease,
     lambda, |step|, |grad|, accepted. H, g (out): the linearization at the returned x.
     Returns (x, status, message, value, iterations, cost, initial cost); status 0 converged,
     1 max iterations, 2 failed, -1 non-finite at the initial values.
@@ -308,6 +309,7 @@ def _lm(x0, aux, prm, hist, H, g):
     rtol, atol, gtol, stol = prm[1], prm[2], prm[3], prm[4]
     lam, min_lam, max_lam = prm[5], prm[6], prm[7]
     min_diag, max_diag, min_dec = prm[8], prm[9], prm[10]
+    identity, by_factor, lam_factor = prm[11] > 0.5, prm[12] > 0.5, prm[13]
     n = N
     x = x0.copy()
     xc = x0.copy()
@@ -354,7 +356,10 @@ def _lm(x0, aux, prm, hist, H, g):
                 _copy2(Hc, H)
                 _copy(gc, g)
                 cost = new_cost
-                lam = max(min_lam, lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3))
+                if by_factor:
+                    lam = max(min_lam, lam / lam_factor)
+                else:
+                    lam = max(min_lam, lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3))
                 nu = 2.0
                 gn = _absmax(g)
                 _record(hist, row, cost, new_cost, rel, lam, step_norm, gn, 1.0)
@@ -367,8 +372,11 @@ def _lm(x0, aux, prm, hist, H, g):
                     return x, 0, 1, gn, it, cost, init
             else:
                 _record(hist, row, cost, new_cost, rel, lam, step_norm, _absmax(g), 0.0)
-                lam = lam * nu
-                nu = nu * 2.0
+                if by_factor:
+                    lam = lam * lam_factor
+                else:
+                    lam = lam * nu
+                    nu = nu * 2.0
                 if lam > max_lam:
                     return x, 0 if step_norm < 1e-8 else 2, 6, step_norm, it, cost, init
             xn = 0.0
@@ -382,7 +390,7 @@ def _lm(x0, aux, prm, hist, H, g):
             if it > max_it:
                 return x, 1, 7, 0.0, max_it, cost, init
             for i in range(n):
-                Dg[i] = min(max(H[i, i], min_diag), max_diag)
+                Dg[i] = 1.0 if identity else min(max(H[i, i], min_diag), max_diag)
                 for j in range(n):
                     Hd[i, j] = H[i, j]
                 Hd[i, i] += lam * Dg[i]

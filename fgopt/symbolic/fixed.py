@@ -26,8 +26,9 @@ patterns, variable kinds and order, sqrt-information sparsity) is hashed into th
 key (:mod:`fgopt.symbolic.cache`, ``$FGOPT_CACHE_DIR``): a second process imports the module and
 numba loads its machine code; SymPy is not imported.
 
-The LM loop reproduces :class:`fgopt.solvers.lm.LevenbergMarquardt` step for step (diagonal
-damping ``(H + lam clip(diag H)) delta = -g``, Nielsen update, the same stopping tests), with a
+The LM loop reproduces :class:`fgopt.solvers.lm.LevenbergMarquardt` step for step (``(H + lam D)
+delta = -g`` with ``D = I`` or ``clip(diag H)``, lambda by a factor or Nielsen's rule, resolved
+from ``LMParams.damping`` / ``lambda_policy`` the same way; the same stopping tests), with a
 dense Cholesky instead of the sparse solvers. Per-iteration records carry no wall time (the
 loop runs compiled): ``IterationRecord.time`` is NaN.
 """
@@ -301,7 +302,7 @@ class FixedProblem:
             else self.flatten(values))
         H = np.zeros((self.size, self.size))
         g = np.zeros(self.size)
-        prm = np.array([0.0, 0, 0, -1.0, 0, 1e-5, 1e-12, 1e12, 1e-6, 1e32, 1e-3])
+        prm = np.array([0.0, 0, 0, -1.0, 0, 1e-5, 1e-12, 1e12, 1e-6, 1e32, 1e-3, 0, 0, 10.0])
         _, status, _, _, _, cost, _ = self.module._lm(x, self._aux, prm, np.empty((1, 7)), H, g)
         if status == -1:
             H[:], g[:] = np.nan, np.nan
@@ -316,9 +317,11 @@ class FixedProblem:
         t0 = time.perf_counter()
         p = _params(params, options)
         x0 = self._x0 if values is None else self.flatten(values)
+        identity, by_factor = self._damping(p)
         prm = np.array([p.max_iterations, p.relative_tolerance, p.absolute_tolerance,
                         p.gradient_tolerance, p.step_tolerance, p.initial_lambda, p.min_lambda,
-                        p.max_lambda, p.min_diagonal, p.max_diagonal, p.min_relative_decrease])
+                        p.max_lambda, p.min_diagonal, p.max_diagonal, p.min_relative_decrease,
+                        float(identity), float(by_factor), getattr(p, "lambda_factor", 10.0)])
         hist = np.empty((max(p.max_iterations, 1), 7))
         self.H = np.zeros((self.size, self.size))
         self.g = np.zeros(self.size)
@@ -345,6 +348,17 @@ class FixedProblem:
                       cost_history=costs, iteration_records=records, timing=timing,
                       method="lm (fixed)", linear_solver="dense cholesky", problem=self,
                       state=x)
+
+    def _damping(self, p: LMParams) -> tuple:
+        """(identity damping, lambda by factor) as LevenbergMarquardt resolves them."""
+        from ..manifolds.base import is_vector_kind
+
+        damping = getattr(p, "damping", "diagonal")
+        policy = getattr(p, "lambda_policy", "nielsen")
+        identity = damping == "identity" or (
+            damping == "auto" and not any(is_vector_kind(k) for k in self.kinds))
+        by_factor = policy == "factor" or (policy == "auto" and identity)
+        return identity, by_factor
 
     def __repr__(self) -> str:
         o = self.ops
