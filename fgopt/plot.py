@@ -57,9 +57,9 @@ def _loop_closures(graph: Any, pose_keys: list[int]) -> np.ndarray:
         return np.zeros((0, 2), dtype=np.int64)
     keys = np.array(pose_keys, dtype=np.int64)
     pairs = [b.keys for b in graph.batches
-             if b.kernel.name.startswith("between_se") and b.keys.shape[1] == 2]
+             if b.kernel.name.startswith("between_") and b.keys.shape[1] == 2]
     pairs += [np.array([[int(k) for k in f.keys]]) for f in graph.factors
-              if f.kernel is not None and f.kernel.name.startswith("between_se")]
+              if f.kernel is not None and f.kernel.name.startswith("between_")]
     if not pairs:
         return np.zeros((0, 2), dtype=np.int64)
     pk = np.concatenate(pairs)

@@ -99,7 +99,7 @@ def test_info_counts_cost_components_and_gauge(tmp_path, capsys):
     assert main(["info", str(p)]) == 0
     text = capsys.readouterr().out
     assert "variables:   7 (7 SE2)" in text
-    assert "factors:     6 (6 between_se2)" in text
+    assert "factors:     6 (6 between_pose2)" in text
     assert "initial cost" in text
     assert "components:  2 disconnected parts (sizes 4, 2)" in text
     assert "isolated:    1 variables no factor touches (x9)" in text

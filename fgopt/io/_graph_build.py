@@ -240,7 +240,7 @@ def _checked_sqrt_information(rd, edges: list[_Edges], repair: str | None,
 
 def build_graph(rd, dim: int, add_prior: bool, repair: str | None,
                 floor: float) -> tuple[FactorGraph, Variables]:
-    from ..factors.library.lie_kernels import between_kernel
+    from ..factors.library.prior_between import between_kernel_for as between_kernel
     from ..factors.library.pose_point import pose_point_kernel
     kind = pose_kind(dim)
     groups = sorted(rd.groups.values(), key=lambda g: int(g.lines[0]))
@@ -286,7 +286,7 @@ def build_graph(rd, dim: int, add_prior: bool, repair: str | None,
 
 def add_fixing_priors(graph: FactorGraph, values: Variables, keys: list[int], label: str) -> None:
     """Tight priors (sigma ``FIX_SIGMA``) holding ``keys`` at their ``values``."""
-    from ..factors.library.lie_kernels import prior_kernel
+    from ..factors.library.prior_between import prior_kernel_for as prior_kernel
     from ..manifolds.base import ops_for
 
     by_kind: dict = {}
@@ -303,7 +303,7 @@ def add_fixing_priors(graph: FactorGraph, values: Variables, keys: list[int], la
 def add_gauge_prior(graph: FactorGraph, values: Variables) -> int | None:
     """Fix the gauge GTSAM-style: a tight prior (sigma ``FIX_SIGMA``) on the SE2 / SE3 pose
     with the lowest key, unless some factor already is a pose prior. Returns the key or None."""
-    from ..factors.library.lie_kernels import prior_kernel
+    from ..factors.library.prior_between import prior_kernel_for as prior_kernel
     from ..manifolds.base import ops_for
 
     kinds = {pose_kind(2), pose_kind(3)}

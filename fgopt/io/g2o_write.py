@@ -60,7 +60,8 @@ def _factor_blocks(graph: Any):
 
 def write_g2o(path: str | os.PathLike, graph: Any, values: Any) -> None:
     """Write ``graph`` and ``values`` to ``path`` in g2o format (see the module docstring)."""
-    from ..factors.library.lie_kernels import between_kernel, prior_kernel
+    from ..factors.library.prior_between import between_kernel_for as between_kernel
+    from ..factors.library.prior_between import prior_kernel_for as prior_kernel
     from ..factors.library.pose_point import pose_point_kernel
 
     dims = set()

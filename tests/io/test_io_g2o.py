@@ -62,7 +62,7 @@ def test_read_2d_keys_values_and_permuted_information(tmp_path):
 def test_read_3d_with_trackxyz_and_fix(tmp_path):
     graph, values = read_g2o(_write(tmp_path, POSE3))
     names = [b.kernel.name for b in graph.batches]
-    assert names == ["between_se3", "pose_point_se3", "prior_se3"]
+    assert names == ["between_pose3", "pose_point_se3", "prior_pose3"]
     R = graph.batches[0].sqrt_information[0]
     assert np.allclose(np.diag(R.T @ R), [4, 5, 6, 1, 2, 3])  # rotation first
     prior = graph.batches[2]
@@ -103,9 +103,9 @@ def test_edges_only_file_builds_a_spanning_tree_guess(tmp_path, caplog):
 def test_add_prior_fixes_the_lowest_pose_once(tmp_path):
     graph, _ = read_g2o(_write(tmp_path, POSE2), add_prior=True)
     prior = graph.batches[-1]
-    assert prior.kernel.name == "prior_se2" and prior.keys.tolist() == [[key("x", 3)]]
+    assert prior.kernel.name == "prior_pose2" and prior.keys.tolist() == [[key("x", 3)]]
     graph, _ = read_g2o(_write(tmp_path, POSE3), add_prior=True)  # has FIX: no second prior
-    assert [b.kernel.name for b in graph.batches].count("prior_se3") == 1
+    assert [b.kernel.name for b in graph.batches].count("prior_pose3") == 1
 
 
 V0 = "VERTEX_SE2 0 0 0 0\n"

@@ -76,7 +76,7 @@ def test_graph_error_is_half_sum_of_squared_whitened_residuals():
     g, v = minisam_loop()
     manual = sum(0.5 * float(f.whitened_error(v) @ f.whitened_error(v)) for f in g)
     assert np.isclose(g.error(v), manual)
-    assert "between_se2" in repr(g) or "BetweenFactor" in repr(g)
+    assert "between_pose2" in repr(g) or "BetweenFactor" in repr(g)
 
 
 def test_result_repr_and_records():

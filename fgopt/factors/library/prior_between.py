@@ -1,13 +1,16 @@
 """Built-in ``PriorFactor`` and ``BetweenFactor`` for every Lie group and vector space.
 
 Residuals follow GTSAM: prior ``e = Log(m^-1 x)``, between ``e = Log(m^-1 (a^-1 b))``; for vectors
-``e = x - m`` and ``e = (b - a) - m``. Values whose type has a batch kind use the batched kernels
-of :mod:`fgopt.factors.library.lie_kernels`; other manifolds (duck-typed classes) get a prior
-``e = local(m, x)`` with numerical Jacobians.
+``e = x - m`` and ``e = (b - a) - m``. Kernels come from the symbolic pipeline
+(:mod:`fgopt.factors.library.generated`: SO2, SE2, SO3, SE3, R^1..R^9); Sim3 and longer vectors
+use the hand-written kernels of :mod:`fgopt.factors.library.lie_kernels` (same residuals, tested
+equal). Other manifolds (duck-typed classes) get a prior ``e = local(m, x)`` with numerical
+Jacobians.
 """
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import numpy as np
@@ -24,12 +27,36 @@ def _kind_of(value: Any, what: str):
     return ops, ops.batch_kind(value)
 
 
+def between_kernel_for(kind):
+    """The kernel every built-in between factor of ``kind`` uses (generated when possible)."""
+    return _builtin_kernel(kind, "between")
+
+
+def prior_kernel_for(kind):
+    """The kernel every built-in prior of ``kind`` uses (generated when possible)."""
+    return _builtin_kernel(kind, "prior")
+
+
+@functools.lru_cache(maxsize=None)
+def _builtin_kernel(kind, which: str):
+    from ...errors import ManifoldError
+    from . import lie_kernels
+
+    try:
+        from . import generated
+
+        make = generated.generated_between_kernel if which == "between" else \
+            generated.generated_prior_kernel
+        return make(kind)
+    except ManifoldError:  # no symbolic twin (Sim3, R^n with n > 9)
+        make = lie_kernels.between_kernel if which == "between" else lie_kernels.prior_kernel
+        return make(kind)
+
+
 class PriorFactor(KernelFactor):
     """``PriorFactor(key, value, loss)``: pulls variable ``key`` toward ``value``."""
 
     def __init__(self, key: int, value: Any, loss: Loss | None = None):
-        from .lie_kernels import prior_kernel
-
         ops, kind = _kind_of(value, "prior")
         self.prior = value
         if kind is None:  # duck-typed manifold: slow path
@@ -38,7 +65,7 @@ class PriorFactor(KernelFactor):
             self.constants = np.zeros(0)
             super(KernelFactor, self).__init__([key], ops.dim(value), loss)
             return
-        super().__init__(prior_kernel(kind), [key], kind.to_storage(value), loss)
+        super().__init__(prior_kernel_for(kind), [key], kind.to_storage(value), loss)
 
     def error(self, values: Any) -> np.ndarray:
         if self.kernel is None:
@@ -58,15 +85,13 @@ class BetweenFactor(KernelFactor):
     """``BetweenFactor(k1, k2, measured, loss)``: relative measurement ``measured ~ x1^-1 x2``."""
 
     def __init__(self, key1: int, key2: int, measured: Any, loss: Loss | None = None):
-        from .lie_kernels import between_kernel
-
         ops, kind = _kind_of(measured, "between")
         if kind is None:
             raise ManifoldError(
                 f"BetweenFactor needs a Lie group or vector measurement, got "
                 f"{type(measured).__name__}; write a custom factor for other manifolds")
         self.measured = measured
-        super().__init__(between_kernel(kind), [key1, key2], kind.to_storage(measured), loss)
+        super().__init__(between_kernel_for(kind), [key1, key2], kind.to_storage(measured), loss)
 
     def describe(self) -> str:
         if hasattr(self, "keys"):
