@@ -135,17 +135,24 @@ def _collect(graph: Any, values: Variables) -> _Collected:
     specs: list = []
     consts: list = []
     wvals: list = []
-    h = hashlib.sha256()
+    parts: list = []
+    per_kernel: dict = {}  # id(kernel) -> (ft, pattern, variable types' kinds, fingerprint, r)
+    per_noise: dict = {}   # id(noise model) -> (mask tuple, nonzero values, count)
     coff = woff = 0
     for f in factors:
-        ft, pattern = _resolve(f)
-        code, _ = loss_code_and_param(f.loss)
-        if code != LOSS_NONE:
+        kern = f.kernel
+        info = per_kernel.get(id(kern))
+        if info is None:
+            ft, pattern = _resolve(f)
+            var_kinds = [batch_kind_of(tp) for (_, tp), v in zip(ft.params, pattern) if v]
+            info = per_kernel[id(kern)] = (ft, pattern, var_kinds, _fingerprint(ft),
+                                           kern.residual_dim, kern)
+        ft, pattern, var_kinds, fpr, r, _ = info
+        if loss_code_and_param(f.loss)[0] != LOSS_NONE:
             raise FgoptError(f"fixed formulation: {f.describe()} has a robust loss; only "
                              "Gaussian noise models are supported")
-        var_types = [tp for (_, tp), v in zip(ft.params, pattern) if v]
         idx = []
-        for k, tp in zip(f.keys, var_types):
+        for k, want in zip(f.keys, var_kinds):
             v = var_of.get(k)
             if v is None:
                 if k not in values:
@@ -159,24 +166,29 @@ def _collect(graph: Any, values: Variables) -> _Collected:
                 v = var_of[k] = len(keys)
                 keys.append(Key(k))
                 kinds.append(kind)
-            if batch_kind_of(tp) is not kinds[v]:
+            if want is not kinds[v]:
                 raise FgoptError(f"fixed formulation: {f.describe()}: {key_str(k)} is a "
-                                 f"{kinds[v].name}, the factor expects {tp.__name__}")
+                                 f"{kinds[v].name}, the factor expects {want.name}")
             idx.append(v)
-        c = np.asarray(f.constants, dtype=float).reshape(-1)
-        R = np.asarray(f.noise.sqrt_information, dtype=float)
-        r = f.kernel.residual_dim
-        if R.shape != (r, r):
-            R = R * np.eye(r) if R.size == 1 else R.reshape(r, r)
-        mask = R != 0.0
-        specs.append(FactorSpec(ft, pattern, tuple(idx), coff, c.shape[0], r,
-                                tuple(bool(b) for b in mask.ravel()), woff))
+        c = f.constants
+        noise = f.noise
+        w = per_noise.get(id(noise))
+        if w is None:
+            R = np.asarray(noise.sqrt_information, dtype=float)
+            if R.shape != (r, r):
+                R = R * np.eye(r) if R.size == 1 else R.reshape(r, r)
+            mask = R != 0.0
+            w = per_noise[id(noise)] = (tuple(mask.ravel().tolist()), R[mask], int(mask.sum()),
+                                        noise)
+        mask_t, wv, nw = w[0], w[1], w[2]
+        idx_t = tuple(idx)
+        specs.append(FactorSpec(ft, pattern, idx_t, coff, c.shape[0], r, mask_t, woff))
         consts.append(c)
-        wvals.append(R[mask])
+        wvals.append(wv)
         coff += c.shape[0]
-        woff += int(mask.sum())
-        h.update(repr((_fingerprint(ft), pattern, tuple(idx), c.shape[0], r,
-                       np.packbits(mask).tobytes())).encode())
+        woff += nw
+        parts.append((fpr, pattern, idx_t, c.shape[0], r, mask_t))
+    h = hashlib.sha256(repr(parts).encode())
     variables, so, to = [], 0, 0
     for kind in kinds:
         gid = _GIDS.get(kind.name, -1)
@@ -369,6 +381,8 @@ class FixedProblem:
 
 def _params(params: LMParams | None, options: dict) -> LMParams:
     p = params or LMParams()
+    if not options:
+        return p
     fields = {f.name for f in dataclasses.fields(p)}
     unknown = set(options) - fields
     if unknown:
