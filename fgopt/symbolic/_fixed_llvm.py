@@ -63,7 +63,6 @@ class _Translator:
         return sq if k % 2 == 0 else self.op("*", sq, b)
 
     def expr(self, e: Any) -> int:
-        sp = self.sp
         if e in self.env:
             return self.env[e]
         r = self.memo.get(e)
