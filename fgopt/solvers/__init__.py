@@ -28,7 +28,7 @@ _METHODS = {"lm": (LevenbergMarquardt, LMParams), "gn": (GaussNewton, GaussNewto
 
 def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = "auto",
              max_iterations: int | None = None, verbose: bool | None = None, callback: Any = None,
-             params: Any = None, **options: Any) -> Result:
+             params: Any = None, formulation: str = "dynamic", **options: Any) -> Result:
     """Minimize ``graph.error`` from ``initial``; returns a :class:`Result` (``initial`` untouched).
 
     Args:
@@ -43,6 +43,10 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
         callback: ``f(record: IterationRecord)``; return True to stop.
         params: a parameter dataclass (``LMParams`` ...) overriding the defaults; other keyword
             ``options`` (e.g. ``relative_tolerance=1e-8``) replace its fields.
+        formulation: ``"dynamic"`` (batched kernels over a sparse H, any graph) or ``"fixed"``
+            (LM only: one generated function linearizes the whole problem into a dense H, the
+            SymForce paper's fixed formulation; for small problems of symbolic/built-in factors,
+            where it is ~10x faster; see :mod:`fgopt.symbolic.fixed`).
     """
     if method not in _METHODS:
         raise FgoptError(f"unknown method {method!r}: choose one of {', '.join(_METHODS)}")
@@ -65,6 +69,15 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
     else:
         solver_obj = linear_solver
     params = dataclasses.replace(params, **overrides)
+    if formulation == "fixed":
+        if method != "lm" or callback is not None or solver_obj is not None:
+            raise FgoptError("formulation='fixed' supports method='lm' without callback or "
+                             "linear-solver objects")
+        from ..symbolic.fixed import optimize_fixed
+
+        return optimize_fixed(graph, initial, params=params)
+    if formulation != "dynamic":
+        raise FgoptError(f"unknown formulation {formulation!r}: 'dynamic' or 'fixed'")
     if cls is GNC:
         if solver_obj is not None:
             raise FgoptError("method='gnc' takes linear_solver by name")
