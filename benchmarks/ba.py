@@ -130,16 +130,30 @@ def fgopt_run(graph, values, config: str, mode: str, target: float | None = None
 
 
 # ------------------------------------------------------------------------------------ Ceres
+def _ceres_cpp_once(path: Path, mode: str, repeats: int) -> tuple[dict, float]:
+    import resource
+
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    with tempfile.TemporaryDirectory() as tmp:
+        proc = subprocess.run([str(CERES_BIN), "bal", str(path), mode, str(repeats),
+                               str(Path(tmp) / "e")], capture_output=True, text=True, check=True)
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime)
+    return json.loads(proc.stdout.strip().splitlines()[-1]), cpu
+
+
 def ceres_cpp_run(path: Path, mode: str) -> dict | None:
-    """The C++ program (``benchmarks/ceres_cpp``): warm-up + one timed solve, SPARSE_SCHUR."""
+    """The C++ program (``benchmarks/ceres_cpp``, SPARSE_SCHUR): it times its own solves after a
+    warm-up. Its CPU time per solve is the difference of the process CPU with 2 and 1 timed
+    solves (load and warm-up cancel)."""
     if not CERES_BIN.exists():
         return None
-    with tempfile.TemporaryDirectory() as tmp:
-        proc = subprocess.run([str(CERES_BIN), "bal", str(path), mode, "1", str(Path(tmp) / "e")],
-                              capture_output=True, text=True, check=True)
-    rec = json.loads(proc.stdout.strip().splitlines()[-1])
-    return {"wall": rec["solve_s"], "iterations": rec["iterations"], "final": rec["final_cost"],
-            "linear_solver_s": rec["linear_solver_s"], "status": rec["termination"]}
+    rec1, cpu1 = _ceres_cpp_once(path, mode, 1)
+    rec2, cpu2 = _ceres_cpp_once(path, mode, 2)
+    return {"wall": statistics.median([rec1["solve_s"], *rec2["samples"]]),
+            "cpu": max(cpu2 - cpu1, 0.0), "iterations": rec2["iterations"],
+            "final": rec2["final_cost"], "linear_solver_s": rec2["linear_solver_s"],
+            "status": rec2["termination"]}
 
 
 def pyceres_run(bal, mode: str, linear: str, target: float | None = None) -> dict:
@@ -290,6 +304,10 @@ def run_problem(name: str, peers: list[str], rounds: int, kernel: str, configs: 
     def add(key, rec):
         if rec is not None:
             runs.setdefault(key, []).append(rec)
+            w, c = rec.get("wall"), rec.get("cpu")
+            print(f"    {key}: wall {w if w is None else round(w, 3)} cpu "
+                  f"{c if c is None else round(c, 3)} its {rec.get('iterations')} final "
+                  f"{rec.get('final')} to_target {rec.get('to_target', '-')}", flush=True)
 
     # warm-up (JIT, caches) and the target cost
     for c in configs:
@@ -318,7 +336,8 @@ def run_problem(name: str, peers: list[str], rounds: int, kernel: str, configs: 
         if r < slow_rounds and "pyceres" in peers:
             for lin in ("SPARSE_SCHUR", "DENSE_SCHUR"):
                 add(f"pyceres {lin} 5it", pyceres_run(bal, "5it", lin))
-                add(f"pyceres {lin} converge", pyceres_run(bal, "converge", lin, target))
+            add("pyceres SPARSE_SCHUR converge", pyceres_run(bal, "converge", "SPARSE_SCHUR",
+                                                            target))
         if r < slow_rounds and "gtsam" in peers:
             add("gtsam 5it", gtsam_run(spec, bal, "5it"))
             add("gtsam converge", gtsam_run(spec, bal, "converge"))
@@ -351,22 +370,33 @@ def summarize(runs: dict) -> dict:
     return out
 
 
-def print_summary(res: dict) -> None:
-    print(f"\n### {res['problem']} (target cost {res['target']['cost']!r} from "
-          f"{res['target']['source']})")
-    print("| run | wall s | CPU s | its | s/it (wall) | final cost | to target: wall s (its) | n |")
-    print("|---|---|---|---|---|---|---|---|")
+def summary_lines(res: dict) -> list[str]:
+    out = [(f"### {res['problem']} (target cost {res['target']['cost']!r} from "
+           f"{res['target']['source']})"), "",
+           ("| run | wall s | CPU s | its | CPU s/it | final cost | to target: wall / CPU s (its) "
+           "| n |"), "|---|---|---|---|---|---|---|---|"]
+
+    def f(x, fmt="{:.3f}"):
+        return "—" if x is None else fmt.format(x)
+
     for key, s in res["summary"].items():
-        def f(x, fmt="{:.3f}"):
-            return "—" if x is None else fmt.format(x)
-        per = (s["wall"] / s["iterations"]) if s.get("wall") and s.get("iterations") else None
+        per = (s["cpu"] / s["iterations"]) if s.get("cpu") and s.get("iterations") else None
         tt = "—"
         if s.get("to_target_wall") is not None:
-            tt = f"{s['to_target_wall']:.3f} ({s['to_target_iterations']:.0f})"
+            tt = (f"{s['to_target_wall']:.3f} / {f(s.get('to_target_cpu'))} "
+                  f"({s['to_target_iterations']:.0f})")
         elif "to_target_wall" in s:
             tt = "not reached"
-        print(f"| {key} | {f(s.get('wall'))} | {f(s.get('cpu'))} | {f(s.get('iterations'), '{:.0f}')}"
-              f" | {f(per, '{:.4f}')} | {f(s.get('final'), '{:.6f}')} | {tt} | {s['n']} |")
+        out.append(f"| {key} | {f(s.get('wall'))} | {f(s.get('cpu'))} | "
+                   f"{f(s.get('iterations'), '{:.0f}')} | {f(per, '{:.4f}')} | "
+                   f"{f(s.get('final'), '{:.6f}')} | {tt} | {s['n']} |")
+    if "profile" in res:
+        out += ["", "One LM iteration at the initial guess (CPU ms, best of 15):", ""]
+        out += [f"    {k:28s} {v * 1e3:8.2f}" for k, v in res["profile"].items()]
+    if res["problem"] in QUOTED_CERES:
+        out += ["", (f"Quoted C++ Ceres (BENCHMARKS.md, quieter machine): "
+                    f"{QUOTED_CERES[res['problem']]}")]
+    return out
 
 
 def main(argv=None) -> int:
@@ -381,10 +411,11 @@ def main(argv=None) -> int:
     ap.add_argument("--kernel", default="official", choices=("official", "handwritten"))
     ap.add_argument("--profile", action="store_true")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--markdown", default=None, help="also write the tables to this file")
     a = ap.parse_args(argv)
     peers = a.peers.split(",")
     configs = [c for c in a.configs.split(",") if c]
-    results = []
+    results, lines = [], []
     for name in a.problems.split(","):
         if not (problems.data_dir() / BAL_PROBLEMS[name]).exists():
             print(f"skip {name}: data file missing", file=sys.stderr)
@@ -394,15 +425,17 @@ def main(argv=None) -> int:
             g, v = fgopt_load(problems.data_dir() / BAL_PROBLEMS[name], a.kernel)
             res["profile"] = profile_iteration(g, v)
         results.append(res)
-        print_summary(res)
-        if "profile" in res:
-            print("\nprofile of one LM iteration (CPU s, best of 15):")
-            for k, v in res["profile"].items():
-                print(f"  {k:28s} {v * 1e3:8.2f} ms")
-        if name in QUOTED_CERES:
-            print(f"quoted C++ Ceres (BENCHMARKS.md, other day): {QUOTED_CERES[name]}")
+        lines += summary_lines(res) + [""]
+        print("\n" + "\n".join(summary_lines(res)), flush=True)
     if a.json:
         Path(a.json).write_text(json.dumps(results, indent=1, default=str))
+    if a.markdown:
+        load = os.getloadavg()
+        head = [(f"# BA benchmark ({time.strftime('%Y-%m-%d %H:%M')}, `python -m benchmarks.ba "
+                f"{' '.join(argv if argv is not None else sys.argv[1:])}`)"), "",
+                (f"{os.cpu_count()} CPUs, load average {load[0]:.1f} / {load[1]:.1f} / "
+                f"{load[2]:.1f} at the end; medians over interleaved rounds; single thread."), ""]
+        Path(a.markdown).write_text("\n".join(head + lines))
     return 0
 
 
