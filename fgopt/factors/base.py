@@ -41,7 +41,7 @@ class Factor:
         self.dim = int(dim)
         if self.dim <= 0:
             raise DimensionMismatchError(f"{type(self).__name__}: residual dim must be positive")
-        self.loss: Loss = resolve_loss(loss, self.dim, self.describe())
+        self.loss: Loss = resolve_loss(loss, self.dim, self.describe)
 
     # -- to implement (slow path)
     def error(self, values: Any) -> np.ndarray:

@@ -243,8 +243,18 @@ class GemanMcClure(RobustLoss):
 Loss = NoiseModel | RobustLoss
 
 
-def resolve_loss(loss: Loss | None, dim: int, where: str) -> Loss:
-    """Fill in defaults (``None`` -> unit noise) and check the dimension against ``dim``."""
+_PLAIN_MODELS = (Gaussian, Diagonal, Isotropic, Unit, NoiseModel)
+
+
+def resolve_loss(loss: Loss | None, dim: int, where) -> Loss:
+    """Fill in defaults (``None`` -> unit noise) and check the dimension against ``dim``.
+
+    ``where`` names the factor in errors: a string, or a callable made into one only on error
+    (building the description for every factor would cost more than the check).
+    """
+    if type(loss) in _PLAIN_MODELS and loss.dim == dim:  # the common case, no string work
+        return loss
+    where = where() if callable(where) else where
     if loss is None:
         return Unit(dim)
     if isinstance(loss, RobustLoss):
