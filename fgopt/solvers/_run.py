@@ -95,8 +95,11 @@ class Run:
         dec = old - new
         if dec < p.absolute_tolerance:
             return f"absolute cost decrease {dec:.3g} < {p.absolute_tolerance:g}"
-        if old > 0 and dec / old < p.relative_tolerance:
-            return f"relative cost decrease {dec / old:.3g} < {p.relative_tolerance:g}"
+        rel_tol = getattr(self, "relative_tolerance", None)
+        if rel_tol is None:
+            rel_tol = p.relative_tolerance if p.relative_tolerance is not None else 1e-5
+        if old > 0 and dec / old < rel_tol:
+            return f"relative cost decrease {dec / old:.3g} < {rel_tol:g}"
         return None
 
     def converged_by_gradient(self) -> str | None:

@@ -47,8 +47,13 @@ class LevenbergMarquardt:
             p.damping == "auto" and not any(is_vector_kind(k) for k in problem.kinds)
             and len(problem._slow_vars) == 0)
         by_factor = p.lambda_policy == "factor" or (p.lambda_policy == "auto" and identity)
+        # GTSAM's defaults where LM follows GTSAM (identity damping), Ceres' where it follows Ceres
+        run.relative_tolerance = p.relative_tolerance if p.relative_tolerance is not None else (
+            1e-5 if identity else 1e-6)
+        initial_lambda = p.initial_lambda if p.initial_lambda is not None else (
+            1e-5 if identity else 1e-4)
         diag_pos = problem.pattern.diag_pos
-        lam, nu = p.initial_lambda, 2.0
+        lam, nu = initial_lambda, 2.0
         msg = run.converged_by_gradient()
         if msg is not None:
             return run.finish(Status.CONVERGED, msg)

@@ -9,8 +9,10 @@ from dataclasses import dataclass
 class TerminationParams:
     max_iterations: int = 100
     """Upper bound on iterations (each linear solve counts, accepted or not)."""
-    relative_tolerance: float = 1e-5
-    """Stop when an accepted step decreases the cost by less than this fraction (GTSAM's)."""
+    relative_tolerance: float | None = None
+    """Stop when an accepted step decreases the cost by less than this fraction. ``None``: GTSAM's
+    1e-5, or Ceres' 1e-6 where LM follows Ceres (problems with vector variables, e.g. BA, where
+    1e-5 stops Ladybug-49 3e-5 above Ceres' final cost)."""
     absolute_tolerance: float = 1e-5
     """Stop when an accepted step decreases the cost by less than this amount (GTSAM's)."""
     gradient_tolerance: float = 1e-10
@@ -21,8 +23,9 @@ class TerminationParams:
 
 @dataclass(frozen=True)
 class LMParams(TerminationParams):
-    initial_lambda: float = 1e-5
-    """Initial damping; H + lambda * D with D = clip(diag(H), min_diagonal, max_diagonal)."""
+    initial_lambda: float | None = None
+    """Initial damping of ``H + lambda D``. ``None``: GTSAM's 1e-5 with identity damping, Ceres'
+    1e-4 with diagonal damping (with 1e-5 the first Ladybug-49 step is rejected)."""
     min_lambda: float = 1e-12
     max_lambda: float = 1e12
     """Give up (no decrease possible) when the damping exceeds this."""

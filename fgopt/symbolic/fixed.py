@@ -330,8 +330,11 @@ class FixedProblem:
         p = _params(params, options)
         x0 = self._x0 if values is None else self.flatten(values)
         identity, by_factor = self._damping(p)
-        prm = np.array([p.max_iterations, p.relative_tolerance, p.absolute_tolerance,
-                        p.gradient_tolerance, p.step_tolerance, p.initial_lambda, p.min_lambda,
+        rel_tol = p.relative_tolerance if p.relative_tolerance is not None else (
+            1e-5 if identity else 1e-6)  # as LevenbergMarquardt resolves the defaults
+        lam0 = p.initial_lambda if p.initial_lambda is not None else (1e-5 if identity else 1e-4)
+        prm = np.array([p.max_iterations, rel_tol, p.absolute_tolerance,
+                        p.gradient_tolerance, p.step_tolerance, lam0, p.min_lambda,
                         p.max_lambda, p.min_diagonal, p.max_diagonal, p.min_relative_decrease,
                         float(identity), float(by_factor), getattr(p, "lambda_factor", 10.0)])
         hist = np.empty((max(p.max_iterations, 1), 7))
@@ -394,7 +397,7 @@ def _message(code: int, v: float, p: LMParams) -> str:
     return {
         1: lambda: f"gradient norm {v:.3g} <= {p.gradient_tolerance:g}",
         2: lambda: f"absolute cost decrease {v:.3g} < {p.absolute_tolerance:g}",
-        3: lambda: f"relative cost decrease {v:.3g} < {p.relative_tolerance:g}",
+        3: lambda: f"relative cost decrease {v:.3g} below the relative tolerance",
         4: lambda: f"step norm {v:.3g} below step_tolerance",
         5: lambda: ("damping exceeded max_lambda: the linear system stays singular (is a "
                     "variable unconstrained?)"),

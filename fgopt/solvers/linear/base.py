@@ -41,13 +41,17 @@ def choose_linear_solver(pattern: HessianPattern | None) -> str:
         return "cholmod"
     if pattern.size <= 300:
         return "dense"
+    from .schur import is_ba_shaped
+
+    if is_ba_shaped(pattern):
+        return "schur"
     return "block"
 
 
 def make_linear_solver(name: "str | LinearSolver", pattern: HessianPattern | None = None,
                        **options) -> LinearSolver:
-    """``"auto" | "block" | "cholmod" | "ldlt" | "pcg" | "dense"`` (or a solver object, returned
-    as is).
+    """``"auto" | "block" | "cholmod" | "schur[_dense|_sparse|_pcg]" | "ldlt" | "pcg" | "dense"``
+    (or a solver object, returned as is).
 
     ``"auto"`` chooses from the problem's ``pattern`` (:func:`choose_linear_solver`).
     """
@@ -71,10 +75,14 @@ def make_linear_solver(name: "str | LinearSolver", pattern: HessianPattern | Non
         from .block_cholesky import BlockCholeskySolver
 
         return BlockCholeskySolver(**options)
+    if name in ("schur", "schur_dense", "schur_sparse", "schur_pcg"):
+        from .schur import SchurSolver
+
+        return SchurSolver(reduced="auto" if name == "schur" else name[len("schur_"):], **options)
     if name == "dense":
         from .dense import DenseCholeskySolver
 
         return DenseCholeskySolver(**options)
     raise FgoptError(
-        f"unknown linear solver {name!r}: choose 'auto', 'block', 'cholmod', 'ldlt', 'pcg' "
-        "or 'dense'")
+        f"unknown linear solver {name!r}: choose 'auto', 'block', 'cholmod', 'schur', "
+        "'schur_dense', 'schur_sparse', 'schur_pcg', 'ldlt', 'pcg' or 'dense'")
