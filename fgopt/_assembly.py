@@ -76,24 +76,31 @@ def scatter_batch(res, jac, sqrt_info, unit, loss_code, loss_param, arg_dims, ar
                     acc += Jw[a, c1] * Jw[a, c2]
                 Hl[c1, c2] = w * acc
                 Hl[c2, c1] = w * acc
-        for p in range(k):
-            op, dp = arg_local_off[p], arg_dims[p]
-            for q in range(k):
-                base0 = pos[i, p, q, 0]
-                if base0 < 0:
-                    continue
-                oq, dq = arg_local_off[q], arg_dims[q]
-                if p == q:
-                    for b in range(dq):
-                        base = pos[i, p, q, b]
-                        for a in range(b, dp):
-                            H_data[base + a - b] += Hl[op + a, oq + b]
-                else:
-                    for b in range(dq):
-                        base = pos[i, p, q, b]
-                        for a in range(dp):
-                            H_data[base + a] += Hl[op + a, oq + b]
+        _add_local_hessian(Hl, arg_dims, arg_local_off, pos[i], H_data)
     return cost
+
+
+@njit(cache=True)
+def _add_local_hessian(Hl, arg_dims, arg_local_off, pos_i, H_data):
+    """Add one factor's dense local Hessian into H's data at its scatter positions ``pos_i``
+    (``(k, k, maxd)``: per argument pair, each column's base index; -1 = not stored)."""
+    k = arg_dims.shape[0]
+    for p in range(k):
+        op, dp = arg_local_off[p], arg_dims[p]
+        for q in range(k):
+            if pos_i[p, q, 0] < 0:
+                continue
+            oq, dq = arg_local_off[q], arg_dims[q]
+            if p == q:  # diagonal block: lower triangle, column b starts at the diagonal
+                for b in range(dq):
+                    base = pos_i[p, q, b]
+                    for a in range(b, dp):
+                        H_data[base + a - b] += Hl[op + a, oq + b]
+            else:
+                for b in range(dq):
+                    base = pos_i[p, q, b]
+                    for a in range(dp):
+                        H_data[base + a] += Hl[op + a, oq + b]
 
 
 @njit(cache=True)
@@ -202,17 +209,4 @@ def scatter_local_blocks(Hl, gl, arg_dims, arg_local_off, toff, pos, H_data, g):
             op, dp = arg_local_off[p], arg_dims[p]
             for a in range(dp):
                 g[toff[i, p] + a] += gl[i, op + a]
-            for q in range(k):
-                if pos[i, p, q, 0] < 0:
-                    continue
-                oq, dq = arg_local_off[q], arg_dims[q]
-                if p == q:
-                    for b in range(dq):
-                        base = pos[i, p, q, b]
-                        for a in range(b, dp):
-                            H_data[base + a - b] += Hl[i, op + a, oq + b]
-                else:
-                    for b in range(dq):
-                        base = pos[i, p, q, b]
-                        for a in range(dp):
-                            H_data[base + a] += Hl[i, op + a, oq + b]
+        _add_local_hessian(Hl[i], arg_dims, arg_local_off, pos[i], H_data)

@@ -125,11 +125,11 @@ def _expand_blocks(V, N, var_dim, var_offset, rank, blk_col, blk_row):
     # col-length contributions: for column b of a diagonal block: dr - b; else dr.
     col_len = np.zeros(N, dtype=np.int64)
     # Accumulate off-diagonal contributions: every column of the column variable gets dr rows.
-    off_cols = np.repeat(var_offset[blk_col[~is_diag]], dc[~is_diag]) + _ranges(dc[~is_diag])
+    off_cols = np.repeat(var_offset[blk_col[~is_diag]], dc[~is_diag]) + ranges(dc[~is_diag])
     np.add.at(col_len, off_cols, np.repeat(dr[~is_diag], dc[~is_diag]))
     diag_vars = blk_col[is_diag]
-    dcols = np.repeat(var_offset[diag_vars], var_dim[diag_vars]) + _ranges(var_dim[diag_vars])
-    col_len[dcols] += np.repeat(var_dim[diag_vars], var_dim[diag_vars]) - _ranges(var_dim[diag_vars])
+    dcols = np.repeat(var_offset[diag_vars], var_dim[diag_vars]) + ranges(var_dim[diag_vars])
+    col_len[dcols] += np.repeat(var_dim[diag_vars], var_dim[diag_vars]) - ranges(var_dim[diag_vars])
     indptr = np.zeros(N + 1, dtype=np.int64)
     np.cumsum(col_len, out=indptr[1:])
     nnz = int(indptr[-1])
@@ -141,7 +141,7 @@ def _expand_blocks(V, N, var_dim, var_offset, rank, blk_col, blk_row):
     return indptr, indices, col_base, block_start
 
 
-def _ranges(lengths: np.ndarray) -> np.ndarray:
+def ranges(lengths: np.ndarray) -> np.ndarray:
     """concat(arange(l) for l in lengths), vectorized."""
     lengths = np.asarray(lengths, dtype=np.int64)
     total = int(lengths.sum())

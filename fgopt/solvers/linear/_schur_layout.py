@@ -11,18 +11,8 @@ from __future__ import annotations
 import numpy as np
 
 from ...errors import FgoptError
-from ...structure import HessianPattern
+from ...structure import HessianPattern, ranges
 from . import _schur_kernels as K
-
-
-def ranges(lengths: np.ndarray) -> np.ndarray:
-    """concat(arange(l) for l in lengths), vectorized."""
-    lengths = np.asarray(lengths, dtype=np.int64)
-    total = int(lengths.sum())
-    if total == 0:
-        return np.zeros(0, dtype=np.int64)
-    starts = np.repeat(np.cumsum(lengths) - lengths, lengths)
-    return np.arange(total, dtype=np.int64) - starts
 
 
 def scalar_to_var(pattern: HessianPattern) -> np.ndarray:
