@@ -23,15 +23,11 @@ class PCGSolver:
 
     def analyze(self, pattern: HessianPattern) -> None:
         self._pattern = pattern
-        n = pattern.size
-        cols = np.repeat(np.arange(n), np.diff(pattern.indptr))
-        rows = pattern.indices
         # data indices of every variable's diagonal block (lower part), grouped by block size
         self._groups = []
         for d in np.unique(pattern.var_dim):
             vars_ = np.nonzero(pattern.var_dim == d)[0]
             off = pattern.var_offset[vars_]
-            in_block = {}
             # positions of (off+a, off+b) for a >= b, found from the CSC column of off+b
             idx = np.full((vars_.shape[0], d, d), -1, dtype=np.int64)
             for b in range(d):
@@ -39,10 +35,8 @@ class PCGSolver:
                 start = pattern.indptr[col]
                 for a in range(b, d):
                     idx[:, a, b] = start + (a - b)  # diagonal block rows come first, contiguous
-            in_block[d] = idx
             tangent = off[:, None] + np.arange(d)[None, :]
             self._groups.append((d, idx, tangent))
-        del rows, cols
 
     def factorize(self, H_data: np.ndarray) -> None:
         self._H = H_data.copy()
