@@ -16,7 +16,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--poses", type=int, default=3500)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--method", default="lm", choices=["lm", "gn", "dogleg"])
-    ap.add_argument("--solver", default="cholmod", choices=["cholmod", "ldlt", "pcg", "dense"])
+    ap.add_argument("--solver", default="auto",
+                    choices=["auto", "block", "cholmod", "ldlt", "pcg", "dense"])
     ap.add_argument("--plot", default=None, help="write a before/after plot to this PNG")
     args = ap.parse_args(argv)
 
