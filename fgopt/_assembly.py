@@ -37,6 +37,33 @@ def _whiten(e, J, R, unit, r_out, J_out):
 
 
 @njit(cache=True)
+def _local_system(e, J, R, unit, loss_code, loss_param, r, Jw, Hl, gl):
+    """One factor's weighted local system: ``Hl = w (RJ)^T (RJ)``, ``gl = w (RJ)^T (Re)``.
+
+    Returns ``(rho, w)``; ``r`` and ``Jw`` are scratch space for the whitened residual/Jacobian.
+    """
+    m = e.shape[0]
+    D = J.shape[1]
+    _whiten(e, J, R, unit, r, Jw)
+    s = 0.0
+    for a in range(m):
+        s += r[a] * r[a]
+    rho, w = rho_and_weight(loss_code, loss_param, s)
+    for c1 in range(D):
+        acc = 0.0
+        for a in range(m):
+            acc += Jw[a, c1] * r[a]
+        gl[c1] = w * acc
+        for c2 in range(c1, D):
+            acc = 0.0
+            for a in range(m):
+                acc += Jw[a, c1] * Jw[a, c2]
+            Hl[c1, c2] = w * acc
+            Hl[c2, c1] = w * acc
+    return rho, w
+
+
+@njit(cache=True)
 def scatter_batch(res, jac, sqrt_info, unit, loss_code, loss_param, arg_dims, arg_local_off,
                   toff, pos, H_data, g, weights):
     """Accumulate a batch into ``H_data`` / ``g``; return its cost. ``weights[i]`` gets w_i."""
@@ -46,36 +73,19 @@ def scatter_batch(res, jac, sqrt_info, unit, loss_code, loss_param, arg_dims, ar
     r = np.empty(m)
     Jw = np.empty((m, D))
     Hl = np.empty((D, D))
-    col_arg = np.empty(D, dtype=np.int64)  # which argument each local column belongs to
-    for p in range(k):
-        for c in range(arg_dims[p]):
-            col_arg[arg_local_off[p] + c] = p
+    gl = np.empty(D)
     cost = 0.0
     for i in range(n):
-        _whiten(res[i], jac[i], sqrt_info[0 if unit else i], unit, r, Jw)
-        s = 0.0
-        for a in range(m):
-            s += r[a] * r[a]
-        rho, w = rho_and_weight(loss_code, loss_param, s)
+        rho, w = _local_system(res[i], jac[i], sqrt_info[0 if unit else i], unit, loss_code,
+                               loss_param, r, Jw, Hl, gl)
         cost += rho
         weights[i] = w
         if w == 0.0:
             continue
-        # local gradient
-        for c in range(D):
-            acc = 0.0
-            for a in range(m):
-                acc += Jw[a, c] * r[a]
-            p = col_arg[c]
-            g[toff[i, p] + c - arg_local_off[p]] += w * acc
-        # local Hessian (upper half computed, used symmetrically)
-        for c1 in range(D):
-            for c2 in range(c1, D):
-                acc = 0.0
-                for a in range(m):
-                    acc += Jw[a, c1] * Jw[a, c2]
-                Hl[c1, c2] = w * acc
-                Hl[c2, c1] = w * acc
+        for p in range(k):
+            op = arg_local_off[p]
+            for a in range(arg_dims[p]):
+                g[toff[i, p] + a] += gl[op + a]
         _add_local_hessian(Hl, arg_dims, arg_local_off, pos[i], H_data)
     return cost
 
@@ -178,24 +188,10 @@ def local_blocks_parallel(res, jac, sqrt_info, unit, loss_code, loss_param, Hl, 
     for i in prange(n):
         r = np.empty(m)
         Jw = np.empty((m, D))
-        _whiten(res[i], jac[i], sqrt_info[i * stride], unit, r, Jw)
-        s = 0.0
-        for a in range(m):
-            s += r[a] * r[a]
-        rho, w = rho_and_weight(loss_code, loss_param, s)
+        rho, w = _local_system(res[i], jac[i], sqrt_info[i * stride], unit, loss_code,
+                               loss_param, r, Jw, Hl[i], gl[i])
         costs[i] = rho
         weights[i] = w
-        for c1 in range(D):
-            acc = 0.0
-            for a in range(m):
-                acc += Jw[a, c1] * r[a]
-            gl[i, c1] = w * acc
-            for c2 in range(c1, D):
-                acc = 0.0
-                for a in range(m):
-                    acc += Jw[a, c1] * Jw[a, c2]
-                Hl[i, c1, c2] = w * acc
-                Hl[i, c2, c1] = w * acc
     return costs.sum()
 
 
