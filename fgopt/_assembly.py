@@ -114,24 +114,28 @@ def _add_local_hessian(Hl, arg_dims, arg_local_off, pos_i, H_data):
 
 
 @njit(cache=True)
+def _whitened_sq_norm(e, R, unit):
+    """``|R e|^2`` with R upper triangular (``|e|^2`` for unit noise)."""
+    m = e.shape[0]
+    s = 0.0
+    if unit:
+        for a in range(m):
+            s += e[a] * e[a]
+        return s
+    for a in range(m):
+        acc = 0.0
+        for b in range(a, m):
+            acc += R[a, b] * e[b]
+        s += acc * acc
+    return s
+
+
+@njit(cache=True)
 def batch_cost(res, sqrt_info, unit, loss_code, loss_param):
     """``sum rho(|R e|)`` over a batch; NaN if any residual is not finite."""
-    n, m = res.shape
-    r = np.empty(m)
     cost = 0.0
-    for i in range(n):
-        s = 0.0
-        if unit:
-            for a in range(m):
-                s += res[i, a] * res[i, a]
-        else:
-            R = sqrt_info[i]
-            for a in range(m):
-                acc = 0.0
-                for b in range(a, m):
-                    acc += R[a, b] * res[i, b]
-                r[a] = acc
-                s += acc * acc
+    for i in range(res.shape[0]):
+        s = _whitened_sq_norm(res[i], sqrt_info[0 if unit else i], unit)
         rho, _ = rho_and_weight(loss_code, loss_param, s)
         cost += rho
     return cost
@@ -150,29 +154,11 @@ def first_nonfinite_row(a):
 
 
 @njit(cache=True)
-def add_diagonal(H_data, diag_pos, values):
-    for j in range(diag_pos.shape[0]):
-        H_data[diag_pos[j]] += values[j]
-
-
-@njit(cache=True)
 def row_squared_norms(res, sqrt_info, unit):
     """``|R_i e_i|^2`` per row (no robust loss)."""
-    n, m = res.shape
-    out = np.empty(n)
-    for i in range(n):
-        s = 0.0
-        if unit:
-            for a in range(m):
-                s += res[i, a] * res[i, a]
-        else:
-            R = sqrt_info[i]
-            for a in range(m):
-                acc = 0.0
-                for b in range(a, m):
-                    acc += R[a, b] * res[i, b]
-                s += acc * acc
-        out[i] = s
+    out = np.empty(res.shape[0])
+    for i in range(res.shape[0]):
+        out[i] = _whitened_sq_norm(res[i], sqrt_info[0 if unit else i], unit)
     return out
 
 

@@ -29,6 +29,11 @@ class NoiseModel:
             raise DimensionMismatchError(f"square-root information must be square, got {R.shape}")
         if not np.all(np.isfinite(R)):
             raise NonFiniteError("noise model has a NaN or inf entry")
+        if np.any(np.tril(R, -1) != 0.0):
+            # The whitening kernels use only the upper triangle: replace a general R by the
+            # upper-triangular factor with the same information R^T R (same cost, same whitening
+            # up to a rotation of the residual).
+            R = _cholesky(R.T @ R, "information R^T R").T
         R.setflags(write=False)
         self._R = R
 
@@ -73,31 +78,17 @@ class Gaussian(NoiseModel):
     @classmethod
     def from_information(cls, information: np.ndarray) -> "Gaussian":
         """Whitening from the information matrix via its Cholesky factor (``I = R^T R``)."""
-        info = _symmetric(information, "information")
-        try:
-            L = np.linalg.cholesky(info)
-        except np.linalg.LinAlgError:
-            w = np.linalg.eigvalsh(info)
-            raise NotPositiveDefiniteError(
-                f"information matrix is not positive definite (smallest eigenvalue {w.min():.3g}); "
-                "pass a symmetric positive-definite matrix") from None
+        L = _cholesky(_symmetric(information, "information"), "information matrix")
         return cls(L.T)
 
     @classmethod
     def from_covariance(cls, covariance: np.ndarray) -> "Gaussian":
         """Whitening from the covariance: ``R = L^-1`` for ``Sigma = L L^T``."""
-        cov = _symmetric(covariance, "covariance")
-        try:
-            L = np.linalg.cholesky(cov)
-        except np.linalg.LinAlgError:
-            w = np.linalg.eigvalsh(cov)
-            raise NotPositiveDefiniteError(
-                f"covariance is not positive definite (smallest eigenvalue {w.min():.3g}); "
-                "pass a symmetric positive-definite matrix") from None
-        # Sigma^-1 = L^-T L^-1 = R^T R with R = L^-1 (lower triangular; fine: any R with R^T R
-        # = Sigma^-1 whitens).  Use the upper-triangular Cholesky of the information instead so
-        # every Gaussian stores an upper-triangular R.
-        info = np.linalg.inv(L).T @ np.linalg.inv(L)
+        L = _cholesky(_symmetric(covariance, "covariance"), "covariance")
+        # Sigma^-1 = L^-T L^-1; store the upper-triangular Cholesky factor of that information so
+        # every Gaussian holds an upper-triangular R (the scatter kernel relies on it).
+        Linv = np.linalg.inv(L)
+        info = Linv.T @ Linv
         return cls.from_information(0.5 * (info + info.T))
 
 
@@ -150,6 +141,16 @@ def _positive_vector(values, name: str) -> np.ndarray:
     if np.any(v <= 0):
         raise NotPositiveDefiniteError(f"{name} must all be positive, got {v}")
     return v
+
+
+def _cholesky(M: np.ndarray, what: str) -> np.ndarray:
+    try:
+        return np.linalg.cholesky(M)
+    except np.linalg.LinAlgError:
+        w = np.linalg.eigvalsh(M)
+        raise NotPositiveDefiniteError(
+            f"{what} is not positive definite (smallest eigenvalue {w.min():.3g}); "
+            "pass a symmetric positive-definite matrix") from None
 
 
 def _symmetric(M, name: str) -> np.ndarray:

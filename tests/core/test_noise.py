@@ -69,3 +69,15 @@ def test_robust_loss_cost_uses_whitened_norm():
     e = np.array([3.0, 4.0])  # whitened norm 10
     assert np.isclose(loss.cost(e), 1.0 * 10 - 0.5)
     assert np.isclose(loss.weight(e), 0.1)
+
+
+def test_general_sqrt_information_is_made_upper_triangular():
+    """Kernels read only R's upper triangle: a full R is replaced by the triangular factor of
+    the same information, so the cost is unchanged."""
+    rng = np.random.default_rng(2)
+    R = rng.normal(size=(3, 3)) + 3 * np.eye(3)
+    m = noise.Gaussian.from_sqrt_information(R)
+    assert np.allclose(np.tril(m.sqrt_information, -1), 0.0)
+    assert np.allclose(m.information, R.T @ R)
+    e = rng.normal(size=3)
+    assert np.isclose(m.cost(e), 0.5 * np.sum((R @ e) ** 2))
