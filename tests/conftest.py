@@ -1,4 +1,5 @@
-"""Shared fixtures: the real-data folder (skips with a reason when it is absent)."""
+"""Shared fixtures: the real-data folder (skips with a reason when it is absent), and one kernel
+cache for the whole session."""
 
 from __future__ import annotations
 
@@ -8,6 +9,15 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
+
+
+def pytest_configure(config):
+    """One kernel cache for every test and every subprocess a test starts (under .pytest_cache:
+    warm on reruns, away from the user's ~/.cache). Set before any test runs: generated kernels
+    are memoized per process, so a cache directory switched mid-session would leave subprocesses
+    looking in a directory the parent never wrote."""
+    if "FGOPT_CACHE_DIR" not in os.environ:
+        os.environ["FGOPT_CACHE_DIR"] = str(config.cache.mkdir("fgopt-kernels"))
 
 
 def data_dir() -> Path:
