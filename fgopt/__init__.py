@@ -32,6 +32,7 @@ from .manifolds import SO2 as SO2
 from .manifolds import SO3 as SO3
 from .manifolds import Sim3 as Sim3
 from .problem import Problem as Problem
+from .solvers import chordal_initialization as chordal_initialization
 from .solvers import marginals as marginals
 from .solvers import optimize as optimize
 from .solvers.result import Result as Result

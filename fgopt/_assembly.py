@@ -37,7 +37,7 @@ def _whiten(e, J, R, unit, r_out, J_out):
 
 
 @njit(cache=True)
-def _local_system(e, J, R, unit, loss_code, loss_param, r, Jw, Hl, gl):
+def _local_system(e, J, R, unit, loss_code, loss_param, loss_shape, r, Jw, Hl, gl):
     """One factor's weighted local system: ``Hl = w (RJ)^T (RJ)``, ``gl = w (RJ)^T (Re)``.
 
     Returns ``(rho, w)``; ``r`` and ``Jw`` are scratch space for the whitened residual/Jacobian.
@@ -48,7 +48,7 @@ def _local_system(e, J, R, unit, loss_code, loss_param, r, Jw, Hl, gl):
     s = 0.0
     for a in range(m):
         s += r[a] * r[a]
-    rho, w = rho_and_weight(loss_code, loss_param, s)
+    rho, w = rho_and_weight(loss_code, loss_param, loss_shape, s)
     for c1 in range(D):
         acc = 0.0
         for a in range(m):
@@ -64,8 +64,8 @@ def _local_system(e, J, R, unit, loss_code, loss_param, r, Jw, Hl, gl):
 
 
 @njit(cache=True)
-def scatter_batch(res, jac, sqrt_info, unit, loss_code, loss_param, arg_dims, arg_local_off,
-                  toff, pos, H_data, g, weights):
+def scatter_batch(res, jac, sqrt_info, unit, loss_code, loss_param, loss_shape, arg_dims,
+                  arg_local_off, toff, pos, H_data, g, weights):
     """Accumulate a batch into ``H_data`` / ``g``; return its cost. ``weights[i]`` gets w_i."""
     n, m = res.shape
     D = jac.shape[2]
@@ -77,7 +77,7 @@ def scatter_batch(res, jac, sqrt_info, unit, loss_code, loss_param, arg_dims, ar
     cost = 0.0
     for i in range(n):
         rho, w = _local_system(res[i], jac[i], sqrt_info[0 if unit else i], unit, loss_code,
-                               loss_param, r, Jw, Hl, gl)
+                               loss_param, loss_shape, r, Jw, Hl, gl)
         cost += rho
         weights[i] = w
         if w == 0.0:
@@ -131,12 +131,12 @@ def _whitened_sq_norm(e, R, unit):
 
 
 @njit(cache=True)
-def batch_cost(res, sqrt_info, unit, loss_code, loss_param):
+def batch_cost(res, sqrt_info, unit, loss_code, loss_param, loss_shape):
     """``sum rho(|R e|)`` over a batch; NaN if any residual is not finite."""
     cost = 0.0
     for i in range(res.shape[0]):
         s = _whitened_sq_norm(res[i], sqrt_info[0 if unit else i], unit)
-        rho, _ = rho_and_weight(loss_code, loss_param, s)
+        rho, _ = rho_and_weight(loss_code, loss_param, loss_shape, s)
         cost += rho
     return cost
 
@@ -163,7 +163,8 @@ def row_squared_norms(res, sqrt_info, unit):
 
 
 @njit(cache=True, parallel=True)
-def local_blocks_parallel(res, jac, sqrt_info, unit, loss_code, loss_param, Hl, gl, weights):
+def local_blocks_parallel(res, jac, sqrt_info, unit, loss_code, loss_param, loss_shape, Hl, gl,
+                          weights):
     """Threaded first half of :func:`scatter_batch`: each factor's weighted ``J^T J`` (upper
     triangle used) and ``J^T r`` into ``Hl (n, D, D)`` / ``gl (n, D)``; returns the cost.
     Factors are independent here, so ``prange`` needs no synchronization."""
@@ -175,7 +176,7 @@ def local_blocks_parallel(res, jac, sqrt_info, unit, loss_code, loss_param, Hl, 
         r = np.empty(m)
         Jw = np.empty((m, D))
         rho, w = _local_system(res[i], jac[i], sqrt_info[i * stride], unit, loss_code,
-                               loss_param, r, Jw, Hl[i], gl[i])
+                               loss_param, loss_shape, r, Jw, Hl[i], gl[i])
         costs[i] = rho
         weights[i] = w
     return costs.sum()

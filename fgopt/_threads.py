@@ -55,7 +55,8 @@ def linearize_batch_threaded(problem: Any, b: Any, state: Any, H: np.ndarray,
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     try:
         cost = asm.local_blocks_parallel(res, jac, b.sqrt_info, b.unit, b.source.loss_code,
-                                         b.source.loss_param, b._Hl, b._gl, b.weights)
+                                         b.source.loss_param, b.source.loss_shape, b._Hl, b._gl,
+                                         b.weights)
     finally:
         numba.set_num_threads(previous)
     asm.scatter_local_blocks(b._Hl, b._gl, b.arg_dims, b.arg_local_off, b.toff, b.pos, H, g)

@@ -7,7 +7,8 @@ holds, for ``n`` instances of ``kernel``:
 - ``keys``: ``(n, k)`` int64 variable keys, in ``kernel.arg_kinds`` order;
 - ``constants``: ``(n, c)`` float64 kernel constants (measurements);
 - ``sqrt_information``: ``(n, r, r)`` square-root information, or ``None`` for unit noise;
-- ``loss_code`` / ``loss_param``: one robust loss for the whole batch (``0`` = none), see
+- ``loss_code`` / ``loss_param`` / ``loss_shape``: one robust loss for the whole batch (code
+  ``0`` = none; ``loss_shape`` is Barron's alpha), see
   :mod:`fgopt.factors.robust`.
 """
 
@@ -32,6 +33,7 @@ class FactorBatch:
     sqrt_information: np.ndarray | None
     loss_code: int = 0
     loss_param: float = 0.0
+    loss_shape: float = 0.0
     #: Optional labels for error messages: a list of strings per row, or ``(path, lines)`` with
     #: an int array of line numbers (formatted "path:line" on demand; cheap for big files).
     origin: "list[str] | tuple[str, np.ndarray] | None" = field(default=None, repr=False)
@@ -75,11 +77,7 @@ class FactorBatch:
 
         base: NoiseModel = (Unit(self.kernel.residual_dim) if self.sqrt_information is None
                             else noise.Gaussian(self.sqrt_information[i]))
-        if self.loss_code == 0:
-            return base
-        cls = {noise.LOSS_HUBER: noise.Huber, noise.LOSS_CAUCHY: noise.Cauchy,
-               noise.LOSS_TUKEY: noise.Tukey, noise.LOSS_GEMAN_MCCLURE: noise.GemanMcClure}
-        return cls[self.loss_code](self.loss_param, base)
+        return noise.robust_loss(self.loss_code, self.loss_param, self.loss_shape, base)
 
     def factor(self, i: int) -> KernelFactor:
         """Materialize row ``i`` as an ordinary factor object."""
@@ -92,14 +90,14 @@ def batch_from_factors(kernel: FactorKernel, factors: list[KernelFactor]) -> Fac
     n = len(factors)
     keys = np.array([f.keys for f in factors], dtype=np.int64).reshape(n, len(kernel.arg_kinds))
     consts = (np.array([f.constants for f in factors], dtype=float).reshape(n, kernel.num_constants))
-    code, param = loss_code_and_param(factors[0].loss)
+    code, param, shape = loss_code_and_param(factors[0].loss)
     if all(base_noise(f.loss).is_unit for f in factors):
         R = None
     else:
         R = np.array([base_noise(f.loss).sqrt_information for f in factors], dtype=float)
-    return FactorBatch(kernel, keys, consts, R, code, param)
+    return FactorBatch(kernel, keys, consts, R, code, param, shape)
 
 
-def loss_group(loss) -> tuple[int, float]:
-    """Factors batch together only when their robust loss (kind and parameter) agree."""
-    return loss_code_and_param(loss) if isinstance(loss, RobustLoss) else (0, 0.0)
+def loss_group(loss) -> tuple[int, float, float]:
+    """Factors batch together only when their robust loss (kind and parameters) agree."""
+    return loss_code_and_param(loss) if isinstance(loss, RobustLoss) else (0, 0.0, 0.0)

@@ -24,25 +24,32 @@ import numpy as np
 from .errors import FgoptError
 
 _LOSSES = {"huber": (1, 1.345), "cauchy": (2, 1.0), "tukey": (3, 4.685),
-           "geman_mcclure": (4, 1.0), "gm": (4, 1.0)}
+           "geman_mcclure": (4, 1.0), "gm": (4, 1.0), "barron": (5, 1.0)}
 
 
-def _robust(spec: str) -> tuple[str, int, float]:
+def _robust(spec: str) -> tuple[str, int, float, float]:
+    """``name[:k]`` or ``barron[:k[:alpha]]`` -> (name, code, k, alpha)."""
     name, _, value = spec.partition(":")
+    value, _, shape = value.partition(":")
     name = name.strip().lower()
     if name not in _LOSSES:
         raise argparse.ArgumentTypeError(
-            f"unknown robust loss {name!r}: use huber, cauchy, tukey or geman_mcclure, "
-            "optionally with a threshold, e.g. huber:1.345")
+            f"unknown robust loss {name!r}: use huber, cauchy, tukey, geman_mcclure or barron, "
+            "optionally with a threshold, e.g. huber:1.345 (barron:K:ALPHA)")
     code, default = _LOSSES[name]
+    if shape and name != "barron":
+        raise argparse.ArgumentTypeError(f"only barron takes a second parameter (alpha): {spec!r}")
     try:
         k = float(value) if value else default
+        alpha = float(shape) if shape else 0.0
     except ValueError:
         raise argparse.ArgumentTypeError(
-            f"robust loss threshold {value!r} is not a number") from None
+            f"robust loss parameters in {spec!r} are not numbers") from None
     if not (np.isfinite(k) and k > 0):
         raise argparse.ArgumentTypeError(f"robust loss threshold must be positive, got {value}")
-    return name, code, k
+    if not np.isfinite(alpha):
+        raise argparse.ArgumentTypeError(f"barron alpha must be finite, got {shape}")
+    return name, code, k, alpha
 
 
 def _positive_int(text: str) -> int:
@@ -76,8 +83,8 @@ def build_parser() -> argparse.ArgumentParser:
                    default="auto", help="linear solver (default: chosen from the problem)")
     s.add_argument("--max-iterations", type=_positive_int, default=100)
     s.add_argument("--robust", type=_robust, default=None, metavar="LOSS[:K]",
-                   help="robust loss on the file's edges: huber, cauchy, tukey, geman_mcclure "
-                   "(e.g. huber:1.345)")
+                   help="robust loss on the file's edges: huber, cauchy, tukey, geman_mcclure, "
+                   "barron (e.g. huber:1.345; barron:K:ALPHA, e.g. barron:1:0.5)")
     s.add_argument("--out", default=None, help="write the optimized problem (same format as "
                    "the input; .gz / .bz2 compress)")
     s.add_argument("--plot", default=None, help="save a before/after and cost plot (PNG, PDF, "
@@ -115,10 +122,11 @@ def _with_loss(graph: Any, robust: tuple[str, int, float] | None):
 
     out = FactorGraph(graph.factors)
     for b in graph.batches:
-        code, k = b.loss_code, b.loss_param
+        code, k, shape = b.loss_code, b.loss_param, b.loss_shape
         if robust is not None and not b.kernel.name.startswith("prior"):
-            code, k = robust[1], robust[2]
-        out.add_batch(b.kernel, b.keys, b.constants, b.sqrt_information, code, k, b.origin)
+            code, k, shape = robust[1], robust[2], robust[3]
+        out.add_batch(b.kernel, b.keys, b.constants, b.sqrt_information, code, k, b.origin,
+                      loss_shape=shape)
     return out
 
 
@@ -139,7 +147,8 @@ def cmd_solve(args: argparse.Namespace) -> int:
             say(f"gauge: tight prior on {key_str(fixed)} (the file's edges stay the cost "
                 "yardstick)")
     if args.robust is not None:
-        say(f"robust loss: {args.robust[0]} (k = {args.robust[2]:g}) on the file's edges")
+        shape = f", alpha = {args.robust[3]:g}" if args.robust[0] == "barron" else ""
+        say(f"robust loss: {args.robust[0]} (k = {args.robust[2]:g}{shape}) on the file's edges")
     say(f"initial cost {cost0:.6e}")
     from .solvers.result import IterationRecord
 

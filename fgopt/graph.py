@@ -40,7 +40,8 @@ class FactorGraph:
         return self
 
     def add_batch(self, kernel, keys, constants, sqrt_information=None, loss_code: int = 0,
-                  loss_param: float = 0.0, origin=None) -> "FactorGraph":
+                  loss_param: float = 0.0, origin=None,
+                  loss_shape: float = 0.0) -> "FactorGraph":
         """Add ``n`` factors of one kernel from arrays (see :class:`fgopt.batch.FactorBatch`).
 
         The vectorized way to build large graphs (file readers use it): no Python object per
@@ -48,7 +49,8 @@ class FactorGraph:
         """
         from .batch import FactorBatch
 
-        b = FactorBatch(kernel, keys, constants, sqrt_information, loss_code, loss_param, origin)
+        b = FactorBatch(kernel, keys, constants, sqrt_information, loss_code, loss_param,
+                        loss_shape, origin)
         if len(b) > 0:
             self._batches.append(b)
         return self

@@ -3,6 +3,7 @@
 from .factors.noise import Cauchy as Cauchy
 from .factors.noise import Diagonal as Diagonal
 from .factors.noise import Gaussian as Gaussian
+from .factors.noise import Barron as Barron
 from .factors.noise import GemanMcClure as GemanMcClure
 from .factors.noise import Huber as Huber
 from .factors.noise import Isotropic as Isotropic

@@ -73,6 +73,7 @@ class _SlowFactor:
     unit: bool
     loss_code: int
     loss_param: float
+    loss_shape: float
     arg_dims: np.ndarray
     arg_local_off: np.ndarray
     toff: np.ndarray = field(default=None)
@@ -208,8 +209,7 @@ class Problem:
         self._slow: list[_SlowFactor] = []
         for f in graph.factors:
             if f.kernel is not None:
-                code, param = loss_code_and_param(f.loss)
-                groups.setdefault((id(f.kernel), code, param), []).append(f)
+                groups.setdefault((id(f.kernel),) + loss_code_and_param(f.loss), []).append(f)
             else:
                 self._slow.append(self._make_slow(f))
         sources = [batch_from_factors(fs[0].kernel, fs) for fs in groups.values()]
@@ -252,10 +252,10 @@ class Problem:
     def _make_slow(self, f: Factor) -> _SlowFactor:
         var_idx = np.array([self._var_of_key[k] for k in f.keys], dtype=np.int64)
         noise = base_noise(f.loss)
-        code, param = loss_code_and_param(f.loss)
+        code, param, shape = loss_code_and_param(f.loss)
         dims = self.var_dim[var_idx]
         R = np.ascontiguousarray(noise.sqrt_information)[None]
-        return _SlowFactor(f, var_idx, R, bool(noise.is_unit), code, param, dims,
+        return _SlowFactor(f, var_idx, R, bool(noise.is_unit), code, param, shape, dims,
                            np.concatenate([[0], np.cumsum(dims)[:-1]]).astype(np.int64),
                            sqrt_info0=R, unit0=bool(noise.is_unit))
 
@@ -329,7 +329,7 @@ class Problem:
         for b in self.batches:
             res = b.kernel.residual(b.gather(state), b.source.constants)
             total += asm.batch_cost(res, b.sqrt_info, b.unit, b.source.loss_code,
-                                    b.source.loss_param)
+                                    b.source.loss_param, b.source.loss_shape)
         if self._slow:
             view = _StateView(self, state)
             for s in self._slow:
@@ -338,7 +338,8 @@ class Problem:
                 except NonFiniteError:
                     total = np.nan
                     continue
-                total += asm.batch_cost(e[None], s.sqrt_info, s.unit, s.loss_code, s.loss_param)
+                total += asm.batch_cost(e[None], s.sqrt_info, s.unit, s.loss_code, s.loss_param,
+                                        s.loss_shape)
         self.timing["cost"] += time.perf_counter() - t0
         return float(total) if np.isfinite(total) else float("nan")
 
@@ -388,7 +389,8 @@ class Problem:
             res, jac = b.kernel.linearize(b.gather(state), b.source.constants)
             t1 = time.perf_counter()
             total += asm.scatter_batch(res, jac, b.sqrt_info, b.unit, b.source.loss_code,
-                                       b.source.loss_param, b.arg_dims, b.arg_local_off, b.toff,
+                                       b.source.loss_param, b.source.loss_shape, b.arg_dims,
+                                       b.arg_local_off, b.toff,
                                        b.pos, H, g, b.weights)
             t_lin += t1 - t0
             t_asm += time.perf_counter() - t1
@@ -400,7 +402,8 @@ class Problem:
                 Js = s.factor.checked_jacobians(view)
                 J = np.concatenate(Js, axis=1)[None]
                 total += asm.scatter_batch(e[None], J, s.sqrt_info, s.unit, s.loss_code,
-                                           s.loss_param, s.arg_dims, s.arg_local_off, s.toff,
+                                           s.loss_param, s.loss_shape, s.arg_dims,
+                                           s.arg_local_off, s.toff,
                                            s.pos, H, g, np.ones(1))
             t_lin += time.perf_counter() - t0
         self.timing["linearize"] += t_lin

@@ -167,7 +167,7 @@ def _symmetric(M, name: str) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- robust losses
 
-LOSS_NONE, LOSS_HUBER, LOSS_CAUCHY, LOSS_TUKEY, LOSS_GEMAN_MCCLURE = 0, 1, 2, 3, 4
+LOSS_NONE, LOSS_HUBER, LOSS_CAUCHY, LOSS_TUKEY, LOSS_GEMAN_MCCLURE, LOSS_BARRON = 0, 1, 2, 3, 4, 5
 
 
 class RobustLoss:
@@ -177,6 +177,8 @@ class RobustLoss:
     """
 
     code: int = LOSS_NONE
+    #: Second parameter (Barron's ``alpha``); 0 for the one-parameter losses.
+    shape: float = 0.0
 
     def __init__(self, k: float, base: NoiseModel | None = None):
         k = float(k)
@@ -203,7 +205,7 @@ class RobustLoss:
         from .robust import rho_and_weight
 
         r = self.whiten(e)
-        rho, _ = rho_and_weight(self.code, self.k, float(r @ r))
+        rho, _ = rho_and_weight(self.code, self.k, self.shape, float(r @ r))
         return rho
 
     def weight(self, e: np.ndarray) -> float:
@@ -211,7 +213,7 @@ class RobustLoss:
         from .robust import rho_and_weight
 
         r = self.whiten(e)
-        return rho_and_weight(self.code, self.k, float(r @ r))[1]
+        return rho_and_weight(self.code, self.k, self.shape, float(r @ r))[1]
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(k={self.k:g}, base={self.base!r})"
@@ -239,6 +241,43 @@ class GemanMcClure(RobustLoss):
     """``rho(t) = (k^2 t^2 / 2) / (k^2 + t^2)`` (GTSAM's Geman-McClure)."""
 
     code = LOSS_GEMAN_MCCLURE
+
+
+class Barron(RobustLoss):
+    """Barron's general adaptive loss with shape ``alpha`` and scale ``k``:
+    ``rho(t) = k^2 |a-2|/a (((t/k)^2/|a-2| + 1)^(a/2) - 1)``; ``alpha`` = 2 is L2, 1
+    pseudo-Huber, 0 Cauchy, -2 Geman-McClure (epsilon-safe at 0 and 2, see
+    :mod:`fgopt.factors.robust`)."""
+
+    code = LOSS_BARRON
+
+    def __init__(self, k: float, alpha: float, base: NoiseModel | None = None):
+        super().__init__(k, base)
+        alpha = float(alpha)
+        if not np.isfinite(alpha):
+            raise NonFiniteError(f"Barron loss alpha must be finite, got {alpha}")
+        self.shape = alpha
+
+    @property
+    def alpha(self) -> float:
+        return self.shape
+
+    def with_base(self, base: NoiseModel) -> "Barron":
+        return Barron(self.k, self.shape, base)
+
+    def __repr__(self) -> str:
+        return f"Barron(k={self.k:g}, alpha={self.shape:g}, base={self.base!r})"
+
+
+def robust_loss(code: int, k: float, shape: float = 0.0, base: NoiseModel | None = None) -> Loss:
+    """The robust loss of a batch's ``(code, k, shape)`` around ``base`` (``base`` for code 0)."""
+    if code == LOSS_NONE:
+        return base
+    if code == LOSS_BARRON:
+        return Barron(k, shape, base)
+    cls = {LOSS_HUBER: Huber, LOSS_CAUCHY: Cauchy, LOSS_TUKEY: Tukey,
+           LOSS_GEMAN_MCCLURE: GemanMcClure}
+    return cls[code](k, base)
 
 
 Loss = NoiseModel | RobustLoss
@@ -277,7 +316,8 @@ def base_noise(loss: Loss) -> NoiseModel:
     return loss.base if isinstance(loss, RobustLoss) else loss
 
 
-def loss_code_and_param(loss: Loss) -> tuple[int, float]:
+def loss_code_and_param(loss: Loss) -> tuple[int, float, float]:
+    """``(code, k, shape)`` of a loss, as batches and numba kernels take it."""
     if isinstance(loss, RobustLoss):
-        return loss.code, loss.k
-    return LOSS_NONE, 0.0
+        return loss.code, loss.k, loss.shape
+    return LOSS_NONE, 0.0, 0.0

@@ -6,6 +6,7 @@ import dataclasses
 from typing import Any
 
 from ..errors import FgoptError
+from .chordal import chordal_initialization as chordal_initialization
 from .covariance import marginals as marginals
 from .dogleg import Dogleg as Dogleg
 from .gnc import GNC as GNC

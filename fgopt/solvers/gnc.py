@@ -33,6 +33,7 @@ from ..key import key_char, key_index
 from ..problem import Problem
 from ..variables import Variables
 from .linear.base import make_linear_solver
+from .chordal import _PoseGraph, chordal_state
 from .lm import LevenbergMarquardt
 from .params import LMParams
 from .result import Result, Status
@@ -60,6 +61,10 @@ class GNCParams:
     verbose: bool = False
     max_iterations: int = 100
     """Inner LM iteration limit per round."""
+    initialization: str = "auto"
+    """Start of each round's weighted least squares: ``"chordal"`` (a chordal relaxation of the
+    weighted pose graph, see :mod:`fgopt.solvers.chordal`), ``"previous"`` (the last round's
+    estimate, as GTSAM does) or ``"auto"`` (chordal for SE(2)/SE(3) pose graphs, else previous)."""
 
 
 def _known_inlier_mask(problem: Problem, policy: str) -> list[np.ndarray]:
@@ -134,8 +139,19 @@ class GNC:
                                                     verbose=False))
         inliers = _known_inlier_mask(problem, p.known_inliers)
         c2 = _thresholds(problem, p.inlier_probability)
-        res = lm.optimize_problem(problem, None, solver, callback)
-        initial_cost = res.initial_cost
+        use_chordal = p.initialization in ("auto", "chordal") and _PoseGraph(problem).ok
+        if p.initialization == "chordal" and not use_chordal:
+            raise FgoptError("GNC initialization='chordal' needs a pose graph (SE2 or SE3 poses, "
+                             "between factors and priors only)")
+        if p.initialization not in ("auto", "chordal", "previous"):
+            raise FgoptError(f"GNC initialization must be 'auto', 'chordal' or 'previous', got "
+                             f"{p.initialization!r}")
+
+        def start(state, weights):
+            return (chordal_state(problem, state, weights) or state) if use_chordal else state
+
+        res = lm.optimize_problem(problem, start(problem.initial_state(), None), solver, callback)
+        initial_cost = problem.cost(problem.initial_state())
         history, iterations = list(res.cost_history), res.iterations
         state = res.state
 
@@ -157,7 +173,7 @@ class GNC:
             rounds += 1
             weights = [np.where(m, 1.0, gnc_weights(p.loss, x, mu)) for x, m in zip(s, inliers)]
             problem.set_weights(weights)
-            res = lm.optimize_problem(problem, state, solver)
+            res = lm.optimize_problem(problem, start(state, weights), solver)
             state = res.state
             iterations += res.iterations
             history.append(res.final_cost)
