@@ -37,6 +37,8 @@ def corrupt(graph, values, fraction, seed=0):
     n = int(fraction * len(graph))
     for _ in range(n):
         i, j = rng.choice(len(keys), 2, replace=False)
+        while abs(int(i) - int(j)) <= 1:  # consecutive poses would pass for odometry
+            i, j = rng.choice(len(keys), 2, replace=False)
         if is3d:
             m = SE3.exp(np.concatenate([rng.normal(size=3), rng.uniform(-10, 10, 3)]))
         else:
