@@ -50,3 +50,34 @@ def test_weights_interpolate_between_convex_and_robust():
     w = gnc_weights("tls", s, 1e6)  # large mu: truncated least squares (hard 0/1 at s = 1)
     assert np.allclose(w, [1, 1, 1, 0, 0], atol=1e-3)
     assert np.all((gnc_weights("tls", s, 0.1) >= 0) & (gnc_weights("tls", s, 0.1) <= 1))
+
+
+@pytest.mark.parametrize("verify", [False, True])
+def test_check_rejects_an_outlier_the_graph_absorbed(verify):
+    """One wrong loop closure (1 m, 20 sigma off) that least squares absorbs below the inlier
+    threshold: GNC alone keeps it (the map bends by ~0.5 m); the leave-one-out check finds that
+    the rest of the graph contradicts it, rejects it and returns the outlier-free solution."""
+    d = manhattan_2d(200, seed=4)
+    clean = fgopt.optimize(d.graph, d.initial)
+    keys = d.initial.keys()
+    a, b = keys[20], keys[150]
+    wrong = clean.values.at(a).inverse() * clean.values.at(b) * SE2.from_xytheta(1.0, -1.0, 0.0)
+    graph = fgopt.FactorGraph(list(d.graph))
+    graph.add(BetweenFactor(a, b, wrong, d.graph[1].loss))
+    r = fgopt.optimize(graph, d.initial, method="gnc", params=GNCParams(loss="tls", verify=verify))
+    err = _max_position_error(r.values, clean.values)
+    if verify:
+        assert r.info["rejected_by_check"] == 1 and r.info["outliers"] == 1
+        assert err < 1e-4
+        assert np.isclose(r.final_cost, clean.final_cost, rtol=1e-6)
+    else:
+        assert r.info["outliers"] == 0 and err > 0.2
+
+
+def test_check_keeps_a_clean_graph():
+    """No outliers: the check rejects nothing and the result is plain least squares."""
+    d = manhattan_2d(300, seed=5)
+    clean = fgopt.optimize(d.graph, d.initial)
+    r = fgopt.optimize(d.graph, d.initial, method="gnc")
+    assert r.info["outliers"] == 0 and r.info["rejected_by_check"] == 0
+    assert np.isclose(r.final_cost, clean.final_cost, rtol=1e-6)

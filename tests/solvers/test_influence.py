@@ -1,0 +1,73 @@
+"""Leave-one-out residuals from one factorization equal removing the factor and re-solving."""
+
+import numpy as np
+import pytest
+
+import fgopt
+from fgopt import BetweenFactor, PriorFactor, key
+from fgopt.problem import Problem
+from fgopt.solvers.influence import leave_one_out_sq_norms
+
+
+def linear_graph(seed=0, n=12, loops=10):
+    """Points in the plane with noisy differences (between factors on R^2 are linear)."""
+    rng = np.random.default_rng(seed)
+    truth = np.cumsum(rng.normal(size=(n, 2)), axis=0)
+    graph, values = fgopt.FactorGraph(), fgopt.Variables()
+    for i in range(n):
+        values.add(key("p", i), truth[i] + rng.normal(size=2))
+    graph.add(PriorFactor(key("p", 0), truth[0], fgopt.noise.Isotropic.sigma(2, 0.1)))
+    pairs = [(i, i + 1) for i in range(n - 1)]
+    pairs += [tuple(rng.choice(n, 2, replace=False)) for _ in range(loops)]
+    for k, (i, j) in enumerate(pairs):
+        sigma = 0.1 + 0.2 * rng.random()
+        d = truth[j] - truth[i] + rng.normal(size=2) * sigma
+        if k == len(pairs) - 1:
+            d += 5.0  # one gross outlier
+        graph.add(BetweenFactor(key("p", int(i)), key("p", int(j)), d,
+                                fgopt.noise.Isotropic.sigma(2, sigma)))
+    return graph, values
+
+
+def test_equals_remove_and_resolve_on_a_linear_problem():
+    """For a linear least-squares problem the deleted residual formula is exact: it matches the
+    factor's whitened residual at the solution of the graph without it, and the cost decrease
+    matches the difference of the two optimal costs, for every factor."""
+    graph, values = linear_graph()
+    sol = fgopt.optimize(graph, values, method="gn", max_iterations=3).values
+    problem = Problem(graph, sol)
+    state = problem.initial_state()
+    masks = [np.ones(len(b.source), dtype=bool) for b in problem.batches]
+    loo = leave_one_out_sq_norms(problem, state, masks)
+    drop = leave_one_out_sq_norms(problem, state, masks, cost_decrease=True)
+    full_cost = graph.error(sol)
+    factors = list(graph)
+    checked = 0
+    for b, sq in zip(problem.batches, loo):
+        for row in range(len(b.source)):
+            f = b.source.factor(row)
+            idx = next(i for i, g in enumerate(factors)
+                       if list(g.keys) == list(f.keys) and np.allclose(g.constants, f.constants))
+            rest = fgopt.FactorGraph([g for i, g in enumerate(factors) if i != idx])
+            if len(f.keys) == 1:  # the prior fixes the gauge: without it H is singular
+                continue
+            sub = fgopt.optimize(rest, sol, method="gn", max_iterations=3).values
+            r = factors[idx].whitened_error(sub)
+            assert np.isclose(sq[row], r @ r, rtol=1e-6, atol=1e-9), (row, sq[row], r @ r)
+            d = next(x for bb, x in zip(problem.batches, drop) if bb is b)[row]
+            assert np.isclose(d, full_cost - rest.error(sub), rtol=1e-6, atol=1e-9)
+            checked += 1
+    assert checked == 21
+    # and the outlier stands out
+    between = next(sq for b, sq in zip(problem.batches, loo) if len(b.source) > 1)
+    assert np.argmax(between) == len(between) - 1
+
+
+def test_mask_selects_factors_and_others_are_zero():
+    graph, values = linear_graph(seed=1)
+    problem = Problem(graph, values)
+    masks = [np.zeros(len(b.source), dtype=bool) for b in problem.batches]
+    masks[0][:2] = True
+    loo = leave_one_out_sq_norms(problem, problem.initial_state(), masks)
+    assert np.all(loo[0][2:] == 0) and np.all(loo[0][:2] > 0)
+    assert all(np.all(x == 0) for x in loo[1:])
