@@ -3,7 +3,7 @@
 // (pose_graph_2d, pose_graph_3d, bundle_adjuster), whitened with the upper Cholesky factor
 // (R^T R = information), first pose held constant, num_threads = 1.
 //
-//   ceres_bench <pose2d|pose3d|bal> <file> <5it|converge> <repeats> <estimate_out>
+//   ceres_bench <pose2d|pose3d|bal> <file> <5it|converge|tight> <repeats> <estimate_out>
 //
 // Prints one JSON object; writes the final estimate (rows of the benchmarks/problems.py layout).
 #include <ceres/ceres.h>
@@ -239,6 +239,12 @@ int main(int argc, char** argv) {
     o.function_tolerance = 0;
     o.gradient_tolerance = 0;
     o.parameter_tolerance = 0;
+  }
+  if (mode == "tight") {  // run to the bottom: is the converged cost the same minimum?
+    o.max_num_iterations = 500;
+    o.function_tolerance = 1e-14;
+    o.gradient_tolerance = 1e-16;
+    o.parameter_tolerance = 1e-14;
   }
   std::vector<double> samples;
   ceres::Solver::Summary s;
