@@ -47,6 +47,10 @@ _MISSING = object()
 _NO_CONSTANTS = np.zeros(0)
 _NUMERIC_TWIN = {"Rot2": "SO2", "Pose2": "SE2", "Rot3": "SO3", "Pose3": "SE3"}
 
+#: id(kernel) -> (kernel, factor type, variable pattern) of every generated kernel, so a plain
+#: KernelFactor (e.g. a row of a file reader's batch) can be traced back to its symbolic source.
+KERNEL_ORIGINS: dict = {}
+
 
 def factor(fn: Callable | None = None, *, name: str | None = None, method: str = "retraction",
            engine: str = "auto", hessian: bool = False, cache: bool = True,
@@ -210,6 +214,7 @@ class SymbolicFactorType:
         if k is None:
             module = self._module(pattern)
             k = _kernel_from_module(module, self.params, pattern, self.name)
+            KERNEL_ORIGINS[id(k)] = (k, self, pattern)
             self._kernels[pattern] = k
             self._sources[pattern] = k.source
             self._modules[pattern] = module

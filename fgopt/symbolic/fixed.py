@@ -63,7 +63,7 @@ STATS = {"derived": 0, "loaded": 0, "memo": 0}
 def _resolve(f: Any) -> tuple:
     """(SymbolicFactorType, variable pattern) of a factor, or raise FgoptError."""
     from ..factors.library.prior_between import BetweenFactor, PriorFactor
-    from .factor import SymbolicFactor
+    from .factor import KERNEL_ORIGINS, SymbolicFactor
 
     if isinstance(f, SymbolicFactor) and not isinstance(f, (BetweenFactor, PriorFactor)):
         ft = f.factor_type
@@ -71,6 +71,9 @@ def _resolve(f: Any) -> tuple:
             if k is f.kernel:
                 return ft, pattern
         raise FgoptError(f"fixed formulation: {f.describe()}: kernel not found on its type")
+    origin = KERNEL_ORIGINS.get(id(f.kernel)) if f.kernel is not None else None
+    if origin is not None and not isinstance(f, (BetweenFactor, PriorFactor)):
+        return origin[1], origin[2]  # e.g. a BAL reader row: the generated bal_reprojection
     if isinstance(f, (BetweenFactor, PriorFactor)) and f.kernel is not None:
         # built-ins: the hand-written kernel or the generated twin, same residual and constants
         from ..factors.library import generated as gen
@@ -123,10 +126,9 @@ def _collect(graph: Any, values: Variables) -> _Collected:
     from ..manifolds.base import ops_for
     from .factor import batch_kind_of
 
-    if len(getattr(graph, "batches", ())) > 0:
-        raise FgoptError("fixed formulation: raw factor batches (graph.add_batch) are not "
-                         "supported; add factor instances")
-    factors = list(graph.factors)
+    # batch rows (file readers use graph.add_batch) are materialized as factor instances: the
+    # fixed formulation is for small problems, where that costs microseconds
+    factors = list(graph)
     if len(factors) == 0:
         raise FgoptError("fixed formulation: the factor graph is empty")
     var_of: dict = {}
