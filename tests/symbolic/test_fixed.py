@@ -201,3 +201,17 @@ def test_second_process_loads_from_cache(compiled):
     assert src == "disk" and sympy_loaded == "False"
     _, init, fp = compiled
     assert abs(float(cost) - fp.optimize(init).final_cost) <= 1e-9 * float(cost)
+
+
+def test_bal_reader_batches_run_in_the_fixed_formulation(data_file):
+    """A BAL file's reprojection batch (graph.add_batch rows, not factor instances) is traced back
+    to the generated bal_reprojection factor type: the fixed formulation reaches the same
+    iterates as the dynamic one."""
+    graph, values = fgopt.io.read_bal(data_file("bal/dubrovnik-1-1-pre.txt"))
+    kw = {"max_iterations": 3, "relative_tolerance": 0.0, "absolute_tolerance": 0.0,
+          "gradient_tolerance": 0.0, "step_tolerance": 0.0}
+    dyn = fgopt.optimize(graph, values, **kw)
+    fix = fgopt.optimize(graph, values, formulation="fixed", **kw)
+    assert np.isclose(fix.final_cost, dyn.final_cost, rtol=1e-6, atol=1e-12)
+    for k in values.keys():
+        assert np.allclose(fix.values.at(k), dyn.values.at(k), rtol=1e-6, atol=1e-9)
