@@ -79,7 +79,7 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("solve", help="optimize a file and print the iterations")
     file_options(s)
     s.add_argument("--method", choices=["lm", "gn", "dogleg", "gnc"], default="lm",
-                   help="gnc: graduated non-convexity (Geman-McClure) against outlier edges")
+                   help="gnc: graduated non-convexity (truncated least squares) against outlier edges")
     s.add_argument("--solver", choices=["auto", "cholmod", "ldlt", "pcg", "dense"],
                    default="auto", help="linear solver (default: chosen from the problem)")
     s.add_argument("--max-iterations", type=_positive_int, default=100)

@@ -137,7 +137,7 @@ def test_m3500_reaches_the_benchmark_cost(data_file, capsys):
 def test_gnc_and_barron_from_the_command_line(small, capsys):
     """--method gnc runs graduated non-convexity; --robust barron:K:ALPHA parses both numbers."""
     assert main(["solve", str(small), "--method", "gnc", "--quiet"]) == 0
-    assert "gnc-gm" in capsys.readouterr().out
+    assert "gnc-tls" in capsys.readouterr().out
     assert main(["solve", str(small), "--robust", "barron:2:0.5"]) == 0
     assert "robust loss: barron (k = 2, alpha = 0.5)" in capsys.readouterr().out
     with pytest.raises(SystemExit) as exc:  # argparse refuses a second parameter for huber

@@ -53,8 +53,11 @@ from .result import Result, Status
 
 @dataclass(frozen=True)
 class GNCParams:
-    loss: str = "gm"
-    """``"gm"`` (Geman-McClure) or ``"tls"`` (truncated least squares)."""
+    loss: str = "tls"
+    """``"tls"`` (truncated least squares) or ``"gm"`` (Geman-McClure, GTSAM's default). Both
+    recover the outlier-free solution on M3500 / sphere2500 with 10 % wrong loop closures; TLS
+    stops once the weights are binary and was 1.2x / 3.5x faster there (126 s vs 154 s, 93 s vs
+    327 s)."""
     inlier_probability: float = 0.999
     """Inlier threshold c_i^2 = chi2.ppf(p, dim_i) on the squared whitened residual."""
     finalize: bool = True
