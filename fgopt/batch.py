@@ -18,10 +18,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import DimensionMismatchError, NonFiniteError, NotPositiveDefiniteError
+from .errors import DimensionMismatchError, NonFiniteError
 from .factors.base import KernelFactor
 from .factors.kernel import FactorKernel
-from .factors.noise import (NoiseModel, RobustLoss, Unit, base_noise, loss_code_and_param)
+from .factors.noise import NoiseModel, Unit, base_noise, loss_code_and_param
 from .key import Key
 
 
@@ -96,8 +96,3 @@ def batch_from_factors(kernel: FactorKernel, factors: list[KernelFactor]) -> Fac
     else:
         R = np.array([base_noise(f.loss).sqrt_information for f in factors], dtype=float)
     return FactorBatch(kernel, keys, consts, R, code, param, shape)
-
-
-def loss_group(loss) -> tuple[int, float, float]:
-    """Factors batch together only when their robust loss (kind and parameters) agree."""
-    return loss_code_and_param(loss) if isinstance(loss, RobustLoss) else (0, 0.0, 0.0)

@@ -1,9 +1,9 @@
 """Noise models and robust losses (``fgopt.noise.Diagonal.sigmas(...)``, ``fgopt.noise.Huber``)."""
 
+from .factors.noise import Barron as Barron
 from .factors.noise import Cauchy as Cauchy
 from .factors.noise import Diagonal as Diagonal
 from .factors.noise import Gaussian as Gaussian
-from .factors.noise import Barron as Barron
 from .factors.noise import GemanMcClure as GemanMcClure
 from .factors.noise import Huber as Huber
 from .factors.noise import Isotropic as Isotropic

@@ -120,7 +120,7 @@ class _PoseGraph:
         self.num_poses = int(problem._initial_storages[0].shape[0])
         self.ok = True
 
-    def systems(self, problem: Problem, state: State, weights: list[np.ndarray] | None):
+    def systems(self, problem: Problem, weights: list[np.ndarray] | None):
         d = self.d
         rot_dim = 1 if d == 2 else 3
         N = self.num_poses
@@ -204,7 +204,7 @@ def chordal_state(problem: Problem, state: State | None = None,
         return None
     state = state or problem.initial_state()
     d, N = pg.d, pg.num_poses
-    A_rot, b_rot, L, b_t, edges, has_prior = pg.systems(problem, state, weights)
+    A_rot, b_rot, L, b_t, edges, has_prior = pg.systems(problem, weights)
     first = state.storages[0][:1]
     R0 = _rotations_from_storage(first, d)[0]
     Y = _solve_anchored(A_rot, b_rot, d, None if has_prior else R0.T)

@@ -78,7 +78,7 @@ class GNCParams:
     """Inner LM iteration limit per round."""
     verify: bool = True
     """Check GNC's classification by leave-one-out residuals and reject accepted factors the
-    rest of the graph contradicts (see :class:`_Verifier`)."""
+    rest of the graph contradicts (see :class:`_Verifier`); implies ``finalize``."""
     max_verify: int = 50
     """At most this many rejections by the check."""
     initialization: str = "auto"
@@ -233,7 +233,7 @@ class GNC:
             if p.verify:
                 state, weights, removed = check.verify(state, weights, p.max_verify, p.verbose)
             iterations += check.iterations
-            history.append(check.objective(state, weights))
+            history.append(check.objective(state))
             if removed:
                 message += f"; {removed} accepted factors rejected by the leave-one-out check"
         final = problem.cost(state)
@@ -255,11 +255,12 @@ class _Verifier:
     minimum where a few outliers are accepted and the estimate is bent to fit them (measured on
     M3500 with 10 % random loop closures: 2-5 accepted, 40-90 m error). Such a factor has a small
     residual but a large leave-one-out residual (:mod:`fgopt.solvers.influence`): the rest of the
-    graph contradicts it. The check rejects the accepted factor with the largest leave-one-out
-    residual above the threshold, re-solves, re-classifies every factor (rejected inliers that
-    fit again come back) and keeps the change only if the truncated-least-squares objective
-    ``sum min(r_i^2, c_i^2)`` (known inliers: ``r_i^2``) decreases; it stops when no accepted
-    factor fails the leave-one-out test or no rejection helps.
+    graph contradicts it. The check ranks accepted factors by how much the optimal cost would drop
+    without them (``0.5 r . r_loo``, first order); for the largest drop above ``c^2 / 2`` (where
+    rejecting pays off in the truncated-least-squares objective ``0.5 sum min(r_i^2, c_i^2)``,
+    known inliers ``r_i^2``) it rejects the factor, re-solves, re-classifies every factor
+    (rejected inliers that fit again come back) and keeps the change only if that objective
+    really decreased; it stops when no candidate is left or no rejection helps.
     """
 
     def __init__(self, problem, lm, solver, inliers, c2, scaled, start):
@@ -267,7 +268,7 @@ class _Verifier:
         self.inliers, self.c2, self.scaled = inliers, c2, scaled
         self.iterations = 0
 
-    def objective(self, state, weights=None) -> float:
+    def objective(self, state) -> float:
         s = self.scaled(state)
         return float(sum(np.sum(0.5 * c * np.where(m, x, np.minimum(x, 1.0)))
                          for x, m, c in zip(s, self.inliers, self.c2)))
