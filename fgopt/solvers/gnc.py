@@ -44,8 +44,8 @@ from ..errors import FgoptError
 from ..key import key_char, key_index
 from ..problem import Problem
 from ..variables import Variables
-from .linear.base import make_linear_solver
 from .chordal import _PoseGraph, chordal_state
+from .linear.base import make_linear_solver
 from .lm import LevenbergMarquardt
 from .params import LMParams
 from .result import Result, Status
