@@ -30,7 +30,7 @@ from .errors import (DimensionMismatchError, EmptyProblemError, FgoptError, KeyN
 from .factors.base import Factor
 from .factors.noise import base_noise, loss_code_and_param
 from .key import Key, key_str
-from .manifolds.base import BatchKind, ops_for
+from .manifolds.base import SCALAR_KIND, BatchKind, is_vector_kind, ops_for
 from .structure import HessianPattern, build_pattern, fill_reducing_order, scatter_positions
 from ._threads import PARALLEL_MIN_BATCH, linearize_batch_threaded
 from .variables import Variables
@@ -138,58 +138,70 @@ class Problem:
                 used.setdefault(k, None)
         self.kinds: list[BatchKind] = []
         kind_id: dict[int, int] = {}
-        per_kind: list[list] = []
         var_keys = list(used)
-        V = len(var_keys)
-        var_kind = [0] * V
-        var_row = [0] * V
-        var_dim = [0] * V
-        self._slow_values: list[Any] = []
-        # (type, shape) -> (ops, kind): look traits up once per type, not once per value
-        traits: dict[tuple, tuple] = {}
         value_of = values._values
-        for i, k in enumerate(var_keys):
-            x = value_of.get(k)
-            if x is None:
-                b, row = self._find_key_row(graph, k)
-                raise KeyNotFoundError(
-                    f"{b.kernel.name} (factor {b._where(row)}) uses {key_str(Key(k))}, which is "
-                    "not in the initial values")
-            t = type(x)
-            tkey = (t, x.shape) if t is np.ndarray else t
-            hit = traits.get(tkey)
-            if hit is None:
-                ops = ops_for(x)
-                hit = traits[tkey] = (ops, ops.batch_kind(x))
-            ops, kind = hit
+        # one pass per step over all variables, in comprehensions (not one Python iteration
+        # with many operations per variable: BAL problems have ~10^4 variables)
+        xs = [value_of.get(k) for k in var_keys]
+        missing = next((i for i, x in enumerate(xs) if x is None), None)
+        if missing is not None:
+            k = var_keys[missing]
+            b, row = self._find_key_row(graph, k)
+            raise KeyNotFoundError(
+                f"{b.kernel.name} (factor {b._where(row)}) uses {key_str(Key(k))}, which is "
+                "not in the initial values")
+        ndarray = np.ndarray
+        tkeys = [(ndarray, x.shape) if type(x) is ndarray else type(x) for x in xs]
+        # traits looked up once per (type, shape); kinds numbered in order of first appearance
+        kid_of: dict = {}
+        ops_of: dict = {}
+        for tkey in dict.fromkeys(tkeys):
+            x = xs[tkeys.index(tkey)]
+            ops = ops_for(x)
+            kind = ops.batch_kind(x)
+            ops_of[tkey] = ops
             if kind is None:
-                var_kind[i] = -1
-                var_row[i] = len(self._slow_values)
-                self._slow_values.append(x)
-                var_dim[i] = ops.dim(x)
+                kid_of[tkey] = -1
                 continue
             kid = kind_id.get(id(kind))
             if kid is None:
                 kid = kind_id[id(kind)] = len(self.kinds)
                 self.kinds.append(kind)
-                per_kind.append([])
-            var_kind[i] = kid
-            var_row[i] = len(per_kind[kid])
-            per_kind[kid].append(x)
-            var_dim[i] = kind.dim
+            kid_of[tkey] = kid
+        var_kind = np.array([kid_of[t] for t in tkeys], dtype=np.int64)
+        V = len(var_keys)
+        var_row = np.zeros(V, dtype=np.int64)
+        var_dim = np.zeros(V, dtype=np.int64)
+        per_kind: list[list] = []
+        for kid, kind in enumerate(self.kinds):
+            idx = np.nonzero(var_kind == kid)[0]
+            var_row[idx] = np.arange(idx.shape[0])
+            var_dim[idx] = kind.dim
+            per_kind.append([xs[i] for i in idx.tolist()])
+        slow_idx = np.nonzero(var_kind < 0)[0]
+        var_row[slow_idx] = np.arange(slow_idx.shape[0])
+        self._slow_values: list[Any] = [xs[i] for i in slow_idx.tolist()]
+        for i, x in zip(slow_idx.tolist(), self._slow_values):
+            var_dim[i] = ops_of[tkeys[i]].dim(x)
         self._kind_id = kind_id
         self.var_keys = np.array(var_keys, dtype=np.int64)
-        self.var_kind = np.array(var_kind, dtype=np.int64)
-        self.var_row = np.array(var_row, dtype=np.int64)
-        self.var_dim = np.array(var_dim, dtype=np.int64)
+        self.var_kind = var_kind
+        self.var_row = var_row
+        self.var_dim = var_dim
         self._var_of_key = {Key(k): i for i, k in enumerate(var_keys)}
-        self._initial_storages = [
-            np.array([kd.to_storage(x) for x in xs], dtype=float).reshape(len(xs), kd.storage_dim)
-            for xs, kd in zip(per_kind, self.kinds)]
+        self._initial_storages = [self._storage_of(kd, xs) for xs, kd in zip(per_kind, self.kinds)]
         self._kind_vars = [np.nonzero(self.var_kind == kid)[0] for kid in range(len(self.kinds))]
         self._slow_vars = np.nonzero(self.var_kind < 0)[0]
         self._extra = values  # for unused keys and the final Variables
         self._sorted = np.argsort(self.var_keys)
+
+    @staticmethod
+    def _storage_of(kind: BatchKind, xs: list) -> np.ndarray:
+        """``(n, storage_dim)`` storage of a kind's values (vector values stacked directly)."""
+        if is_vector_kind(kind) and kind is not SCALAR_KIND:
+            return np.array(xs, dtype=float).reshape(len(xs), kind.storage_dim)
+        return np.array([kind.to_storage(x) for x in xs], dtype=float).reshape(
+            len(xs), kind.storage_dim)
 
     @staticmethod
     def _find_key_row(graph: Any, k: int) -> tuple[FactorBatch, int]:
