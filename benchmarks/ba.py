@@ -215,15 +215,10 @@ def pyceres_run(bal, mode: str, linear: str, target: float | None = None) -> dic
 def gtsam_run(spec, bal, mode: str, target: float | None = None) -> dict:
     import gtsam
 
-    from benchmarks.peers.gtsam_runner import RUNNER, cameras_to_bal
+    from benchmarks.peers.gtsam_runner import RUNNER, cameras_to_bal, lm_params
 
     st = RUNNER.load(spec)
-    params = gtsam.LevenbergMarquardtParams()
-    if mode == "5it":
-        params.setMaxIterations(5)
-        params.setRelativeErrorTol(0.0)
-        params.setAbsoluteErrorTol(0.0)
-        params.setErrorTol(0.0)
+    params = lm_params(mode)
 
     def yard(values):
         cams = [values.atPinholeCameraCal3Bundler(gtsam.symbol("c", i))

@@ -9,6 +9,19 @@ import numpy as np
 from . import SolveOutput
 
 
+
+def lm_params(mode: str):
+    """GTSAM's default LM parameters; ``"5it"``: exactly 5 iterations (all tolerances 0)."""
+    import gtsam
+
+    params = gtsam.LevenbergMarquardtParams()
+    if mode == "5it":
+        params.setMaxIterations(5)
+        params.setRelativeErrorTol(0.0)
+        params.setAbsoluteErrorTol(0.0)
+        params.setErrorTol(0.0)
+    return params
+
 class GtsamRunner:
     name = "gtsam"
     pinning = "wheel has no TBB (single thread); BLAS env vars = 1"
@@ -102,13 +115,8 @@ class GtsamRunner:
     def solve(self, state, mode):
         import gtsam
 
-        params = gtsam.LevenbergMarquardtParams()
-        if mode == "5it":
-            params.setMaxIterations(5)
-            params.setRelativeErrorTol(0.0)
-            params.setAbsoluteErrorTol(0.0)
-            params.setErrorTol(0.0)
-        opt = gtsam.LevenbergMarquardtOptimizer(state["graph"], state["initial"], params)
+        opt = gtsam.LevenbergMarquardtOptimizer(state["graph"], state["initial"],
+                                                lm_params(mode))
         initial_error = opt.error()  # computed by the constructor already
         values = opt.optimize()
         return SolveOutput(values, opt.iterations(), initial_error, opt.error(), "")

@@ -28,8 +28,10 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
+from numba import njit
 
 from ..errors import FgoptError
+from ..manifolds import _kernels as K
 from ..problem import Problem, State
 from ..variables import Variables
 
@@ -37,48 +39,33 @@ _BETWEEN = {"between_pose2": 2, "between_pose3": 3}
 _PRIOR = {"prior_pose2": 2, "prior_pose3": 3}
 
 
+@njit(cache=True)
+def _quaternions_to_matrices(q, out):
+    for i in range(q.shape[0]):
+        K.quat_to_matrix(q[i], out[i])
+
+
+@njit(cache=True)
+def _matrices_to_quaternions(R, out):
+    for i in range(R.shape[0]):
+        K.quat_from_matrix(R[i], out[i])
+
+
 def _rotations_from_storage(storage: np.ndarray, d: int) -> np.ndarray:
     """(n, d, d) rotation matrices of SE(2) [c, s, x, y] / SE(3) [qx, qy, qz, qw, t] storage."""
     if d == 2:
         c, s = storage[:, 0], storage[:, 1]
         return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
-    x, y, z, w = storage[:, 0], storage[:, 1], storage[:, 2], storage[:, 3]
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-        np.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-        np.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1)], -2)
+    out = np.empty((storage.shape[0], 3, 3))
+    _quaternions_to_matrices(np.ascontiguousarray(storage[:, :4]), out)
+    return out
 
 
 def _storage_from_rotations(R: np.ndarray, t: np.ndarray) -> np.ndarray:
-    d = R.shape[1]
-    if d == 2:
+    if R.shape[1] == 2:
         return np.concatenate([R[:, :, 0], t], axis=1)
-    # Shepperd-style, vectorized: pick the largest of (w, x, y, z) to divide by
-    tr = np.trace(R, axis1=1, axis2=2)
-    cand = np.stack([tr, R[:, 0, 0], R[:, 1, 1], R[:, 2, 2]], 1)
-    pick = np.argmax(cand, axis=1)
-    q = np.empty((R.shape[0], 4))  # x, y, z, w
-    for case in range(4):
-        m = pick == case
-        if not np.any(m):
-            continue
-        r = R[m]
-        if case == 0:
-            s = 2.0 * np.sqrt(1.0 + tr[m])
-            q[m] = np.stack([(r[:, 2, 1] - r[:, 1, 2]) / s, (r[:, 0, 2] - r[:, 2, 0]) / s,
-                             (r[:, 1, 0] - r[:, 0, 1]) / s, 0.25 * s], 1)
-        else:
-            a = case - 1
-            b, c = (a + 1) % 3, (a + 2) % 3
-            s = 2.0 * np.sqrt(np.maximum(1.0 + r[:, a, a] - r[:, b, b] - r[:, c, c], 1e-300))
-            qa = 0.25 * s
-            qb = (r[:, b, a] + r[:, a, b]) / s
-            qc = (r[:, c, a] + r[:, a, c]) / s
-            qw = (r[:, c, b] - r[:, b, c]) / s
-            out = np.empty((r.shape[0], 4))
-            out[:, a], out[:, b], out[:, c], out[:, 3] = qa, qb, qc, qw
-            q[m] = out
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q = np.empty((R.shape[0], 4))  # x, y, z, w (the SO3 kernels' Shepperd conversion)
+    _matrices_to_quaternions(np.ascontiguousarray(R), q)
     return np.concatenate([q, t], axis=1)
 
 
