@@ -47,6 +47,9 @@ class FactorKernel:
     residual: ResidualFn = field(repr=False)
     linearize: LinearizeFn = field(repr=False)
     source: str = field(default="", repr=False)
+    #: Why this kernel may return NaN on purpose (e.g. a point behind a camera), appended to the
+    #: optimizer's error when the initial estimate produces one.
+    nonfinite_hint: str = field(default="", repr=False)
 
     @property
     def tangent_dim(self) -> int:

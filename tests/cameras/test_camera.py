@@ -118,7 +118,7 @@ def test_backproject_inverts_project_and_equals_gtsam(cls):
     depth = (pose.inverse() * X)[:, 2]
     uv = cam.project(X)
     np.testing.assert_allclose(cam.backproject(uv, depth), X, atol=1e-9)
-    if cls is not Cal3Bundler:  # GTSAM 4.3's Python Cal3Bundler.calibrate drops distortion
+    if cls is not Cal3Bundler:  # GTSAM's fixed-point calibrate may not converge off-centre
         g = H.gtsam_camera(pose, K)
         for i in range(4):
             np.testing.assert_allclose(cam.backproject(uv[i], depth[i]),
