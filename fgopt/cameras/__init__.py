@@ -20,3 +20,4 @@ from .factors import ProjectionFactor as ProjectionFactor
 from .factors import StereoFactor as StereoFactor
 from .factors import projection_kernel as projection_kernel
 from .factors import stereo_kernel as stereo_kernel
+from .triangulation import triangulate as triangulate
