@@ -21,3 +21,5 @@ from .factors import StereoFactor as StereoFactor
 from .factors import projection_kernel as projection_kernel
 from .factors import stereo_kernel as stereo_kernel
 from .triangulation import triangulate as triangulate
+from .smart import SmartProjectionFactor as SmartProjectionFactor
+from .smart import smart_kernel as smart_kernel

@@ -33,8 +33,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import DimensionMismatchError, FgoptError, NonFiniteError
-from ..factors.base import KernelFactor
-from ..factors.kernel import FactorKernel
+from ..factors import FactorKernel, KernelFactor
 from ..key import as_key, key_str
 from ..manifolds import SE3
 from ..manifolds.base import vector_kind
