@@ -16,7 +16,9 @@ from .calibration import Calibration as Calibration
 from .calibration import DoubleSphere as DoubleSphere
 from .camera import PinholeCamera as PinholeCamera
 from .camera import StereoCamera as StereoCamera
+from .factors import GeneralSFMFactor as GeneralSFMFactor
 from .factors import ProjectionFactor as ProjectionFactor
+from .factors import camera_projection_kernel as camera_projection_kernel
 from .factors import StereoFactor as StereoFactor
 from .factors import projection_kernel as projection_kernel
 from .factors import stereo_kernel as stereo_kernel

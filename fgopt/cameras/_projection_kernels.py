@@ -262,3 +262,37 @@ def rotation_of_storage(pose):
     quat_to_rotation(pose[:4], R)
     return R
 
+
+
+@njit(cache=True)
+def camera_projection_batch(model, cam, point, m, reject, with_jac):
+    """Reprojection errors with one camera variable per observation: ``cam (n, 7 + s)`` =
+    pose storage then calibration storage (GTSAM's ``PinholeCamera<Cal>`` manifold) -> res
+    ``(n, 2)``, jac ``(n, 2, 6 + dim + 3)``: columns pose ``[w, v]``, calibration, point."""
+    n = cam.shape[0]
+    d = CK.tangent_dim(model)
+    res = np.empty((n, 2))
+    jac = np.zeros((n if with_jac else 0, 2, 9 + d))
+    R = np.empty((3, 3))
+    uv = np.empty(2)
+    p = np.empty(3)
+    Dk = np.zeros((2, CK.MAX_TANGENT_DIM))
+    Dp = np.empty((2, 2))
+    A = np.empty((2, 3))
+    for i in range(n):
+        quat_to_rotation(cam[i, :4], R)
+        st = project_core(model, R, cam[i, 4:7], cam[i, 7:], point[i], reject, with_jac, uv, p,
+                          Dk, Dp, A)
+        if st != OK:
+            res[i, 0] = np.nan
+            res[i, 1] = np.nan
+            continue
+        res[i, 0] = uv[0] - m[i, 0]
+        res[i, 1] = uv[1] - m[i, 1]
+        if with_jac:
+            J = jac[i]
+            _chain(A, p, R, J, 0, 6 + d, 2)
+            for r in range(2):
+                for c in range(d):
+                    J[r, 6 + c] = Dk[r, c]
+    return res, jac

@@ -13,12 +13,14 @@ camera) raises :class:`~fgopt.errors.CheiralityError` naming its index.
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
 
 from ..errors import CheiralityError, DimensionMismatchError, FgoptError, NonFiniteError
 from ..manifolds import SE3, SO3
+from ..manifolds.base import BatchKind, register
 from . import _projection_kernels as PK
 from .calibration import Cal3_S2, Cal3_S2Stereo, Calibration, as_points2
 
@@ -59,7 +61,10 @@ def _raise_status(status: np.ndarray, pts: np.ndarray, pose: SE3, what: str) -> 
 class PinholeCamera:
     """A calibrated camera at ``pose = world_T_camera`` (z forward, x right, y down).
 
-    ``PinholeCamera(pose, calibration)`` with any :class:`~fgopt.cameras.Calibration`.
+    ``PinholeCamera(pose, calibration)`` with any :class:`~fgopt.cameras.Calibration`. It is also
+    a manifold (GTSAM's ``PinholeCamera<Cal>``: a variable holding pose and calibration, e.g. a
+    BAL camera): storage ``[qx, qy, qz, qw, tx, ty, tz, k...]``, tangent ``[w, v, dk]``,
+    ``retract(d) = (pose * Exp(d[:6]), calibration + d[6:])``.
     """
 
     __slots__ = ("_pose", "_calibration", "_R")
@@ -132,6 +137,32 @@ class PinholeCamera:
         R, t = self._R, self._pose.translation()
         return self._calibration.K() @ np.column_stack([R.T, -R.T @ t])
 
+    # ------------------------------------------------------------------ manifold (GTSAM's)
+    def dim(self) -> int:
+        """Tangent dimension ``6 + calibration.dim()``: pose ``[w, v]`` then calibration."""
+        return 6 + self._calibration.DIM
+
+    def to_storage(self) -> np.ndarray:
+        """``[qx, qy, qz, qw, tx, ty, tz, calibration storage...]``."""
+        return np.concatenate([self._pose.to_storage(), self._calibration._data])
+
+    def retract(self, delta: Any) -> PinholeCamera:
+        """``(pose * Exp(delta[:6]), calibration + delta[6:])`` (GTSAM's PinholeCamera retract)."""
+        d = np.asarray(delta, dtype=float).reshape(-1)
+        if d.shape[0] != self.dim():
+            raise DimensionMismatchError(f"PinholeCamera.retract: delta must have {self.dim()} "
+                                         f"entries, got {d.shape[0]}")
+        return PinholeCamera(self._pose.retract(d[:6]), self._calibration.retract(d[6:]))
+
+    def local(self, other: PinholeCamera) -> np.ndarray:
+        return np.concatenate([self._pose.local(other.pose()),
+                               self._calibration.local(other.calibration())])
+
+    @classmethod
+    def batch_kind_of(cls, model: type[Calibration]) -> BatchKind:
+        """The batch kind of cameras with calibration ``model`` (one per model)."""
+        return _camera_kind(model)
+
     def __repr__(self) -> str:
         return f"PinholeCamera({self._pose!r}, {self._calibration!r})"
 
@@ -195,3 +226,64 @@ class StereoCamera:
 
     def __repr__(self) -> str:
         return f"StereoCamera({self._pose!r}, {self._calibration!r})"
+
+
+@lru_cache(maxsize=None)
+def _camera_kind(model: type[Calibration]) -> BatchKind:
+    """``PinholeCamera[model]`` rows ``[pose (7), calibration (s)]``; retract / local act on the
+    pose (SE3's batched kernels) and the calibration (its kind's) separately."""
+    se3, cal = SE3.batch_kind(), model.batch_kind()
+
+    def retract(x, delta):
+        out = np.empty_like(x)
+        out[:, :7] = se3.retract(np.ascontiguousarray(x[:, :7]), np.ascontiguousarray(delta[:, :6]))
+        out[:, 7:] = cal.retract(np.ascontiguousarray(x[:, 7:]), np.ascontiguousarray(delta[:, 6:]))
+        return out
+
+    def local(a, b):
+        return np.concatenate([se3.local(np.ascontiguousarray(a[:, :7]),
+                                         np.ascontiguousarray(b[:, :7])),
+                               cal.local(np.ascontiguousarray(a[:, 7:]),
+                                         np.ascontiguousarray(b[:, 7:]))], axis=1)
+
+    def from_storage(row):
+        row = np.asarray(row, dtype=float)
+        return PinholeCamera(SE3.from_storage(row[:7]), model.from_storage(row[7:]))
+
+    def to_storage(x):
+        if not (isinstance(x, PinholeCamera) and type(x.calibration()) is model):
+            raise DimensionMismatchError(f"PinholeCamera[{model.__name__}] storage requested "
+                                         f"for {x!r}")
+        return x.to_storage()
+
+    return BatchKind(name=f"PinholeCamera[{model.__name__}]", dim=6 + model.DIM,
+                     storage_dim=7 + len(model.PARAMS), retract=retract, local=local,
+                     from_storage=from_storage, to_storage=to_storage)
+
+
+class _CameraOps:
+    """Manifold traits of :class:`PinholeCamera` (GTSAM's product manifold SE(3) x K)."""
+
+    def dim(self, x: Any) -> int:
+        return x.dim()
+
+    def storage_dim(self, x: Any) -> int:
+        return 7 + len(x.calibration().PARAMS)
+
+    def to_storage(self, x: Any) -> np.ndarray:
+        return x.to_storage()
+
+    def from_storage(self, like: Any, data: np.ndarray) -> Any:
+        return _camera_kind(type(like.calibration())).from_storage(data)
+
+    def retract(self, x: Any, delta: np.ndarray) -> Any:
+        return x.retract(delta)
+
+    def local(self, x: Any, y: Any) -> np.ndarray:
+        return x.local(y)
+
+    def batch_kind(self, x: Any) -> BatchKind:
+        return _camera_kind(type(x.calibration()))
+
+
+register(PinholeCamera, _CameraOps())

@@ -4,6 +4,9 @@
   ``uv = PinholeCamera(pose, K).project(point)`` (GTSAM's ``GenericProjectionFactor`` when the
   calibration is a constant, ``GeneralSFMFactor2`` when it is a key: self-calibration, then
   ``model=`` names the calibration class). Every calibration model of :mod:`.calibration`.
+* ``GeneralSFMFactor(camera, point, measured, noise, model=...)``: the same residual with one
+  :class:`~fgopt.cameras.PinholeCamera` variable holding pose and calibration (GTSAM's
+  ``GeneralSFMFactor``; the form BAL / Bundler problems are solved in).
 * ``StereoFactor(pose, point, measured, noise, calibration)``: ``e = (uL, uR, v) - measured``
   with a ``Cal3_S2Stereo`` (GTSAM's ``GenericStereoFactor<Pose3, Point3>``).
 
@@ -90,6 +93,29 @@ def projection_kernel(model: type[Calibration], calibration_variable: bool = Fal
         return PK.projection_batch(mid, pose, point, cal, m, reject, var, with_jac)
 
     return FactorKernel(name, kinds, 2, 2 if var else 2 + s,
+                        residual=lambda args, consts: run(args, consts, False)[0],
+                        linearize=lambda args, consts: run(args, consts, True),
+                        source=_SOURCE, nonfinite_hint=_HINT)
+
+
+@lru_cache(maxsize=None)
+def camera_projection_kernel(model: type[Calibration], cheirality: str = "reject") -> FactorKernel:
+    """Kernel of ``uv(camera, point) - m`` with a :class:`~fgopt.cameras.PinholeCamera`
+    variable (pose and calibration in one): args ``(PinholeCamera[model], R^3)``, constants
+    ``m (2)``. Jacobian columns: pose ``[w, v]``, calibration, point."""
+    from .camera import PinholeCamera
+
+    reject = _check_cheirality(cheirality)
+    mid, s = model.MODEL, len(model.PARAMS)
+    name = f"camera_projection_{model.__name__.lower()}{'' if reject else '_allow_behind'}"
+    kinds = (PinholeCamera.batch_kind_of(model), vector_kind(3))
+    widths = (7 + s, 3, 2)
+
+    def run(args, consts, with_jac):
+        cam, point, m = _contiguous(name, args, consts, widths)
+        return PK.camera_projection_batch(mid, cam, point, m, reject, with_jac)
+
+    return FactorKernel(name, kinds, 2, 2,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
                         source=_SOURCE, nonfinite_hint=_HINT)
@@ -195,6 +221,26 @@ class ProjectionFactor(KernelFactor):
     def describe(self) -> str:
         keys = ", ".join(key_str(k) for k in self.keys) if hasattr(self, "keys") else "?"
         return f"ProjectionFactor({keys})"
+
+
+class GeneralSFMFactor(KernelFactor):
+    """``GeneralSFMFactor(camera, point, measured, noise)``: a pixel of ``point`` seen by a
+    :class:`~fgopt.cameras.PinholeCamera` *variable* (pose and calibration in one, GTSAM's
+    ``GeneralSFMFactor``; the BAL / Bundler camera form). ``model`` names the calibration class
+    of the camera variable. ``cheirality`` as ProjectionFactor's."""
+
+    def __init__(self, camera: int, point: int, measured: Any, noise: Any = None, *,
+                 model: type[Calibration], cheirality: str = "reject"):
+        where = _where("GeneralSFMFactor", camera, point)
+        m = _measurement(measured, 2, "the measured pixel", where)
+        if not (isinstance(model, type) and issubclass(model, Calibration)):
+            raise FgoptError(f"{where}: model must be a Calibration class, got {model!r}")
+        self.measured = m
+        super().__init__(camera_projection_kernel(model, cheirality), [camera, point], m, noise)
+
+    def describe(self) -> str:
+        keys = ", ".join(key_str(k) for k in self.keys) if hasattr(self, "keys") else "?"
+        return f"GeneralSFMFactor({keys})"
 
 
 class StereoFactor(KernelFactor):
