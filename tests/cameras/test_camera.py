@@ -179,3 +179,28 @@ def test_stereo_jacobians_near_pi_equal_central_differences():
         np.testing.assert_allclose(Dpose, num, rtol=1e-6, atol=1e-5)
         num = H.central_diff(lambda x: StereoCamera(pose, K).project(x), X)
         np.testing.assert_allclose(Dpoint, num, rtol=1e-6, atol=1e-5)
+
+
+@pytest.mark.parametrize("cls", H.MODELS, ids=by_name)
+def test_pinhole_camera_is_a_manifold(cls):
+    """PinholeCamera is GTSAM's camera manifold: retract = (pose Exp(d[:6]), K + d[6:]), local
+    inverts it, its batch kind's retract / local / storage agree with the value's, and
+    Variables / optimize accept it."""
+    from fgopt import Variables, key
+    from fgopt.manifolds import ops_for
+
+    rng = np.random.default_rng(27)
+    cam = PinholeCamera(H.random_pose(rng, 2.0), cls(*H.random_params(cls, rng)))
+    d = rng.normal(size=cam.dim()) * 1e-2
+    moved = cam.retract(d)
+    np.testing.assert_allclose(moved.pose().matrix(), cam.pose().retract(d[:6]).matrix())
+    np.testing.assert_allclose(cam.local(moved), d, atol=1e-12)
+    kind = ops_for(cam).batch_kind(cam)
+    assert kind is PinholeCamera.batch_kind_of(cls) and kind.dim == 6 + cls.DIM
+    rows = kind.retract(cam.to_storage()[None], d[None])
+    np.testing.assert_allclose(kind.from_storage(rows[0]).pose().matrix(), moved.pose().matrix(),
+                               atol=1e-12)
+    np.testing.assert_allclose(kind.local(cam.to_storage()[None], rows)[0], d, atol=1e-12)
+    v = Variables()
+    v.add(key("c", 0), cam)
+    assert v.at(key("c", 0)) is cam

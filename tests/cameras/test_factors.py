@@ -251,3 +251,44 @@ def test_bad_input_is_named():
         ProjectionFactor(X(0), L(0), [1.0, 2.0], None, None)
     f = ProjectionFactor(X(0), L(0), [1.0, 2.0], Huber(1.345, Isotropic.sigma(2, 2.0)), K)
     assert f.describe() == "ProjectionFactor(x0, l0)" and "Huber" in repr(f)
+
+
+@pytest.mark.parametrize("cls", H.MODELS, ids=by_name)
+def test_camera_variable_kernel_jacobians_equal_central_differences(cls):
+    """GeneralSFMFactor's kernel (one PinholeCamera variable: pose + calibration) has the
+    projection residual and Jacobians equal to central differences through the camera kind's
+    retract, at rotations 0 .. pi."""
+    from fgopt.cameras import camera_projection_kernel
+
+    rng = np.random.default_rng(37)
+    kernel = camera_projection_kernel(cls)
+    for angle in H.ANGLES:
+        pose = H.random_pose(rng, angle)
+        K = cls(*H.random_params(cls, rng))
+        point = H.point_in_front(rng, pose)
+        m = PinholeCamera(pose, K).project(point) + rng.normal(size=2)
+        args = (PinholeCamera(pose, K).to_storage()[None], point[None])
+        res, jac = kernel.linearize(args, m[None])
+        np.testing.assert_allclose(res[0], PinholeCamera(pose, K).project(point) - m, atol=1e-9)
+        num = H.kernel_fd(kernel, args, m[None])
+        np.testing.assert_allclose(jac[0], num, rtol=1e-6, atol=1e-6 * max(1, np.abs(jac).max()))
+
+
+@pytest.mark.parametrize("cls", [m for m in H.GTSAM_MODELS if m is not Cal3_S2Stereo],
+                         ids=by_name)
+def test_general_sfm_factor_cost_equals_gtsam(cls):
+    """GeneralSFMFactor's cost equals GTSAM's GeneralSFMFactor<PinholeCamera<Cal>, Point3>."""
+    gtsam = pytest.importorskip("gtsam")
+    from fgopt.cameras import GeneralSFMFactor
+
+    rng = np.random.default_rng(38)
+    for angle in (0.2, math.pi):
+        _, _, _, (pose, point, K, m) = _instance(rng, cls, angle, False)
+        ours = GeneralSFMFactor(key("c", 0), L(0), m, Isotropic.sigma(2, 0.8), model=cls)
+        theirs = getattr(gtsam, f"GeneralSFMFactor{cls.__name__}")(
+            m, gtsam.noiseModel.Isotropic.Sigma(2, 0.8), key("c", 0), L(0))
+        gv = gtsam.Values()
+        gv.insert(key("c", 0), H.gtsam_camera(pose, K))
+        gv.insert(L(0), point)
+        values = Variables({key("c", 0): PinholeCamera(pose, K), L(0): point})
+        assert ours.cost(values) == pytest.approx(theirs.error(gv), rel=1e-10)
