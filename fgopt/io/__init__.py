@@ -16,3 +16,4 @@ from .g2o import FIX_SIGMA as FIX_SIGMA
 from .g2o import add_gauge_prior as add_gauge_prior
 from .g2o import read_g2o as read_g2o
 from .g2o_write import write_g2o as write_g2o
+from .stereo_vo import read_stereo_vo as read_stereo_vo
