@@ -4,8 +4,9 @@ For a track seen by ``m`` poses, with the landmark ``X`` triangulated from the c
 (DLT, optionally refined), the whitened reprojection errors and Jacobians are stacked as
 ``b (2m)``, ``F = blockdiag(F_i) (2m x 6m)`` (poses) and ``E (2m x 3)`` (landmark). Eliminating
 the landmark from ``|F dx + E dX + b|^2`` leaves ``|Q (F dx + b)|^2`` with the projector
-``Q = I - E (E^T E)^-1 E^T`` (the Schur complement of GTSAM's smart factors). With the full SVD
-``E = U S V^T`` and ``U = [U1 (2m x 3), U2 (2m x (2m - 3))]``, the factor returns
+``Q = I - E (E^T E)^-1 E^T`` (the Schur complement of GTSAM's smart factors). With the
+Householder QR ``E = U [R; 0]``, ``U = [U1 (2m x 3), U2 (2m x (2m - 3))]`` orthogonal, the
+factor returns
 
     r = U^T b,    J = U^T F with its first three rows zeroed,
 
@@ -49,6 +50,66 @@ def triangulate_track(model, Rs, ts, ks, z, rank_tol, refine, X):
 
 
 @njit(cache=True)
+def _householder_eliminate(E, b, F, m, Fd):
+    """Apply ``Q^T`` of the Householder QR of ``E (2m x 3)`` to ``b`` (in place) and to the
+    block-diagonal ``F`` (rows ``2j, 2j+1`` of view ``j`` in ``F[:, :6]``), written densely into
+    ``Fd (2m x 6m)``. Rows 3.. of the results span ``E``'s left null space. Returns False when
+    ``E`` is rank-deficient (``|R_kk| <= 1e-12 |R_00|``)."""
+    r2 = 2 * m
+    for r in range(r2):
+        for col in range(6 * m):
+            Fd[r, col] = 0.0
+    for j in range(m):
+        for col in range(6):
+            Fd[2 * j, 6 * j + col] = F[2 * j, col]
+            Fd[2 * j + 1, 6 * j + col] = F[2 * j + 1, col]
+    r00 = 0.0
+    v = np.empty(r2)
+    for k in range(3):
+        norm = 0.0
+        for r in range(k, r2):
+            norm += E[r, k] * E[r, k]
+        norm = np.sqrt(norm)
+        if k == 0:
+            r00 = norm
+        if not norm > 1e-12 * r00 or norm == 0.0:
+            return False
+        alpha = -norm if E[k, k] >= 0.0 else norm
+        # v = E[k:, k] - alpha e_k, H = I - 2 v v^T / |v|^2 maps E[k:, k] to alpha e_k
+        vnorm2 = 0.0
+        for r in range(k, r2):
+            v[r] = E[r, k]
+        v[k] -= alpha
+        for r in range(k, r2):
+            vnorm2 += v[r] * v[r]
+        if vnorm2 == 0.0:
+            continue
+        scale = 2.0 / vnorm2
+        for c in range(k, 3):
+            dot = 0.0
+            for r in range(k, r2):
+                dot += v[r] * E[r, c]
+            dot *= scale
+            for r in range(k, r2):
+                E[r, c] -= dot * v[r]
+        dot = 0.0
+        for r in range(k, r2):
+            dot += v[r] * b[r]
+        dot *= scale
+        for r in range(k, r2):
+            b[r] -= dot * v[r]
+        for c in range(6 * m):
+            dot = 0.0
+            for r in range(k, r2):
+                dot += v[r] * Fd[r, c]
+            dot *= scale
+            if dot != 0.0:
+                for r in range(k, r2):
+                    Fd[r, c] -= dot * v[r]
+    return True
+
+
+@njit(cache=True)
 def smart_batch(model, P, consts, m, s, refine, zero_on_degenerate, with_jac):
     """``P (n, m, 7)`` pose storages, ``consts (n, 2m + s + 5)`` = pixels, calibration,
     the 2x2 square-root information (row major), rank tolerance -> res ``(n, 2m)``,
@@ -71,6 +132,7 @@ def smart_batch(model, P, consts, m, s, refine, zero_on_degenerate, with_jac):
     b = np.empty(r2)
     E = np.empty((r2, 3))
     F = np.empty((r2, 6))
+    Fd = np.empty((r2, 6 * m))
     for i in range(n):
         c = consts[i]
         unpack(P[i], Rs, ts)
@@ -97,27 +159,18 @@ def smart_batch(model, P, consts, m, s, refine, zero_on_degenerate, with_jac):
                 for col in range(3):
                     E[2 * j, col] = w00 * J9[0, 6 + col] + w01 * J9[1, 6 + col]
                     E[2 * j + 1, col] = w10 * J9[0, 6 + col] + w11 * J9[1, 6 + col]
-        if ok:
-            U, sv, _ = np.linalg.svd(E)
-            if not sv[2] > 1e-12 * sv[0]:
-                ok = False
-        if not ok:
+        if not ok or not _householder_eliminate(E, b, F, m, Fd):
             if not zero_on_degenerate:
                 for r in range(r2):
                     res[i, r] = np.nan
             continue
         for r in range(r2):
-            acc = 0.0
-            for q in range(r2):
-                acc += U[q, r] * b[q]
-            res[i, r] = acc
+            res[i, r] = b[r]
         if with_jac:
             Ji = jac[i]
             for r in range(3, r2):
-                for j in range(m):
-                    u0, u1 = U[2 * j, r], U[2 * j + 1, r]
-                    for col in range(6):
-                        Ji[r, 6 * j + col] = u0 * F[2 * j, col] + u1 * F[2 * j + 1, col]
+                for col in range(6 * m):
+                    Ji[r, col] = Fd[r, col]
     return res, jac
 
 

@@ -4,7 +4,7 @@ DLT (Hartley & Zisserman, as GTSAM's ``triangulateDLT``): with ``P_i = K_i [R_i^
 (the linear part ``K_i`` of view ``i``'s calibration) and the *undistorted* pixel ``(u_i, v_i)``
 (``K_i calibrate_i(uv_i)``), each view gives two rows ``u_i P_i3 - P_i1`` and
 ``v_i P_i3 - P_i2`` of ``A X = 0``; ``X`` is the right singular vector of the smallest singular
-value, de-homogenized. The rank is the number of singular values above ``rank_tol`` (GTSAM's
+value (Householder QR then one-sided Jacobi, :func:`svd_n4`), de-homogenized. The rank is the number of singular values above ``rank_tol`` (GTSAM's
 rule; it depends on pixel units).
 
 Refinement minimizes the reprojection error ``sum_i |uv_i(X) - z_i|^2`` over ``X`` by damped
@@ -66,16 +66,92 @@ def dlt(model, Rs, ts, ks, uv, rank_tol, X):
             P[2, c] = M[2, c]
             A[2 * i, c] = und[0] * P[2, c] - P[0, c]
             A[2 * i + 1, c] = und[1] * P[2, c] - P[1, c]
-    _, s, vt = np.linalg.svd(A)
+    sv = np.empty(4)
+    V = np.empty((4, 4))
+    small = svd_n4(A, sv, V)
     rank = 0
-    for j in range(s.shape[0]):
-        if s[j] > rank_tol:
+    for j in range(min(4, 2 * m)):
+        if sv[j] > rank_tol:
             rank += 1
-    w = vt[3, 3]
+    w = V[3, small]
     if w == 0.0:
         return -2
-    X[0], X[1], X[2] = vt[3, 0] / w, vt[3, 1] / w, vt[3, 2] / w
+    X[0], X[1], X[2] = V[0, small] / w, V[1, small] / w, V[2, small] / w
     return rank
+
+
+@njit(cache=True)
+def svd_n4(A, sv, V):
+    """Singular values ``sv`` and right singular vectors ``V`` (columns) of ``A (r x 4)``:
+    Householder QR to ``R (4 x 4)``, then one-sided Jacobi (Hestenes) on ``R``, accurate to
+    rounding like Eigen's JacobiSVD that GTSAM uses, without a LAPACK call per track. ``sv`` is
+    unsorted; returns the index of the smallest singular value."""
+    rows = A.shape[0]
+    W = A.copy()
+    k_max = min(4, rows)
+    for k in range(k_max):
+        norm = 0.0
+        for r in range(k, rows):
+            norm += W[r, k] * W[r, k]
+        norm = np.sqrt(norm)
+        if norm == 0.0:
+            continue
+        alpha = -norm if W[k, k] >= 0.0 else norm
+        W[k, k] -= alpha
+        vn2 = 0.0
+        for r in range(k, rows):
+            vn2 += W[r, k] * W[r, k]
+        for c in range(k + 1, 4):
+            dot = 0.0
+            for r in range(k, rows):
+                dot += W[r, k] * W[r, c]
+            dot *= 2.0 / vn2
+            for r in range(k, rows):
+                W[r, c] -= dot * W[r, k]
+        W[k, k] = alpha
+        for r in range(k + 1, rows):
+            W[r, k] = 0.0
+    R = np.zeros((4, 4))
+    for r in range(k_max):
+        for c in range(r, 4):
+            R[r, c] = W[r, c]
+    for r in range(4):
+        for c in range(4):
+            V[r, c] = 1.0 if r == c else 0.0
+    for _ in range(60):
+        rotated = False
+        for p in range(3):
+            for q in range(p + 1, 4):
+                a = b = g = 0.0
+                for r in range(4):
+                    a += R[r, p] * R[r, p]
+                    b += R[r, q] * R[r, q]
+                    g += R[r, p] * R[r, q]
+                if abs(g) <= 1e-15 * np.sqrt(a * b) or g == 0.0:
+                    continue
+                rotated = True
+                zeta = (b - a) / (2.0 * g)
+                t = (1.0 if zeta >= 0.0 else -1.0) / (abs(zeta) + np.sqrt(1.0 + zeta * zeta))
+                c = 1.0 / np.sqrt(1.0 + t * t)
+                sn = c * t
+                for r in range(4):
+                    rp, rq = R[r, p], R[r, q]
+                    R[r, p] = c * rp - sn * rq
+                    R[r, q] = sn * rp + c * rq
+                    vp, vq = V[r, p], V[r, q]
+                    V[r, p] = c * vp - sn * vq
+                    V[r, q] = sn * vp + c * vq
+        if not rotated:
+            break
+    small = 0
+    for c in range(4):
+        acc = 0.0
+        for r in range(4):
+            acc += R[r, c] * R[r, c]
+        sv[c] = np.sqrt(acc)
+        if sv[c] < sv[small]:
+            small = c
+    return small
 
 
 @njit(cache=True)
