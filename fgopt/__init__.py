@@ -40,7 +40,7 @@ from .solvers.result import Status as Status
 from .variables import Variables as Variables
 
 _LAZY = {"io": ".io", "plot": ".plot", "datasets": ".datasets", "symbolic": ".symbolic",
-         "solvers": ".solvers"}
+         "solvers": ".solvers", "cameras": ".cameras"}
 
 
 def __getattr__(name: str):

@@ -428,9 +428,17 @@ def _make_kind(cls: type[Calibration]) -> BatchKind:
         name=cls.__name__, dim=cls.DIM, storage_dim=n,
         retract=CK.bundler_retract if partial else CK.vector_retract,
         local=CK.bundler_local if partial else CK.vector_local,
-        from_storage=cls.from_storage,
+        # optimizer output is taken as is (finite by the solvers' contract): an estimate whose
+        # focal length crossed zero is returned, not turned into an error after the solve
+        from_storage=lambda row, cls=cls: cls._wrap(_frozen(row)),
         to_storage=lambda x, cls=cls: _storage_of(cls, x),
         wrap=cls._wrap)
+
+
+def _frozen(row: Any) -> np.ndarray:
+    out = np.array(row, dtype=float)
+    out.setflags(write=False)
+    return out
 
 
 def _storage_of(cls: type[Calibration], x: Any) -> np.ndarray:

@@ -248,7 +248,7 @@ def _camera_kind(model: type[Calibration]) -> BatchKind:
 
     def from_storage(row):
         row = np.asarray(row, dtype=float)
-        return PinholeCamera(SE3.from_storage(row[:7]), model.from_storage(row[7:]))
+        return PinholeCamera(SE3.from_storage(row[:7]), cal.from_storage(row[7:]))
 
     def to_storage(x):
         if not (isinstance(x, PinholeCamera) and type(x.calibration()) is model):
