@@ -145,3 +145,14 @@ def test_small_file_and_malformed_input_named_by_line(tmp_path):
     p.write_text(_GOOD)
     assert read_bundler(p, form="pose")[0].error(read_bundler(p, form="pose")[1]) == \
         pytest.approx(g.error(v), rel=1e-14)
+
+
+def test_read_detects_bundler_files(data_file):
+    """fgopt.io.read recognizes the '# Bundle file' header and returns the camera form."""
+    from fgopt.io import detect_format, read
+
+    path = data_file(BALBIANELLO)
+    assert detect_format(path) == "bundler"
+    g, v = read(path)
+    g2, v2 = read_bundler(path)
+    assert len(g) == len(g2) and g.error(v) == g2.error(v2)
