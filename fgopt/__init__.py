@@ -7,7 +7,7 @@
 >>> result = fgopt.optimize(graph, initial, method="lm")
 """
 
-__version__ = "0.1.0"
+from ._version import __version__ as __version__
 
 import os as _os
 
@@ -50,7 +50,7 @@ def __getattr__(name: str):
     if name in _LAZY:
         return importlib.import_module(_LAZY[name], __name__)
     if name == "factor":
-        from .symbolic.factor import factor
+        from .factors.decorator import factor
 
         return factor
     raise AttributeError(f"module 'fgopt' has no attribute {name!r}")

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .factors.library.prior_between import BetweenFactor, PriorFactor
-from .factors.noise import Diagonal
+from .noise.models import Diagonal
 from .graph import FactorGraph
 from .key import key
 from .manifolds import SE2, SE3, SO3

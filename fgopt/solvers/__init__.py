@@ -47,7 +47,7 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
         formulation: ``"dynamic"`` (batched kernels over a sparse H, any graph) or ``"fixed"``
             (LM only: one generated function linearizes the whole problem into a dense H, the
             SymForce paper's fixed formulation; for small problems of symbolic/built-in factors,
-            where it is ~10x faster; see :mod:`fgopt.symbolic.fixed`).
+            where it is ~10x faster; see :mod:`fgopt.solvers.fixed`).
     """
     if method not in _METHODS:
         raise FgoptError(f"unknown method {method!r}: choose one of {', '.join(_METHODS)}")
@@ -74,7 +74,7 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
         if method != "lm" or callback is not None or solver_obj is not None:
             raise FgoptError("formulation='fixed' supports method='lm' without callback or "
                              "linear-solver objects")
-        from ..symbolic.fixed import optimize_fixed
+        from .fixed import optimize_fixed
 
         return optimize_fixed(graph, initial, params=params)
     if formulation != "dynamic":

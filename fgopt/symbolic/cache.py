@@ -63,7 +63,7 @@ FINGERPRINT_MODULES = ("_sym", "cameras", "codegen", "cse", "derive", "functions
 @lru_cache(maxsize=1)
 def package_fingerprint() -> str:
     """Hash of fgopt's version and the sources of :data:`FINGERPRINT_MODULES`."""
-    from .. import __version__
+    from .._version import __version__
 
     h = hashlib.sha256(__version__.encode())
     here = Path(__file__).parent

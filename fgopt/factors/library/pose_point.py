@@ -28,7 +28,7 @@ from ...errors import DimensionMismatchError
 from ...manifolds.base import vector_kind
 from ..base import KernelFactor
 from ..kernel import FactorKernel
-from ..noise import Loss
+from ...noise.models import Loss
 
 _SOURCE = "hand-written in fgopt/factors/library/pose_point.py"
 

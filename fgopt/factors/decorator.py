@@ -34,14 +34,14 @@ from typing import Any
 import numpy as np
 
 from ..errors import DimensionMismatchError, FgoptError
-from ..factors.base import KernelFactor
-from ..factors.kernel import FactorKernel
 from ..key import Key
-from . import cache as _cache
-from .codegen import RESERVED_NAMES
-from .lie import LieGroupBase
-from .matrix import Matrix, Scalar
-from .ops import normalize_type
+from ..symbolic import cache as _cache
+from ..symbolic.codegen import RESERVED_NAMES
+from ..symbolic.lie import LieGroupBase
+from ..symbolic.matrix import Matrix, Scalar
+from ..symbolic.ops import normalize_type
+from .base import KernelFactor
+from .kernel import FactorKernel
 
 _MISSING = object()
 _NO_CONSTANTS = np.zeros(0)
@@ -241,7 +241,7 @@ class SymbolicFactorType:
             module = _cache.load(self.name, key)
             if module is not None:
                 return module
-        from .derive import derive_source
+        from ..symbolic.derive import derive_source
 
         source = derive_source(self, pattern)
         _cache.STATS["derived"] += 1
@@ -260,7 +260,7 @@ class SymbolicFactorType:
 
     def symbolic(self, *names: str):
         """Run the function on symbolic arguments; returns ``(args, output)``."""
-        from .ops import symbolic_value
+        from ..symbolic.ops import symbolic_value
 
         names = names or tuple(n for n, _ in self.params)
         args = [symbolic_value(tp, n) for n, (_, tp) in zip(names, self.params)]
