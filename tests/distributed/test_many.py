@@ -100,3 +100,53 @@ def test_cli_solve_many_writes_results_and_a_summary(data_file, tmp_path, capsys
     g, v = read(str(out / "pose2example.txt"))
     assert g.error(v) < g.error(read(files[0])[1])
     assert summary.count("| converged |") == 2, summary
+
+
+def _kills_its_worker():
+    import os
+
+    os._exit(17)
+
+
+def test_a_worker_that_dies_is_reported_in_its_slot(data_file):
+    """A problem that kills its worker process is retried by Dask on a fresh worker; when that
+    dies too, its slot holds an FgoptError saying so and the other problems are solved."""
+    import dask
+    from dask.distributed import Client, LocalCluster
+
+    with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
+        cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                               dashboard_address=":0")
+        client = Client(cluster)
+        try:
+            problem = read(str(data_file("small/pose2example.txt")))
+            results = fgopt.solve_many([problem, _kills_its_worker, problem], client=client,
+                                       progress=False)
+        finally:
+            client.close()
+            cluster.close()
+    assert isinstance(results[1], FgoptError) and "worker died" in str(results[1])
+    assert results[0].final_cost == results[2].final_cost == fgopt.optimize(*problem).final_cost
+
+
+def test_ctrl_c_closes_the_cluster_it_started(monkeypatch, data_file):
+    """An interrupt while waiting propagates (nothing partial is returned) and the embedded
+    LocalCluster and its client are closed."""
+    import dask.distributed as dd
+
+    made = []
+
+    class RecordingCluster(dd.LocalCluster):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            made.append(self)
+
+    def interrupted(futures):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(dd, "LocalCluster", RecordingCluster)
+    monkeypatch.setattr(dd, "as_completed", interrupted)
+    problem = read(str(data_file("small/pose2example.txt")))
+    with pytest.raises(KeyboardInterrupt):
+        fgopt.solve_many([problem, problem], workers=1, progress=False)
+    assert len(made) == 1 and made[0].status.name == "closed"
