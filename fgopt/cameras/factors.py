@@ -95,7 +95,8 @@ def projection_kernel(model: type[Calibration], calibration_variable: bool = Fal
     return FactorKernel(name, kinds, 2, 2 if var else 2 + s,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
-                        source=_SOURCE, nonfinite_hint=_HINT)
+                        source=_SOURCE, nonfinite_hint=_HINT,
+                        recipe=(projection_kernel, (model, var, cheirality)))
 
 
 @lru_cache(maxsize=None)
@@ -118,7 +119,8 @@ def camera_projection_kernel(model: type[Calibration], cheirality: str = "reject
     return FactorKernel(name, kinds, 2, 2,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
-                        source=_SOURCE, nonfinite_hint=_HINT)
+                        source=_SOURCE, nonfinite_hint=_HINT,
+                        recipe=(camera_projection_kernel, (model, cheirality)))
 
 
 @lru_cache(maxsize=None)
@@ -143,7 +145,8 @@ def stereo_kernel(calibration_variable: bool = False, cheirality: str = "reject"
     return FactorKernel(name, kinds, 3, 3 if var else 9,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
-                        source=_SOURCE, nonfinite_hint=_HINT)
+                        source=_SOURCE, nonfinite_hint=_HINT,
+                        recipe=(stereo_kernel, (var, cheirality)))
 
 
 def _is_key(x: Any) -> bool:

@@ -77,7 +77,8 @@ def smart_kernel(model: type[Calibration], num_views: int, triangulation: str = 
     return FactorKernel(name, (SE3.batch_kind(),) * m, 2 * m, nc,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
-                        source=_SOURCE, nonfinite_hint=_HINT)
+                        source=_SOURCE, nonfinite_hint=_HINT,
+                        recipe=(smart_kernel, (model, m, triangulation, degenerate)))
 
 
 class SmartProjectionFactor(KernelFactor):
