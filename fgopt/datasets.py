@@ -186,6 +186,9 @@ def sfm_cube(smart: bool = False, seed: int = 0, pose_noise: float = 0.1,
         truth.add(key("l", j), pt)
         initial.add(key("l", j), pt + point_noise * rng.normal(size=3))
     return SyntheticSfm(graph, initial, truth, K, z)
+
+
+@dataclass
 class SyntheticBAL:
     """A generated bundle-adjustment problem in BAL's conventions (Snavely cameras)."""
 

@@ -292,3 +292,36 @@ def test_general_sfm_factor_cost_equals_gtsam(cls):
         gv.insert(L(0), point)
         values = Variables({key("c", 0): PinholeCamera(pose, K), L(0): point})
         assert ours.cost(values) == pytest.approx(theirs.error(gv), rel=1e-10)
+
+
+def test_camera_graphs_pickle():
+    """Graphs of projection, camera-variable, stereo and smart factors and their values
+    (calibrations, PinholeCamera) pickle (kernels by recipe) and keep their cost."""
+    import pickle
+
+    from fgopt.datasets import sfm_cube
+    from fgopt.io import read_bundler
+
+    for g, v in ((sfm_cube().graph, sfm_cube().initial),
+                 (sfm_cube(smart=True).graph, sfm_cube(smart=True).initial),
+                 read_bundler("mem.out", data=b"""# Bundle file v0.3
+2 1
+500 0.1 0.01
+1 0 0
+0 1 0
+0 0 1
+0 0 -5
+510 0 0
+1 0 0
+0 1 0
+0 0 1
+1 0 -5
+0.1 0.2 0.3
+255 0 0
+2 0 5 10.0 -3.0 1 7 -90.0 -3.0
+""")):
+        g2, v2 = pickle.loads(pickle.dumps((g, v)))
+        assert g2.error(v2) == g.error(v)
+    K = Cal3_S2Stereo(700, 700, 0, 600, 170, 0.5)
+    f = StereoFactor(X(0), L(0), [610.0, 590.0, 175.0], None, K)
+    assert pickle.loads(pickle.dumps(f)).kernel is f.kernel
