@@ -192,8 +192,9 @@ def scatter_positions(lookup: dict, var_rank: np.ndarray, var_idx: np.ndarray,
     """Per-instance column bases of every stored block of a batch's local Hessian.
 
     ``var_idx``: ``(n, k)`` variable indices of each instance's arguments. Returns ``pos`` of shape
-    ``(n, k, k, maxd)``: for pairs with ``rank[v_p] >= rank[v_q]`` the data index of the first row of
-    block ``(v_p, v_q)`` in each of its columns (for ``p == q``: the diagonal's position), else -1.
+    ``(n, k, k, maxd)``: for pairs with ``rank[v_p] >= rank[v_q]`` the data index of the first
+    row of block ``(v_p, v_q)`` in each of its columns (for ``p == q``: the diagonal's position),
+    else -1.
     """
     n, k = var_idx.shape
     maxd = int(arg_dims.max()) if k else 1

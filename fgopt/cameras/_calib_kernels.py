@@ -4,17 +4,17 @@ One function per operation dispatches on an integer model id (like the Lie-group
 group ids), so the projection, stereo and smart-factor kernels compile once for every model.
 Parameter vectors are GTSAM's ``vector()`` order, stored as given to the constructors:
 
-====================  ==========================================================  ====  =====
-model                 storage                                                     dim   notes
-====================  ==========================================================  ====  =====
-``CAL3_S2``           fx fy s u0 v0                                               5
-``CAL3DS2``           fx fy s u0 v0 k1 k2 p1 p2                                   9     radial + tangential
-``CAL3BUNDLER``       f k1 k2 u0 v0                                               3     u0 v0 fixed (GTSAM)
-``CAL3FISHEYE``       fx fy s u0 v0 k1 k2 k3 k4                                   9     Kannala-Brandt
-``CAL3UNIFIED``       fx fy s u0 v0 k1 k2 p1 p2 xi                                10    Mei: sphere, then DS2
-``DOUBLESPHERE``      fx fy cx cy xi alpha                                        6     Usenko et al. 2018
-``CAL3_S2STEREO``     fx fy s u0 v0 b                                             6     as CAL3_S2 for one image
-====================  ==========================================================  ====  =====
+=================  ==============================  ===  ==================================
+model              storage                         dim  notes
+=================  ==============================  ===  ==================================
+``CAL3_S2``        fx fy s u0 v0                   5
+``CAL3DS2``        fx fy s u0 v0 k1 k2 p1 p2       9    radial + tangential
+``CAL3BUNDLER``    f k1 k2 u0 v0                   3    u0 v0 fixed (GTSAM)
+``CAL3FISHEYE``    fx fy s u0 v0 k1 k2 k3 k4       9    Kannala-Brandt
+``CAL3UNIFIED``    fx fy s u0 v0 k1 k2 p1 p2 xi    10   Mei: sphere, then DS2
+``DOUBLESPHERE``   fx fy cx cy xi alpha            6    Usenko et al. 2018
+``CAL3_S2STEREO``  fx fy s u0 v0 b                 6    as CAL3_S2 for one image
+=================  ==============================  ===  ==================================
 
 ``dim`` is the tangent dimension: the Jacobian ``uv_D_k`` has that many columns (the first
 ``dim`` storage entries; Cal3Bundler's principal point is not a parameter, as in GTSAM).
@@ -364,7 +364,8 @@ def calibrate(model, k, u, v, tol, max_iterations, xy):
 
 @njit(cache=True)
 def uncalibrate_batch(model, k, xy, with_jac):
-    """``xy (n, 2)`` -> ``uv (n, 2)``, ``uv_D_k (n, 2, dim)``, ``uv_D_xy (n, 2, 2)``, ``valid (n,)``."""
+    """``xy (n, 2)`` -> ``uv (n, 2)``, ``uv_D_k (n, 2, dim)``, ``uv_D_xy (n, 2, 2)``,
+    ``valid (n,)``."""
     n = xy.shape[0]
     d = tangent_dim(model)
     uv = np.empty((n, 2))
@@ -383,7 +384,8 @@ def uncalibrate_batch(model, k, xy, with_jac):
 
 @njit(cache=True)
 def calibrate_batch(model, k, uv, tol, max_iterations, with_jac):
-    """``uv (n, 2)`` -> ``xy (n, 2)``, ``xy_D_k (n, 2, dim)``, ``xy_D_uv (n, 2, 2)``, ``status (n,)``."""
+    """``uv (n, 2)`` -> ``xy (n, 2)``, ``xy_D_k (n, 2, dim)``, ``xy_D_uv (n, 2, 2)``,
+    ``status (n,)``."""
     n = uv.shape[0]
     d = tangent_dim(model)
     xy = np.empty((n, 2))

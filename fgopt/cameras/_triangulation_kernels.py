@@ -4,7 +4,8 @@ DLT (Hartley & Zisserman, as GTSAM's ``triangulateDLT``): with ``P_i = K_i [R_i^
 (the linear part ``K_i`` of view ``i``'s calibration) and the *undistorted* pixel ``(u_i, v_i)``
 (``K_i calibrate_i(uv_i)``), each view gives two rows ``u_i P_i3 - P_i1`` and
 ``v_i P_i3 - P_i2`` of ``A X = 0``; ``X`` is the right singular vector of the smallest singular
-value (Householder QR then one-sided Jacobi, :func:`svd_n4`), de-homogenized. The rank is the number of singular values above ``rank_tol`` (GTSAM's
+value (Householder QR then one-sided Jacobi, :func:`svd_n4`), de-homogenized. The rank is the
+number of singular values above ``rank_tol`` (GTSAM's
 rule; it depends on pixel units).
 
 Refinement minimizes the reprojection error ``sum_i |uv_i(X) - z_i|^2`` over ``X`` by damped

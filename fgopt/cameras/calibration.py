@@ -121,7 +121,8 @@ class Calibration:
         d = np.asarray(delta, dtype=float).reshape(-1)
         if d.shape[0] != self.DIM:
             raise DimensionMismatchError(
-                f"{type(self).__name__}.retract: delta must have {self.DIM} entries, got {d.shape[0]}")
+                f"{type(self).__name__}.retract: delta must have {self.DIM} entries, got "
+                f"{d.shape[0]}")
         data = self._data.copy()
         data[:self.DIM] += d
         return type(self).from_storage(data)
@@ -216,7 +217,8 @@ class Calibration:
 
 
 class Cal3_S2(Calibration):
-    """Pinhole ``u = fx x + s y + u0``, ``v = fy y + v0``. Storage = tangent ``(fx, fy, s, u0, v0)``."""
+    """Pinhole ``u = fx x + s y + u0``, ``v = fy y + v0``. Storage = tangent
+    ``(fx, fy, s, u0, v0)``."""
 
     __slots__ = ()
     MODEL = CK.CAL3_S2
@@ -369,7 +371,8 @@ class DoubleSphere(Calibration):
 
 class Cal3_S2Stereo(Calibration):
     """A rectified stereo pair: both images share ``Cal3_S2(fx, fy, s, u0, v0)``; the right
-    camera sits ``b`` along the left camera's x axis. Storage = tangent ``(fx, fy, s, u0, v0, b)``."""
+    camera sits ``b`` along the left camera's x axis. Storage = tangent
+    ``(fx, fy, s, u0, v0, b)``."""
 
     __slots__ = ()
     MODEL = CK.CAL3_S2STEREO

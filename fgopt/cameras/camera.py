@@ -88,7 +88,8 @@ class PinholeCamera:
     def lookat(cls, eye: Any, target: Any, up: Any,
                calibration: Calibration | None = None) -> PinholeCamera:
         """A camera at ``eye`` looking at ``target``, with ``up`` pointing up in the image
-        (GTSAM's ``Lookat``: ``z = (target - eye) / |.|``, ``x = (-up) x z / |.|``, ``y = z x x``)."""
+        (GTSAM's ``Lookat``: ``z = (target - eye) / |.|``, ``x = (-up) x z / |.|``,
+        ``y = z x x``)."""
         eye, target, up = (np.asarray(v, dtype=float).reshape(3) for v in (eye, target, up))
         z = target - eye
         nz = np.linalg.norm(z)

@@ -177,8 +177,9 @@ def _calibration_args(calibration: Any, model: Any, where: str, base: type[Calib
             if base is Cal3_S2Stereo:
                 model = Cal3_S2Stereo
             else:
-                raise FgoptError(f"{where}: the calibration is a key ({key_str(as_key(calibration))})"
-                                 "; pass model=<its class> (Cal3_S2, Cal3Bundler, ...)")
+                raise FgoptError(f"{where}: the calibration is a key "
+                                 f"({key_str(as_key(calibration))}); pass model=<its class> "
+                                 "(Cal3_S2, Cal3Bundler, ...)")
         if not (isinstance(model, type) and issubclass(model, base)):
             raise FgoptError(f"{where}: model must be a {base.__name__} class, got {model!r}")
         return model, None, as_key(calibration)

@@ -11,8 +11,9 @@ Three forms (``form=``): ``"camera"``, one :class:`~fgopt.cameras.PinholeCamera`
 ``c<i>`` (pose + Cal3Bundler, GTSAM's ``SfmCamera``) per camera; ``"pose+calibration"``, SE(3)
 ``x<i>`` and Cal3Bundler ``k<i>`` variables; ``"pose"``, SE(3) ``x<i>`` with the calibrations
 fixed. Points are ``p<j>`` (numbered as in the file). The graph has one batch of projection
-factors with unit noise (pixels) and ``cheirality="allow"``: BAL / Bundler costs count observations behind a camera,
-so the two forms reach the same cost (Ladybug-49's initial estimate has 31 of them).
+factors with unit noise (pixels) and ``cheirality="allow"``: BAL / Bundler costs count
+observations behind a camera, so every form reaches the Snavely form's cost (Ladybug-49's
+initial estimate has 31 of them).
 """
 
 from __future__ import annotations

@@ -72,7 +72,8 @@ def gtsam_pose(pose: SE3):
 def gtsam_camera(pose: SE3, K):
     import gtsam
 
-    return getattr(gtsam, f"PinholeCamera{type(K).__name__}")(gtsam_pose(pose), gtsam_calibration(K))
+    cls = getattr(gtsam, f"PinholeCamera{type(K).__name__}")
+    return cls(gtsam_pose(pose), gtsam_calibration(K))
 
 
 def zeros_f(r: int, c: int) -> np.ndarray:
