@@ -87,7 +87,7 @@ def project_core(model, R, t, k, X, reject, with_jac, uv, p, Dk, Dp, A):
     return OK
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # threads=N runs chunks in parallel
 def projection_batch(model, pose, point, cal, m, reject, cal_var, with_jac):
     """Reprojection errors ``uv(pose_i, point_i, cal_i) - m_i``.
 
@@ -191,7 +191,7 @@ def stereo_core(R, t, k, X, reject, with_jac, out, p, A, Jk):
     return OK
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # threads=N runs chunks in parallel
 def stereo_batch(pose, point, cal, m, reject, cal_var, with_jac):
     """Stereo errors ``(uL, uR, v)(pose_i, point_i, cal_i) - m_i``: res ``(n, 3)``, jac
     ``(n, 3, 9 [+ 6])`` (pose, point, then the calibration when ``cal_var``)."""
@@ -264,7 +264,7 @@ def rotation_of_storage(pose):
 
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # threads=N runs chunks in parallel
 def camera_projection_batch(model, cam, point, m, reject, with_jac):
     """Reprojection errors with one camera variable per observation: ``cam (n, 7 + s)`` =
     pose storage then calibration storage (GTSAM's ``PinholeCamera<Cal>`` manifold) -> res

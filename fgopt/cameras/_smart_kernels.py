@@ -109,7 +109,7 @@ def _householder_eliminate(E, b, F, m, Fd):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)  # threads=N runs chunks in parallel
 def smart_batch(model, P, consts, m, s, refine, zero_on_degenerate, with_jac):
     """``P (n, m, 7)`` pose storages, ``consts (n, 2m + s + 5)`` = pixels, calibration,
     the 2x2 square-root information (row major), rank tolerance -> res ``(n, 2m)``,

@@ -156,3 +156,11 @@ def test_read_detects_bundler_files(data_file):
     g, v = read(path)
     g2, v2 = read_bundler(path)
     assert len(g) == len(g2) and g.error(v) == g2.error(v2)
+
+
+def test_threaded_linearization_matches_serial(data_file):
+    """threads=2 (the camera kernels release the GIL) reaches the serial path's cost."""
+    g, v = read_bundler(data_file(BALBIANELLO))
+    serial = fgopt.optimize(g, v, max_iterations=3).final_cost
+    assert fgopt.optimize(g, v, max_iterations=3, threads=2).final_cost == pytest.approx(
+        serial, rel=1e-10)
