@@ -28,8 +28,18 @@ STEP = 1e-6
 FIRST_ORDER_TOL = 1e-5
 
 
+def _call(fn: Any, args: list, size: int) -> np.ndarray:
+    """``fn(*args)`` as floats; plain Python raises on 0/0 or a math domain error where numba
+    kernels give NaN, so those become NaN here too."""
+    try:
+        return np.array(fn(*args), dtype=float)
+    except (ZeroDivisionError, ValueError, OverflowError):
+        return np.full(size, np.nan)
+
+
 class Functions:
-    """The per-value functions of a generated manifold module, on float arrays."""
+    """The per-value functions of a generated manifold module, on float arrays (NaN where the
+    code divides by zero or leaves a function's domain)."""
 
     def __init__(self, ns: Any, storage_dim: int, dim: int):
         self.n, self.dim = storage_dim, dim
@@ -39,18 +49,18 @@ class Functions:
         self.identity = None if ns.IDENTITY is None else np.array(ns.IDENTITY, dtype=float)
 
     def retract(self, x: np.ndarray, d: np.ndarray) -> np.ndarray:
-        return np.array(self._retract(*x.tolist(), *d.tolist()), dtype=float)
+        return _call(self._retract, x.tolist() + d.tolist(), self.n)
 
     def local(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        return np.array(self._local(*a.tolist(), *b.tolist()), dtype=float)
+        return _call(self._local, a.tolist() + b.tolist(), self.dim)
 
     def storage_D_tangent(self, x: np.ndarray) -> np.ndarray:
-        return np.array(self._sdt(*x.tolist()), dtype=float).reshape(self.n, self.dim)
+        return _call(self._sdt, x.tolist(), self.n * self.dim).reshape(self.n, self.dim)
 
     def normalize(self, x: np.ndarray) -> np.ndarray:
         if self._normalize is None:
             return np.array(x, dtype=float)
-        return np.array(self._normalize(*x.tolist()), dtype=float)
+        return _call(self._normalize, x.tolist(), self.n)
 
     def base_point(self, rng: np.random.Generator) -> np.ndarray:
         if self.identity is not None:

@@ -111,6 +111,7 @@ def module_source(cls: type, progs: Programs, origin: str) -> tuple[str, str, di
         "import numpy as np",
         "",
         f"EPSILON = {EPSILON_VALUE!r}",
+        "nan, inf = math.nan, math.inf  # SymPy's nan / oo print as these names",
         f"IDENTITY = {progs.identity!r}",
         f"RETRACT_CODE = {retract_code!r}",
         "",

@@ -106,12 +106,16 @@ def local(x: Any, y: Any) -> list:
     return out
 
 
-def _identity_of(c: type) -> list:
+def _identity_of(c: type) -> list | None:
+    """The component's identity storage as numbers (no SymPy), ``None`` if it has none."""
     if c is Scalar:
         return [0]
     if issubclass(c, Matrix):
         return [0] * c.storage_dim()
-    return list(c.identity().to_storage())
+    if issubclass(c, LieGroupBase):
+        return list(c._IDENTITY)
+    ident = c.Value._spec.identity
+    return None if ident is None else list(ident)
 
 
 def _normalize_value(c: type, v: Any) -> list:
@@ -191,11 +195,9 @@ def Product(*components: Any, names: tuple | list | None = None) -> type:
         "component": component,
         "__doc__": f"Product of {', '.join(c.__name__ for c in comps)}.",
     }
-    try:
-        ident = [e for c in comps for e in _identity_of(c)]
-    except Exception:  # noqa: BLE001 - a declared component without identity()
-        ident = None
-    if ident is not None:
+    idents = [_identity_of(c) for c in comps]
+    if all(i is not None for i in idents):
+        ident = [e for i in idents for e in i]
         ns["identity"] = lambda: list(ident)
     if any(_needs_normalize(c) for c in comps):
         ns["normalize"] = normalize
