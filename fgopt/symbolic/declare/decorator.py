@@ -180,15 +180,22 @@ def type_token(tp: Any) -> str:
         tp, "_DECLARED", False) else "")
 
 
+def _names(code: Any) -> set:
+    """Global names a code object (and the functions nested in it) refers to."""
+    names = set(code.co_names)
+    for c in code.co_consts:
+        if hasattr(c, "co_names"):
+            names |= _names(c)
+    return names
+
+
 def _declared_globals(fn: Any) -> list:
     """Keys of declared twins a function refers to by global name (their code is inlined)."""
-    from ..cache import _code_names
-
     code = getattr(fn, "__code__", None)
     if code is None:
         return []
     out = []
-    for nm in sorted(_code_names(code)):
+    for nm in sorted(_names(code)):
         v = fn.__globals__.get(nm)
         if isinstance(v, type) and getattr(v, "_DECLARED", False):
             out.append(type_token(v))
