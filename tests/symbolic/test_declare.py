@@ -254,6 +254,24 @@ def test_declaration_branching_on_symbols_is_explained():
         """)
 
 
+PoseLike = fgopt.manifold(fgopt.Product(SO3, V3, float, names=("R", "t", "s")),
+                          name="PoseLike")
+
+
+def test_product_of_numeric_types_by_name():
+    """Product(SO3, V3, float) maps numeric types to their symbolic twins; the call form
+    fgopt.manifold(Product(...), name=...) declares a picklable module-level type."""
+    import pickle
+
+    assert PoseLike._COMPONENTS == (Rot3, V3, Scalar) and PoseLike.dim() == 7
+    x = PoseLike.Value().retract(np.arange(7) * 0.1)
+    np.testing.assert_allclose(x.t(), [0.3, 0.4, 0.5])
+    assert x.s() == pytest.approx(0.6) and isinstance(x.R(), SO3)
+    y = pickle.loads(pickle.dumps(x))
+    assert type(y) is PoseLike.Value and y.equals(x, 1e-15)
+    assert fgopt.Unit3 is fgopt.symbolic.Unit3.Value  # numeric at the top, symbolic below
+
+
 def test_product_bad_components():
     with pytest.raises(ManifoldDeclarationError, match="is not a component type"):
         fgopt.Product(Rot3, dict)
@@ -299,4 +317,5 @@ def test_declaration_key_follows_the_code():
     b = _declare(body, _CIRCLE_RETRACT, name="Keyed")
     c = _declare(body, _CIRCLE_RETRACT.replace("d[0]", "(d[0] + 0)"), name="Keyed")
     assert a._KEY == b._KEY != c._KEY
+    assert b is a  # declaring the same code again (a re-run notebook cell) gives the same type
     assert D.DECLARED[c._KEY] is c

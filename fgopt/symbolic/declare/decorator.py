@@ -156,6 +156,10 @@ def declare(cls: type, name: str | None = None, cache: bool = True) -> type:
                                        f"accessors (methods taking only x): {twin._ACCESSORS}")
     twin._FIELDS = fields
     twin._KEY = declaration_key(twin, ns)
+    same = DECLARED.get(twin._KEY)
+    if same is not None and (same.__module__, same.__qualname__) == (twin.__module__,
+                                                                      twin.__qualname__):
+        return same  # the same declaration again (a re-run cell): keep values compatible
     module = _module(twin, cache)
     twin.Value = _value_type(twin, module)
     twin._DECLARED = True
