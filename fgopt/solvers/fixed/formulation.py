@@ -105,7 +105,7 @@ def _fingerprint(ft: Any) -> str:
     if fp is None or fp[0] is not ft:
         from ...symbolic.ops import type_key
 
-        h = hashlib.sha256(_cache.function_fingerprint(ft.fn).encode())
+        h = hashlib.sha256(ft.fingerprint.encode())
         h.update(repr((ft.name, tuple((n,) + type_key(tp) for n, tp in ft.params),
                        ft.method, ft.engine)).encode())
         fp = _FINGERPRINTS[id(ft)] = (ft, h.hexdigest())
