@@ -17,7 +17,9 @@ def pytest_configure(config):
     are memoized per process, so a cache directory switched mid-session would leave subprocesses
     looking in a directory the parent never wrote."""
     if "FGOPT_CACHE_DIR" not in os.environ:
-        os.environ["FGOPT_CACHE_DIR"] = str(config.cache.mkdir("fgopt-kernels"))
+        path = config.cache.mkdir("fgopt-kernels")
+        path.chmod(0o700)  # fgopt refuses a cache root others can write (a umask of 002)
+        os.environ["FGOPT_CACHE_DIR"] = str(path)
 
 
 def data_dir() -> Path:

@@ -203,6 +203,30 @@ def test_second_process_loads_from_cache(compiled):
     assert abs(float(cost) - fp.optimize(init).final_cost) <= 1e-9 * float(cost)
 
 
+def test_tampered_cached_module_is_regenerated(compiled, tmp_path):
+    """A statement planted in the fixed formulation's cached module never runs: the next
+    compile discards the entry (one CacheWarning naming it), regenerates the same bytes and
+    reaches the same optimum."""
+    from pathlib import Path
+
+    from fgopt.solvers.fixed import formulation
+    from fgopt.symbolic.cache import CacheWarning
+
+    graph, init, fp = compiled
+    path = Path(fp.module.__file__)
+    original = path.read_bytes()
+    marker = tmp_path / "planted-ran"
+    path.write_bytes(original + f"\nopen({str(marker)!r}, 'w').close()\n".encode())
+    formulation._MODULES.pop(fp.structure_key)
+    sys.modules.pop(path.stem)
+    with pytest.warns(CacheWarning, match=path.stem):
+        again = fx.compile_fixed(graph, init)
+    assert again.generation["source"] == "derived"
+    assert not marker.exists()
+    assert path.read_bytes() == original and again.source == original.decode()
+    assert abs(again.optimize(init).final_cost - fp.optimize(init).final_cost) <= 1e-12
+
+
 def test_bal_reader_batches_run_in_the_fixed_formulation(data_file):
     """A BAL file's reprojection batch (graph.add_batch rows, not factor instances) is traced back
     to the generated bal_reprojection factor type: the fixed formulation reaches the same
