@@ -133,7 +133,7 @@ def secret_key(base: Path | None = None) -> bytes:
     if cached is not None:
         return cached
     if not path.exists():
-        tmp = base / f".{KEY_FILE}.{os.getpid()}.tmp"
+        tmp = base / f".{KEY_FILE}.{os.getpid()}.{os.urandom(4).hex()}.tmp"
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
         try:
             os.write(fd, os.urandom(32))

@@ -174,12 +174,9 @@ def _read(path: Path) -> bytes | None:
 
 
 def _write_atomic(path: Path, data: bytes) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    try:
-        os.write(fd, data)
-    finally:
-        os.close(fd)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{os.urandom(4).hex()}.tmp")  # threads
+    with os.fdopen(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600), "wb") as fh:
+        fh.write(data)
     os.replace(tmp, path)
 
 
@@ -326,7 +323,8 @@ def clear() -> dict:
     kernels = root / _cache_root.KERNELS
     if kernels.is_dir():
         _cache_root.check_private(kernels)
-        for p in list(kernels.glob("fgk_*")) + list(kernels.glob(".fgk_*.tmp")):
+        stale = list(kernels.glob(".fgk_*.tmp")) + list(kernels.glob("__pycache__/fgk_*.pyc"))
+        for p in list(kernels.glob("fgk_*")) + stale:  # .pyc: left by older fgopt versions
             removed["bytes"] += p.stat().st_size
             removed["entries"] += p.suffix == ".py"
             p.unlink()
