@@ -52,7 +52,7 @@ def fuzz(fmt: str, n: int, rng_seed: int, tmp: Path, hang: float) -> dict:
         def digest(case):
             return case[2]
     else:
-        strategy = F.mutated(F.BASES[fmt][0])
+        strategy = F.mutated_toro() if fmt == "toro" else F.mutated(F.BASES[fmt][0])
         check = F.check_bal if fmt == "bal" else F.check_g2o
 
         def digest(text):

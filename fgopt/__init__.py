@@ -46,6 +46,7 @@ from .solvers.result import Status as Status
 from .variables import Variables as Variables
 
 _LAZY = {"io": ".io", "plot": ".plot", "datasets": ".datasets", "symbolic": ".symbolic",
+         "distributed": ".distributed",
          "solvers": ".solvers"}
 
 
@@ -55,6 +56,10 @@ def __getattr__(name: str):
 
     if name in _LAZY:
         return importlib.import_module(_LAZY[name], __name__)
+    if name == "solve_many":
+        from .distributed import solve_many
+
+        return solve_many
     if name == "factor":
         from .factors.decorator import factor
 

@@ -52,6 +52,14 @@ EDGE2 2 3 0.9 0.8 1.5 20 0 20 40 0 0
 EDGE2 0 2 2 0.5 -0.3 10 0 10 10 0 0
 EQUIV 1 2
 """
+#: TORO lines as GTSAM's example files (w10000) write them: covariance in g2o order.
+TORO_COV = """VERTEX2 0 0 0 0
+VERTEX2 1 1.0 0.1 0.2
+VERTEX2 2 2.0 0.5 -0.3
+EDGE2 0 1 1 0.1 0.2 0.01 0 0 0.01 0 0.0001
+EDGE2 1 2 1 0.3 -0.5 0.04 0.001 0 0.02 0 0.0004
+EDGE2 0 2 2 0.5 -0.3 0.09 0 0.0001 0.09 0 0.001
+"""
 BAL = """2 2 3
 0 0 -1.0 2.0
 1 0 3.5e+00 -4.0
@@ -137,16 +145,41 @@ def _id(v: float) -> int:
     return int(v)
 
 
-def _sym(packed, d):
+def _symmetric(packed, d):
     M = np.zeros((d, d))
     iu = np.triu_indices(d)
     M[iu] = packed
     M[(iu[1], iu[0])] = packed
+    return M
+
+
+def _is_pd(M) -> bool:
     try:
         np.linalg.cholesky(M)
     except np.linalg.LinAlgError:
-        raise Invalid("not PD") from None
+        return False
+    return True
+
+
+def _sym(packed, d):
+    M = _symmetric(packed, d)
+    if not _is_pd(M):
+        raise Invalid("not PD")
     return M
+
+
+def _toro_packed(v):
+    """TORO's ``Ixx Ixy Iyy Itt Ixt Iyt`` as g2o's upper triangle ``xx xy xt yy yt tt``."""
+    t = v[5:11]
+    return [t[0], t[1], t[4], t[2], t[5], t[3]]
+
+
+def _edge2_covariance(recs) -> bool:
+    """GTSAM's load2D layout: EDGE2 numbers are a covariance in g2o order when some line is not
+    a TORO information matrix and every line is a positive definite covariance."""
+    toro = [v for _n, tag, v in recs if tag == "EDGE2"]
+    return (any(not _is_pd(_symmetric(_toro_packed(v), 3)) for v in toro)
+            and all(_is_pd(_symmetric(v[5:11], 3)) for v in toro))
 
 
 def _quat(q):
@@ -204,6 +237,7 @@ def reference_g2o(text: str):
                 raise Invalid("offset")
             params[_id(v[0])] = True
     edges = []
+    covariance = _edge2_covariance(recs)
     for n, tag, v in recs:
         if not tag.startswith("EDGE"):
             continue
@@ -220,9 +254,14 @@ def reference_g2o(text: str):
             meas = [math.cos(v[4]), math.sin(v[4]), v[2], v[3]]
             M = _sym(v[5:11], 3)[[2, 0, 1]][:, [2, 0, 1]]
         elif tag == "EDGE2":
-            t = v[5:11]
             meas = [math.cos(v[4]), math.sin(v[4]), v[2], v[3]]
-            M = _sym([t[0], t[1], t[4], t[2], t[5], t[3]], 3)[[2, 0, 1]][:, [2, 0, 1]]
+            if covariance:
+                M = np.linalg.inv(_symmetric(v[5:11], 3))
+                if not _is_pd(M):
+                    raise Invalid("not PD")
+            else:
+                M = _sym(_toro_packed(v), 3)
+            M = M[[2, 0, 1]][:, [2, 0, 1]]
         elif tag == "EDGE_SE2_XY":
             meas, M = v[2:4], _sym(v[4:7], 2)
         elif tag == "EDGE_SE3:QUAT":
@@ -350,7 +389,12 @@ def check_bal(text: str, reader=None) -> bool:
 
 # ----------------------------------------------------------------------------- compressed
 BASES = {"g2o2d": (POSE2, "g2o"), "g2o3d": (POSE3, "g2o"), "toro": (TORO, "graph"),
-         "bal": (BAL, "txt")}
+         "toro_cov": (TORO_COV, "graph"), "bal": (BAL, "txt")}
+
+
+def mutated_toro():
+    """A mutated TORO file: TORO's information order, or GTSAM's covariance layout."""
+    return st.sampled_from([TORO, TORO_COV]).flatmap(mutated)
 CODECS = {"gz": gzip.compress, "bz2": bz2.compress}
 _DECOMPRESS = {"gz": gzip.decompress, "bz2": bz2.decompress}
 

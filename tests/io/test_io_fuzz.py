@@ -18,8 +18,8 @@ from hypothesis import strategies as st
 from fgopt.errors import FgoptError, FileFormatError
 from fgopt.io import read, read_bal, read_g2o
 
-from ._fuzz import (BAL, POSE2, POSE3, TORO, check_bal, check_compressed, check_g2o,
-                    compressed, mutated, reference_g2o)
+from ._fuzz import (BAL, POSE2, POSE3, TORO, TORO_COV, check_bal, check_compressed,
+                    check_g2o, compressed, mutated, mutated_toro, reference_g2o)
 
 @pytest.fixture(scope="module", autouse=True)
 def _compiled_readers():
@@ -44,9 +44,10 @@ def test_fuzz_g2o_3d(text):
 
 
 @FUZZ
-@given(mutated(TORO))
+@given(mutated_toro())
 def test_fuzz_toro(text):
-    """TORO (VERTEX2 / EDGE2 with TORO's information order, EQUIV) against the reference."""
+    """TORO (VERTEX2 / EDGE2 in TORO's information order or GTSAM's covariance layout, EQUIV)
+    against the reference."""
     check_g2o(text)
 
 
@@ -96,7 +97,7 @@ def test_fuzz_random_bytes(data):
             pass
 
 
-@pytest.mark.parametrize("text", [POSE2, POSE3, TORO])
+@pytest.mark.parametrize("text", [POSE2, POSE3, TORO, TORO_COV])
 def test_unmutated_bases_are_valid(text):
     assert reference_g2o(text) is not None
     assert check_g2o(text)
