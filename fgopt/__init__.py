@@ -47,7 +47,7 @@ from .variables import Variables as Variables
 
 _LAZY = {"io": ".io", "plot": ".plot", "datasets": ".datasets", "symbolic": ".symbolic",
          "distributed": ".distributed",
-         "solvers": ".solvers"}
+         "solvers": ".solvers", "cameras": ".cameras"}
 
 
 def __getattr__(name: str):
