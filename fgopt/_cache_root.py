@@ -178,8 +178,23 @@ def _remove_unverifiable(kernels: Path) -> None:
 
 
 # ---------------------------------------------------------------------------- numba's cache
+_NUMBA_DIRS: dict[tuple, str] = {}
+_REAL: dict[str, str] = {}
+
+
+def _numba_dir() -> str:
+    """``<root>/numba`` (checked once per process and cache location: ~150 decorations)."""
+    where = tuple(os.environ.get(v) for v in ("FGOPT_CACHE_DIR", "XDG_CACHE_HOME", "HOME"))
+    d = _NUMBA_DIRS.get(where)
+    if d is None:
+        d = _NUMBA_DIRS[where] = str(subdir(NUMBA))
+    return d
+
+
 def _is_fgopt_file(py_file: str) -> bool:
-    real = os.path.realpath(py_file)
+    real = _REAL.get(py_file)
+    if real is None:
+        real = _REAL[py_file] = os.path.realpath(py_file)
     if real.startswith(_PACKAGE_DIR + os.sep):
         return True
     parent = os.path.dirname(real)
@@ -205,8 +220,7 @@ def _install_locator(caching: Any) -> None:
         def __init__(self, py_func: Any, py_file: str):
             self._py_file = py_file
             self._lineno = py_func.__code__.co_firstlineno
-            self._cache_path = os.path.join(subdir(NUMBA),
-                                            self.get_suitable_cache_subpath(py_file))
+            self._cache_path = os.path.join(_numba_dir(), self.get_suitable_cache_subpath(py_file))
 
         def get_cache_path(self) -> str:
             return self._cache_path
