@@ -17,7 +17,13 @@ import os as _os
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     _os.environ.setdefault(_var, "1")
 
-from . import noise as noise
+# numba picks where to cache a function when it is decorated: route fgopt's functions (and the
+# generated kernels) to the private cache root before any fgopt module decorates one.
+from . import _cache_root
+
+_cache_root.route_numba_cache()
+
+from . import noise as noise  # noqa: E402
 from .errors import FgoptError as FgoptError
 from .factors import BetweenFactor as BetweenFactor
 from .factors import Factor as Factor

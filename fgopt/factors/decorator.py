@@ -268,7 +268,7 @@ class SymbolicFactorType:
                  pattern, self.method, self.engine, self.hessian)
         key = _cache.kernel_key(self.fn, parts, self.fingerprint) if self.use_cache else None
         if key is not None:
-            module = _cache.load(self.name, key)
+            module = _cache.load(self.name, key, required=self._required())
             if module is not None:
                 return module
         from ..symbolic.derive import derive_source
@@ -280,6 +280,11 @@ class SymbolicFactorType:
 
             key = "nocache_" + hashlib.sha256(source.encode()).hexdigest()[:16]
         return _cache.store(self.name, key, source)
+
+    def _required(self) -> tuple[str, ...]:
+        """What a generated module of this type must define (else its cache entry is redone)."""
+        base = ("META", "NUM_CONSTANTS", "residual", "linearize")
+        return base + ("linearize_hessian",) if self.hessian else base
 
     @property
     def source(self) -> str:
@@ -335,8 +340,7 @@ def _kernel_from_module(module: Any, params: tuple, pattern: tuple, name: str,
                         recipe: tuple | None = None) -> FactorKernel:
     meta = module.META
     kinds = tuple(batch_kind_of(tp) for (_, tp), v in zip(params, pattern) if v)
-    with open(module.__file__) as fh:
-        source = fh.read()
+    source = module.__fgopt_source__  # the verified text that ran, not a re-read of the file
     return FactorKernel(name=name, arg_kinds=kinds, residual_dim=meta["residual_dim"],
                         num_constants=module.NUM_CONSTANTS, residual=module.residual,
                         linearize=module.linearize, source=source, recipe=recipe)
