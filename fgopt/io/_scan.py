@@ -28,7 +28,7 @@ import math
 import os
 from dataclasses import dataclass
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from ..errors import FileFormatError
@@ -38,7 +38,7 @@ _FNV_PRIME = np.uint64(0x100000001B3)
 _MAX_MANTISSA = 1 << 53
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _is_space(c):
     return c == 32 or c == 9 or c == 13 or c == 11 or c == 12
 
@@ -62,7 +62,7 @@ _EXP_RANGE = 250
 _P10_HI, _P10_LO = _pow10_table()
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _two_prod(a, b):
     """Exact ``a * b = p + e`` (Dekker / Veltkamp splitting; no FMA needed)."""
     p = a * b
@@ -76,7 +76,7 @@ def _two_prod(a, b):
     return p, e
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _scale_exact(m, exp10, p10_hi, p10_lo):
     """Correctly rounded ``m * 10**exp10`` (``0 < m < 10**18``); ``ok`` False when unsure."""
     if exp10 == 0 and m <= _MAX_MANTISSA:
@@ -108,7 +108,7 @@ def _scale_exact(m, exp10, p10_hi, p10_lo):
     return h, True
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _parse_number(buf, s, e, p10_hi, p10_lo):
     """Parse ``buf[s:e]``; returns ``(value, ok)``. ``ok`` False: let Python decide."""
     j = s
@@ -174,7 +174,7 @@ def _parse_number(buf, s, e, p10_hi, p10_lo):
     return (-v if neg else v), ok
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _scan(buf, has_tag, comment, p10_hi, p10_lo):
     n = buf.shape[0]
     num_lines = 1
@@ -250,7 +250,7 @@ def _scan(buf, has_tag, comment, p10_hi, p10_lo):
             rec_count[:nr], tag_hash[:nr], tag_start[:nr], tag_end[:nr])
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _gather_tokens(buf, start, end, width):
     out = np.zeros((start.shape[0], width), dtype=np.uint8)
     for i in range(start.shape[0]):

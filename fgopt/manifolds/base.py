@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Any, Callable, Protocol, runtime_checkable
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from ..errors import DimensionMismatchError, ManifoldError
@@ -84,12 +84,12 @@ def register(cls: type, ops: ManifoldOps) -> None:
 # ----------------------------------------------------------------------------- vector spaces
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _vector_retract(x, delta):
     return x + delta
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _vector_local(a, b):
     return b - a
 

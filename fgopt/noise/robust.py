@@ -23,13 +23,13 @@ from __future__ import annotations
 
 import math
 
-import numba
+from .._jit import njit
 
 #: SymForce's default epsilon (10 machine epsilons), as in :mod:`fgopt.symbolic`.
 BARRON_EPSILON = 2.220446049250313e-15
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def barron(k, alpha, s):
     """Barron's loss and IRLS weight at ``s = t^2`` (epsilon-safe at ``alpha`` = 0 and 2)."""
     eps = BARRON_EPSILON
@@ -40,7 +40,7 @@ def barron(k, alpha, s):
     return k2 * b / d * math.expm1(0.5 * d * lu), math.exp((0.5 * d - 1.0) * lu)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def rho_and_weight(code, k, shape, s):
     if code == 0:
         return 0.5 * s, 1.0

@@ -6,7 +6,7 @@ Part of :mod:`fgopt.manifolds._kernels` (conventions in its docstring).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from ..._jit import njit
 
 from ._common import (
     GROUP_NAMES, MAX_STORAGE_DIM, SE2_ID, SE3_ID, SO2_ID, SO3_ID, storage_dim, tangent_dim,
