@@ -55,3 +55,27 @@ class FileFormatError(FgoptError, ValueError):
         super().__init__(where + message)
         self.path = path
         self.line = line
+
+
+#: Optional extras: import name -> (extra, what it adds). ``pip install 'fgopt[<extra>]'``.
+EXTRAS = {"sksparse": ("cholmod", "CHOLMOD (scikit-sparse; needs SuiteSparse)")}
+
+
+def have_extra(module: str) -> bool:
+    """Whether the optional dependency ``module`` (see :data:`EXTRAS`) is importable."""
+    import importlib.util
+
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):
+        return False
+
+
+def missing_extra(module: str, feature: str) -> BackendUnavailableError:
+    """The error for ``feature`` needing the absent optional dependency ``module``: it names the
+    extra and the pip command that adds it."""
+    extra, what = EXTRAS[module]
+    return BackendUnavailableError(
+        f"{feature} needs {what}, which is not installed: pip install 'fgopt[{extra}]' "
+        f"(on Debian/Ubuntu first apt-get install libsuitesparse-dev), or use fgopt's own "
+        f"solvers (the default)")
