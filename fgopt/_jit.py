@@ -11,15 +11,35 @@ function's source file and qualified name, which the proxy does not change.
 :func:`prange` is ``numba.prange`` for kernels compiled with ``parallel=True``: numba recognizes
 it by identity, so a module that uses it resolves the name when the kernel is built (the proxy
 re-binds ``prange`` in the kernel's globals before compiling).
+
+Small inputs can skip numba altogether: :meth:`LazyKernel.python` (or :func:`python_mode`)
+runs the same function as plain Python, calls to other kernels included. Callers use it where
+the work is tiny (a 5-pose retract, the per-value group operations of a script's first values),
+where numba's 0.5 s of import and initialization per process would dominate.
 """
 
 from __future__ import annotations
 
+import sys
 import threading
 from collections.abc import Callable
+from contextlib import contextmanager
 from typing import Any
 
 _lock = threading.RLock()
+_mode = threading.local()
+
+
+@contextmanager
+def python_mode():
+    """Inside, every :class:`LazyKernel` runs its pure-Python function (nested kernel calls
+    too): small inputs then need no numba import, compilation or cache load."""
+    previous = getattr(_mode, "python", False)
+    _mode.python = True
+    try:
+        yield
+    finally:
+        _mode.python = previous
 
 
 def _numba_prange(*args: int) -> range:
@@ -70,10 +90,17 @@ class LazyKernel:
         return self.dispatcher._numba_type_
 
     def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        if getattr(_mode, "python", False):
+            return self.py_func(*args, **kwargs)
         d = self._dispatcher
         if d is None:
             d = self.dispatcher
         return d(*args, **kwargs)
+
+    def python(self, *args: Any, **kwargs: Any) -> Any:
+        """Run the pure-Python function (nested kernels too); see :func:`python_mode`."""
+        with python_mode():
+            return self.py_func(*args, **kwargs)
 
     def __getattr__(self, name: str) -> Any:  # signatures, overloads, inspect_types, ...
         return getattr(self.dispatcher, name)
@@ -97,7 +124,5 @@ def njit(*args: Any, **options: Any) -> Any:
 
 
 def is_numba_loaded() -> bool:
-    """Whether numba has been imported in this process (for tests and benchmarks)."""
-    import sys
-
+    """Whether numba has been imported in this process."""
     return "numba" in sys.modules

@@ -173,7 +173,12 @@ def _expand_blocks(V, N, var_dim, var_offset, rank, blk_col, blk_row):
     block_start = np.zeros(nb + 1, dtype=np.int64)
     np.cumsum(dc, out=block_start[1:])
     col_base = np.empty(int(block_start[-1]), dtype=np.int64)
-    _fill_indices(blk_col, blk_row, var_dim, var_offset, indptr, indices, block_start, col_base)
+    if indices.shape[0] <= 20000:  # small: plain Python beats numba's import + cache load
+        _fill_indices.python(blk_col, blk_row, var_dim, var_offset, indptr, indices, block_start,
+                             col_base)
+    else:
+        _fill_indices(blk_col, blk_row, var_dim, var_offset, indptr, indices, block_start,
+                      col_base)
     return indptr, indices, col_base, block_start
 
 
