@@ -225,8 +225,8 @@ def render(results: dict, meta: dict) -> str:
                 r["gtsam"]["median"], r["cold"]["median"] < 3.0)
             row(f"custom factor {kind}: warm < 0.5 s", r["warm"]["median"],
                 r["gtsam"]["median"], r["warm"]["median"] < 0.5)
-            row(f"custom factor {kind}: edited <= cold", r["edited"]["median"],
-                r["gtsam"]["median"], r["edited"]["median"] <= max(3.0, r["cold"]["median"]))
+            row(f"custom factor {kind}: edited, re-run < 3 s (the cold target)",
+                r["edited"]["median"], r["gtsam"]["median"], r["edited"]["median"] < 3.0)
     over = [k for k in results if k.startswith("overheads")]
     if over:
         lines += ["", "Per-process overheads (inside one process; seconds):", "",

@@ -84,14 +84,14 @@ def register(cls: type, ops: ManifoldOps) -> None:
 # ----------------------------------------------------------------------------- vector spaces
 
 
-@njit(cache=True)
 def _vector_retract(x, delta):
-    return x + delta
+    """``x + delta`` row-wise (NumPy: nothing to compile for vector spaces)."""
+    return np.asarray(x, dtype=np.float64) + delta
 
 
-@njit(cache=True)
 def _vector_local(a, b):
-    return b - a
+    """``b - a`` row-wise."""
+    return np.asarray(b, dtype=np.float64) - a
 
 
 @lru_cache(maxsize=None)
