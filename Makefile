@@ -25,7 +25,7 @@ $(STAMP): pyproject.toml
 	@test -x $(PY) || { echo "==> creating $(VENV)"; python3 -m venv $(VENV); }
 	@echo "==> installing fgopt and its dependencies into $(VENV)"
 	@$(PY) -m pip install -q --disable-pip-version-check --upgrade pip wheel setuptools
-	@$(PY) -m pip install -q --disable-pip-version-check -e '.[test,notebook,cholmod]'
+	@$(PY) -m pip install -q --disable-pip-version-check -e '.[test,notebook,distributed,cholmod]'
 	@touch $(STAMP)
 
 demo: setup

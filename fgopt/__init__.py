@@ -51,6 +51,9 @@ _ATTRS = {
     "datasets": (".datasets", None),
     "symbolic": (".symbolic", None),
     "solvers": (".solvers", None),
+    "distributed": (".distributed", None),
+    "cameras": (".cameras", None),
+    "solve_many": (".distributed", "solve_many"),
 }
 
 __all__ = ["__version__", "FgoptError", "Key", "key", *_ATTRS]

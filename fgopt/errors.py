@@ -57,6 +57,22 @@ class FileFormatError(FgoptError, ValueError):
         self.line = line
 
 
+class CheiralityError(NonFiniteError):
+    """A point is behind a camera (or outside a lens model's valid region): its projection is
+    undefined. A subclass of :class:`NonFiniteError` because inside the optimizer a trial step
+    that causes it is rejected exactly like a step that produces NaN."""
+
+
+class CalibrationError(FgoptError, ValueError):
+    """A camera calibration is invalid (e.g. a non-positive focal length), or an iterative
+    ``calibrate`` did not converge."""
+
+
+class TriangulationError(FgoptError, ValueError):
+    """A landmark cannot be triangulated: fewer than two views, or a rank-deficient system
+    (the views' rays are parallel)."""
+
+
 #: Optional extras: import name -> (extra, what it adds). ``pip install 'fgopt[<extra>]'``.
 EXTRAS = {"sksparse": ("cholmod", "CHOLMOD (scikit-sparse; needs SuiteSparse)")}
 
