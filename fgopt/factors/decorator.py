@@ -263,14 +263,25 @@ class SymbolicFactorType:
                              "J^T J and J^T r")
         return module.linearize_hessian
 
-    def _module(self, pattern: tuple):
+    def cache_key(self, pattern: tuple) -> str:
+        """The kernel cache key of a variable pattern (function, pattern, options, package)."""
         parts = (self.name, tuple((n,) + type_key(tp) for n, tp in self.params),
                  pattern, self.method, self.engine, self.hessian)
-        key = _cache.kernel_key(self.fn, parts, self.fingerprint) if self.use_cache else None
+        return _cache.kernel_key(self.fn, parts, self.fingerprint)
+
+    def _module(self, pattern: tuple):
+        key = self.cache_key(pattern) if self.use_cache else None
         if key is not None:
             module = _cache.load(self.name, key, required=self._required())
             if module is not None:
                 return module
+            # built-in factors ship their generated source: nothing is derived at first use
+            from .library.shipped import shipped_source
+
+            source = shipped_source(self.name, key)
+            if source is not None:
+                _cache.STATS["shipped"] += 1
+                return _cache.store(self.name, key, source)
         from ..symbolic.derive import derive_source
 
         source = derive_source(self, pattern)
