@@ -8,7 +8,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import FgoptError, NonFiniteError
+from ..errors import FgoptError
 from ..problem import Problem, State
 from ..variables import Variables
 from .linear.base import make_linear_solver
@@ -50,6 +50,10 @@ class Run:
         self.initial_cost = self.cost
         self.history = [self.cost]
         self.records: list[IterationRecord] = []
+        #: First iteration of the trailing run of rejected steps (None after an accepted one),
+        #: and the largest decrease the model predicted for one of them.
+        self.rejected_since: int | None = None
+        self.rejected_gain = 0.0
         if self.verbose:
             print(f"{method}: {problem.num_variables} variables, "
                   f"{sum(len(b.source) for b in problem.batches) + len(problem._slow)} factors, "
@@ -68,15 +72,20 @@ class Run:
     def state_norm(self) -> float:
         return math.sqrt(sum(float(np.sum(s * s)) for s in self.state.storages))
 
-    def relinearize(self) -> None:
-        try:
-            self.cost = self.problem.linearize(self.state)
-        except NonFiniteError:
-            raise
-
     def record(self, iteration: int, candidate_cost: float, lam: float, step_norm: float,
-               accepted: bool, previous_cost: float) -> bool:
-        """Log one iteration; returns True when the callback asks to stop."""
+               accepted: bool, previous_cost: float, predicted: float = math.inf) -> bool:
+        """Log one iteration; returns True when the callback asks to stop.
+
+        ``predicted``: the decrease the method's model predicted for a rejected step (infinite
+        when the trial point was not finite); kept to tell a stall from convergence.
+        """
+        if accepted:
+            self.rejected_since, self.rejected_gain = None, 0.0
+        else:
+            if self.rejected_since is None:
+                self.rejected_since = iteration
+            gain = predicted if math.isfinite(candidate_cost) else math.inf
+            self.rejected_gain = max(self.rejected_gain, gain if gain == gain else math.inf)
         rel = (previous_cost - candidate_cost) / previous_cost if previous_cost > 0 else 0.0
         rec = IterationRecord(iteration, self.cost, candidate_cost, rel if math.isfinite(rel)
                               else float("nan"), lam, step_norm, self.problem.gradient_norm(),

@@ -29,7 +29,7 @@ from typing import Any
 from ...symbolic.cse import Program, optimize, prune, total_ops
 
 #: Bumped when the emitted source changes meaning (part of the cache key).
-FIXED_CODEGEN_VERSION = "3"
+FIXED_CODEGEN_VERSION = "4"
 
 
 @dataclass(frozen=True)
@@ -332,7 +332,7 @@ def _lm(x0, aux, prm, hist, H, g):
         new_cost = _lin(xc, aux, Hc, gc)
         if first:
             first = False
-            if not (math.isfinite(new_cost) and _all_finite(gc)):
+            if not (math.isfinite(new_cost) and _all_finite(gc) and _all_finite2(Hc)):
                 return x, -1, 0, 0.0, 0, new_cost, new_cost
             _copy2(Hc, H)
             _copy(gc, g)

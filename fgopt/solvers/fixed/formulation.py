@@ -119,6 +119,7 @@ class _Collected:
     consts: np.ndarray
     wvals: np.ndarray
     key: str
+    sources: list  # the factors, in ``factors`` order
 
 
 def _collect(graph: Any, values: Variables) -> _Collected:
@@ -204,7 +205,8 @@ def _collect(graph: Any, values: Variables) -> _Collected:
     h.update(FIXED_CODEGEN_VERSION.encode())
     return _Collected(keys, kinds, variables, specs,
                       np.concatenate(consts) if consts else np.zeros(0),
-                      np.concatenate(wvals) if wvals else np.zeros(0), h.hexdigest()[:20])
+                      np.concatenate(wvals) if wvals else np.zeros(0), h.hexdigest()[:20],
+                      factors)
 
 
 # ------------------------------------------------------------------------------------ module
@@ -347,8 +349,7 @@ class FixedProblem:
                                                                self.g)
         t2 = time.perf_counter()
         if status == -1:
-            raise NonFiniteError("fixed formulation: the cost or gradient at the initial values "
-                                 "is not finite: check the measurements and variables")
+            raise NonFiniteError("fixed formulation: " + self._locate_nonfinite(x0))
         records = [IterationRecord(i + 1, float(hist[i, 0]), float(hist[i, 1]),
                                    float(hist[i, 2]), float(hist[i, 3]), float(hist[i, 4]),
                                    float(hist[i, 5]), bool(hist[i, 6] > 0.5), float("nan"))
@@ -365,6 +366,17 @@ class FixedProblem:
                       cost_history=costs, iteration_records=records, timing=timing,
                       method="lm (fixed)", linear_solver="dense cholesky", problem=self,
                       state=x)
+
+    def _locate_nonfinite(self, x: np.ndarray) -> str:
+        """Name the first factor whose residual or Jacobian is not finite at storage ``x``."""
+        values = self.values(x)
+        for f in self._col.sources:
+            try:
+                f.checked_error(values)
+                f.checked_jacobians(values)
+            except NonFiniteError as e:
+                return str(e)
+        return "the cost, gradient or H at the initial values is not finite"
 
     def _damping(self, p: LMParams) -> tuple:
         """(identity damping, lambda by factor) as LevenbergMarquardt resolves them."""
