@@ -19,6 +19,7 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
 
 from . import noise as noise
 from .errors import FgoptError as FgoptError
+from .errors import FgoptWarning as FgoptWarning
 from .factors import BetweenFactor as BetweenFactor
 from .factors import Factor as Factor
 from .factors import NumericalFactor as NumericalFactor
@@ -32,6 +33,7 @@ from .manifolds import SO2 as SO2
 from .manifolds import SO3 as SO3
 from .manifolds import Sim3 as Sim3
 from .problem import Problem as Problem
+from .solvers import check_jacobians as check_jacobians
 from .solvers import chordal_initialization as chordal_initialization
 from .solvers import marginals as marginals
 from .solvers import optimize as optimize

@@ -10,6 +10,11 @@ class FgoptError(Exception):
     """Root of every error fgopt raises on purpose."""
 
 
+class FgoptWarning(UserWarning):
+    """Something a result depends on that the user probably did not intend (e.g. initial values
+    no factor uses); the run goes on, and the result records it."""
+
+
 class KeyNotFoundError(FgoptError, KeyError):
     """A key is used that the `Variables` (or the graph) does not hold."""
 

@@ -193,6 +193,9 @@ class Problem:
         self._kind_vars = [np.nonzero(self.var_kind == kid)[0] for kid in range(len(self.kinds))]
         self._slow_vars = np.nonzero(self.var_kind < 0)[0]
         self._extra = values  # for unused keys and the final Variables
+        #: Keys of ``values`` that no factor uses (returned unchanged in the final values).
+        self.unused_keys: list[Key] = ([k for k in value_of if k not in self._var_of_key]
+                                       if len(value_of) > V else [])
         self._sorted = np.argsort(self.var_keys)
 
     @staticmethod

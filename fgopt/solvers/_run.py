@@ -4,17 +4,28 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import FgoptError
+from ..errors import FgoptError, FgoptWarning
+from ..key import key_str
 from ..problem import Problem, State
 from ..variables import Variables
 from .linear.base import make_linear_solver
-from .result import IterationRecord, Result, Status
+from .result import IterationRecord, Result, Status, stall_status
 
 Callback = Callable[[IterationRecord], "bool | None"]
+
+
+def warn_unused(keys: list) -> None:
+    """Warn (once per call) that initial values hold keys no factor uses."""
+    if len(keys) > 0:
+        shown = ", ".join(key_str(k) for k in keys[:8]) + (", ..." if len(keys) > 8 else "")
+        warnings.warn(f"{len(keys)} key(s) in the initial values are used by no factor ({shown}): "
+                      "they are not optimized and are returned unchanged (result.unused_keys)",
+                      FgoptWarning, stacklevel=4)
 
 
 class Run:
@@ -37,6 +48,7 @@ class Run:
                     f"initial values must be fgopt.Variables, got {type(initial).__name__}")
             problem = Problem(graph, initial, ordering=params.ordering,
                               threads=getattr(params, "threads", 1))
+            warn_unused(problem.unused_keys)
         self.problem = problem
         if solver is None:
             choice = linear_solver if linear_solver is not None else params.linear_solver
@@ -73,13 +85,16 @@ class Run:
         return math.sqrt(sum(float(np.sum(s * s)) for s in self.state.storages))
 
     def record(self, iteration: int, candidate_cost: float, lam: float, step_norm: float,
-               accepted: bool, previous_cost: float, predicted: float = math.inf) -> bool:
+               accepted: bool, previous_cost: float, predicted: float = math.inf,
+               poor: bool = False) -> bool:
         """Log one iteration; returns True when the callback asks to stop.
 
-        ``predicted``: the decrease the method's model predicted for a rejected step (infinite
-        when the trial point was not finite); kept to tell a stall from convergence.
+        ``predicted``: the decrease the method's model predicted for a rejected (or ``poor``)
+        step, infinite when the trial point was not finite; kept to tell a stall from
+        convergence. ``poor``: an accepted step that still counts as no progress (Dogleg: cut
+        short by a trust region it then shrank, because the gain ratio was below 0.25).
         """
-        if accepted:
+        if accepted and not poor:
             self.rejected_since, self.rejected_gain = None, 0.0
         else:
             if self.rejected_since is None:
@@ -124,6 +139,8 @@ class Run:
         return None
 
     def finish(self, status: Status, message: str) -> Result:
+        status, message = stall_status(status, message, self.cost, self.rejected_since,
+                                       self.rejected_gain)
         total = time.perf_counter() - self.t0
         t = self.problem.timing
         timing = {"setup": self.t_setup, "linearize": t["linearize"], "assemble": t["assemble"],
@@ -137,4 +154,5 @@ class Run:
                       final_cost=self.cost, cost_history=self.history,
                       iteration_records=self.records, timing=timing, method=self.method,
                       linear_solver=getattr(self.solver, "name", type(self.solver).__name__),
-                      problem=self.problem, state=self.state)
+                      problem=self.problem, state=self.state,
+                      unused_keys=tuple(self.problem.unused_keys))

@@ -10,8 +10,9 @@ point) sets the radius to half the rejected step's length, so the next trial is 
 
 A small cost decrease does not count as convergence when the step was cut short by the trust
 region and the model predicted it poorly (gain ratio < 0.25): the decrease is small because the
-region is, and a model that keeps failing (e.g. a wrong hand-written Jacobian) then ends as
-``Status.STALLED`` when the region collapses, not as converged.
+region is. With right derivatives the gain ratio tends to 1 as the region shrinks, so a region
+that keeps shrinking means the model is wrong (e.g. a wrong hand-written Jacobian: gain ratio
+stuck near 0.24 on miniSAM's GPS example); such a run ends as ``Status.STALLED``, not converged.
 """
 
 from __future__ import annotations
@@ -81,13 +82,11 @@ class Dogleg:
             rho = (old - new_cost) / predicted if predicted > 0 else -math.inf
             accepted = math.isfinite(new_cost) and rho > 0
             done = None
+            # a step the trust region cut short whose gain ratio is poor: its small decrease
+            # says nothing about convergence (the region, not the optimum, made it small)
+            poor = rho < 0.25 and step_norm < (1.0 - 1e-9) * float(np.linalg.norm(h_gn))
             if accepted:
-                done = run.converged_by_decrease(old, new_cost)
-                if done is not None and rho < 0.25 and step_norm < (1.0 - 1e-9) * float(
-                        np.linalg.norm(h_gn)):
-                    # a small decrease from a step the trust region cut short, with a poor model:
-                    # says nothing about convergence (a wrong Jacobian looks like this)
-                    done = None
+                done = None if poor else run.converged_by_decrease(old, new_cost)
                 if done is None:
                     # the next step needs the Jacobian here: a non-finite one rejects the point
                     new_cost = problem.linearize_candidate(candidate)
@@ -108,7 +107,8 @@ class Dogleg:
                     done = run.converged_by_gradient()
                 run.cost = new_cost
                 h_gn = None
-                stop = run.record(it, new_cost, used_radius, step_norm, True, old)
+                stop = run.record(it, new_cost, used_radius, step_norm, True, old, predicted,
+                                  poor=poor)
                 if done is not None:
                     return run.finish(Status.CONVERGED, done)
             else:

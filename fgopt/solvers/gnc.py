@@ -44,6 +44,7 @@ from ..errors import FgoptError
 from ..key import key_char, key_index
 from ..problem import Problem
 from ..variables import Variables
+from ._run import warn_unused
 from .chordal import _PoseGraph, chordal_state
 from .linear.base import make_linear_solver
 from .lm import LevenbergMarquardt
@@ -153,6 +154,7 @@ class GNC:
         if not isinstance(initial, Variables):
             raise FgoptError(f"initial values must be fgopt.Variables, got {type(initial).__name__}")
         problem = Problem(graph, initial, ordering=p.ordering, threads=p.threads)
+        warn_unused(problem.unused_keys)
         solver = make_linear_solver(p.linear_solver, pattern=problem.pattern)
         solver.analyze(problem.pattern)
         lm = LevenbergMarquardt(dataclasses.replace(p.lm, max_iterations=p.max_iterations,
@@ -244,6 +246,7 @@ class GNC:
                       iterations=iterations, initial_cost=initial_cost, final_cost=final,
                       cost_history=history, timing=timing, method=f"gnc-{p.loss}",
                       linear_solver=getattr(solver, "name", ""), problem=problem, state=state,
+                      unused_keys=tuple(problem.unused_keys),
                       info={"weights": weights, "outliers": outliers, "rounds": rounds,
                             "rejected_by_check": removed})
 

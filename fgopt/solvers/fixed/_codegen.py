@@ -281,7 +281,8 @@ def _copy2(src, dst):
 
 
 @numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
-def _record(hist, row, cost, cand, rel, lam, step, grad, acc):
+def _record(hist, row, cost, cand, rel, lam, step, grad, acc, pred):
+    hist[row, 7] = pred
     hist[row, 0] = cost
     hist[row, 1] = cand
     hist[row, 2] = rel
@@ -300,8 +301,8 @@ def _lm(x0, aux, prm, hist, H, g):
     prm: max_iterations, relative_tolerance, absolute_tolerance, gradient_tolerance,
     step_tolerance, initial_lambda, min_lambda, max_lambda, min_diagonal, max_diagonal,
     min_relative_decrease, identity damping (1/0), lambda by factor (1/0), lambda_factor.
-    hist (max_iterations, 7): cost, candidate cost, relative decrease,
-    lambda, |step|, |grad|, accepted. H, g (out): the linearization at the returned x.
+    hist (max_iterations, 8): cost, candidate cost, relative decrease,
+    lambda, |step|, |grad|, accepted, predicted decrease. H, g (out): the linearization at the returned x.
     Returns (x, status, message, value, iterations, cost, initial cost); status 0 converged,
     1 max iterations, 2 failed, -1 non-finite at the initial values.
     """
@@ -362,7 +363,7 @@ def _lm(x0, aux, prm, hist, H, g):
                     lam = max(min_lam, lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3))
                 nu = 2.0
                 gn = _absmax(g)
-                _record(hist, row, cost, new_cost, rel, lam, step_norm, gn, 1.0)
+                _record(hist, row, cost, new_cost, rel, lam, step_norm, gn, 1.0, predicted)
                 dec = old - new_cost
                 if dec < atol:
                     return x, 0, 2, dec, it, cost, init
@@ -371,7 +372,7 @@ def _lm(x0, aux, prm, hist, H, g):
                 if gn <= gtol:
                     return x, 0, 1, gn, it, cost, init
             else:
-                _record(hist, row, cost, new_cost, rel, lam, step_norm, _absmax(g), 0.0)
+                _record(hist, row, cost, new_cost, rel, lam, step_norm, _absmax(g), 0.0, predicted)
                 if by_factor:
                     lam = lam * lam_factor
                 else:
@@ -400,7 +401,7 @@ def _lm(x0, aux, prm, hist, H, g):
                 ok = _all_finite(delta)
             if ok:
                 break
-            _record(hist, it - 1, cost, np.nan, np.nan, lam, np.nan, _absmax(g), 0.0)
+            _record(hist, it - 1, cost, np.nan, np.nan, lam, np.nan, _absmax(g), 0.0, np.inf)
             lam = lam * nu
             nu = nu * 2.0
             if lam > max_lam:
