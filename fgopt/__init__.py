@@ -51,8 +51,8 @@ def __getattr__(name: str):
 
     if name in _LAZY:
         return importlib.import_module(_LAZY[name], __name__)
-    if name == "factor":
-        from .factors.decorator import factor
+    if name in ("factor", "const"):
+        from .factors import decorator
 
-        return factor
+        return getattr(decorator, name)
     raise AttributeError(f"module 'fgopt' has no attribute {name!r}")
