@@ -30,6 +30,10 @@ class DimensionMismatchError(FgoptError, ValueError):
     """A value, measurement, noise model or Jacobian has the wrong size."""
 
 
+class FgoptIndexError(FgoptError, IndexError):
+    """An index is out of range (e.g. an entry of a symbolic vector)."""
+
+
 class NotPositiveDefiniteError(FgoptError, ValueError):
     """A covariance / information matrix, or a linear system, is not positive definite."""
 

@@ -301,9 +301,11 @@ class SymbolicFactorType:
         """Run the function on symbolic arguments; returns ``(args, output)``."""
         from ..symbolic.ops import symbolic_value
 
+        from ..symbolic.derive import trace
+
         names = names or tuple(n for n, _ in self.params)
         args = [symbolic_value(tp, n) for n, (_, tp) in zip(names, self.params)]
-        return args, self.fn(*args)
+        return args, trace(self, args)
 
     def __repr__(self) -> str:
         sig = ", ".join(f"{n}: {tp.__name__}" for n, tp in self.params)
@@ -345,4 +347,6 @@ def _kernel_from_module(module: Any, params: tuple, pattern: tuple, name: str) -
         source = fh.read()
     return FactorKernel(name=name, arg_kinds=kinds, residual_dim=meta["residual_dim"],
                         num_constants=module.NUM_CONSTANTS, residual=module.residual,
-                        linearize=module.linearize, source=source)
+                        linearize=module.linearize, source=source,
+                        clamps=tuple(meta.get("clamps", ())),
+                        clamp_arguments=getattr(module, "clamp_arguments", None))

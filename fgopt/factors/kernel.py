@@ -47,6 +47,10 @@ class FactorKernel:
     residual: ResidualFn = field(repr=False)
     linearize: LinearizeFn = field(repr=False)
     source: str = field(default="", repr=False)
+    #: Clamped functions in the residual (dicts: function, low, high, where, code), and
+    #: ``clamp_arguments(args, consts) -> (n, len(clamps))`` evaluating their arguments.
+    clamps: tuple = field(default=(), repr=False)
+    clamp_arguments: ResidualFn | None = field(default=None, repr=False)
 
     @property
     def tangent_dim(self) -> int:

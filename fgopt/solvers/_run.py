@@ -4,28 +4,18 @@ from __future__ import annotations
 
 import math
 import time
-import warnings
 from typing import Any, Callable
 
 import numpy as np
 
-from ..errors import FgoptError, FgoptWarning
-from ..key import key_str
+from ..errors import FgoptError, NonFiniteError
 from ..problem import Problem, State
 from ..variables import Variables
+from .diagnostics import clamp_hits, warn_clamps, warn_unused
 from .linear.base import make_linear_solver
 from .result import IterationRecord, Result, Status, stall_status
 
 Callback = Callable[[IterationRecord], "bool | None"]
-
-
-def warn_unused(keys: list) -> None:
-    """Warn (once per call) that initial values hold keys no factor uses."""
-    if len(keys) > 0:
-        shown = ", ".join(key_str(k) for k in keys[:8]) + (", ..." if len(keys) > 8 else "")
-        warnings.warn(f"{len(keys)} key(s) in the initial values are used by no factor ({shown}): "
-                      "they are not optimized and are returned unchanged (result.unused_keys)",
-                      FgoptWarning, stacklevel=4)
 
 
 class Run:
@@ -42,6 +32,9 @@ class Run:
         self.method = method
         self.callback = callback
         self.verbose = bool(getattr(params, "verbose", False))
+        #: True when this run compiled its own problem (a user's call, not a GNC round): only
+        #: then does it warn about unused keys and clamp hits.
+        self.top_level = problem is None
         if problem is None:
             if not isinstance(initial, Variables):
                 raise FgoptError(
@@ -58,7 +51,14 @@ class Run:
         self.t_setup = time.perf_counter() - self.t0
         self.t_solve = 0.0
         self.state: State = state if state is not None else problem.initial_state()
-        self.cost = problem.linearize(self.state)  # raises NonFiniteError naming the factor
+        try:
+            self.cost = problem.linearize(self.state)
+        except NonFiniteError as exc:  # names the factor; add clamped calls outside their domain
+            hits, total = clamp_hits(problem, self.state)
+            if total == 0:
+                raise
+            raise NonFiniteError(f"{exc}; at the initial values {total} clamped call(s) are "
+                                 f"outside their domain, e.g. {hits[0]}") from None
         self.initial_cost = self.cost
         self.history = [self.cost]
         self.records: list[IterationRecord] = []
@@ -141,6 +141,8 @@ class Run:
     def finish(self, status: Status, message: str) -> Result:
         status, message = stall_status(status, message, self.cost, self.rejected_since,
                                        self.rejected_gain)
+        clamps, num_clamped = clamp_hits(self.problem, self.state) if self.top_level else ([], 0)
+        warn_clamps(clamps, num_clamped)
         total = time.perf_counter() - self.t0
         t = self.problem.timing
         timing = {"setup": self.t_setup, "linearize": t["linearize"], "assemble": t["assemble"],
@@ -155,4 +157,5 @@ class Run:
                       iteration_records=self.records, timing=timing, method=self.method,
                       linear_solver=getattr(self.solver, "name", type(self.solver).__name__),
                       problem=self.problem, state=self.state,
-                      unused_keys=tuple(self.problem.unused_keys))
+                      unused_keys=tuple(self.problem.unused_keys), clamps=tuple(clamps),
+                      num_clamped=num_clamped)

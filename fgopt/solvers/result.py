@@ -92,6 +92,11 @@ class Result:
     """Method-specific details (e.g. GNC weights and outlier count)."""
     unused_keys: tuple = ()
     """Keys of the initial values no factor uses (not optimized, returned unchanged)."""
+    clamps: tuple = ()
+    """:class:`~fgopt.solvers.diagnostics.ClampHit` of factors whose clamped ``sqrt``/``log``/
+    ``acos``/``asin`` argument lies outside its domain at the final values (at most 100 listed)."""
+    num_clamped: int = 0
+    """How many such (factor, clamped call) pairs there are in all."""
 
     @property
     def values(self) -> Variables:
@@ -111,6 +116,9 @@ class Result:
             f"{self.iterations} iterations — {self.message})",
             f"  cost: {self.initial_cost:.6g} -> {self.final_cost:.6g}",
         ]
+        if self.num_clamped > 0:
+            lines.append(f"  clamped: {self.num_clamped} factor(s) end outside a clamped "
+                         f"function's domain, e.g. {self.clamps[0]}")
         if len(self.unused_keys) > 0:
             shown = ", ".join(key_str(k) for k in self.unused_keys[:8])
             more = ", ..." if len(self.unused_keys) > 8 else ""

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from ..errors import ManifoldError
+
 from .lie import LieGroupBase
 from .matrix import Matrix, Scalar
 
@@ -35,7 +37,7 @@ def normalize_type(tp: Any) -> type:
         return Scalar
     if not is_symbolic_type(tp):
         name = getattr(tp, "__name__", repr(tp))
-        raise TypeError(
+        raise ManifoldError(
             f"{name} is not a symbolic argument type: use Rot2, Rot3, Pose2, Pose3, V1..V9, "
             "Matrix.shaped(r, c) or Scalar")
     return tp

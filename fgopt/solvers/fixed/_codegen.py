@@ -60,18 +60,21 @@ def _sym():
 
 
 def _type_program(ftype: Any, pattern: tuple) -> tuple:
-    """(generic variable storage symbols per arg, generic constant symbols, program)."""
+    """(generic variable storage symbols per arg, generic constant symbols, program, number of
+    clamped function calls)."""
     from ...symbolic.derive import residual_of
+    from ...symbolic.functions import recording_clamps
     from ...symbolic.linearize import linearization_program
     from ...symbolic.ops import storage_of, symbolic_value
 
     args = [symbolic_value(tp, f"_a{i}") for i, (_, tp) in enumerate(ftype.params)]
-    res, _ = residual_of(ftype, args)
+    with recording_clamps() as clamps:
+        res, _ = residual_of(ftype, args)
     var_args = [a for a, v in zip(args, pattern) if v]
     prog = linearization_program(res, var_args, method=ftype.method, engine=ftype.engine)
     var_syms = [tuple(storage_of(a)) for a, v in zip(args, pattern) if v]
     const_syms = [s for a, v in zip(args, pattern) if not v for s in storage_of(a)]
-    return var_syms, const_syms, prog
+    return var_syms, const_syms, prog, len(clamps)
 
 
 class _Builder:
@@ -119,7 +122,7 @@ def build_program(variables: list, factors: list, log: dict | None = None) -> tu
     cost_terms: list = []
     const_syms: set = set()
     for i, f in enumerate(factors):
-        var_syms, csyms, prog = types[(id(f.ftype), f.pattern)]
+        var_syms, csyms, prog, _ = types[(id(f.ftype), f.pattern)]
         m: dict = {}
         for gen, v in zip(var_syms, f.var_idx):
             m.update(zip(gen, xsyms[v]))
@@ -170,6 +173,9 @@ def build_program(variables: list, factors: list, log: dict | None = None) -> tu
     if log is not None:
         log.update({"derive_types": t1 - t0, "instantiate": t2 - t1, "cse": t3 - t2,
                     "num_types": len(types)})
+        # factor types with clamped functions: checked per factor after a solve
+        log["clamp_ftypes"] = list({id(f.ftype): f.ftype for f in factors
+                                    if types[(id(f.ftype), f.pattern)][3] > 0}.values())
     return prog, const_syms
 
 

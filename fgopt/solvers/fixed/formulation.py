@@ -47,7 +47,7 @@ import numpy as np
 from ...errors import FgoptError, NonFiniteError
 from ...key import Key, key_str
 from ..params import LMParams
-from .._run import warn_unused
+from ..diagnostics import fixed_clamp_hits, warn_clamps, warn_unused
 from ..result import IterationRecord, Result, Status, stall_status
 from ...variables import Variables
 from ...symbolic import cache as _cache
@@ -231,7 +231,9 @@ def _module(col: _Collected, use_cache: bool, info: dict) -> Any:
         types = sorted({f.ftype.name for f in col.factors})
         summary = (f"{len(col.variables)} variables, {len(col.factors)} factors "
                    f"({', '.join(types)})")
-        source, _ = module_source(col.variables, prog, const_syms, {"summary": summary})
+        clamp_types = sorted(_fingerprint(ft) for ft in info.pop("clamp_ftypes", []))
+        source, _ = module_source(col.variables, prog, const_syms,
+                                  {"summary": summary, "clamp_types": clamp_types})
         info["derive_total"] = time.perf_counter() - t0
         key = col.key if use_cache else "nocache_" + hashlib.sha256(source.encode()).hexdigest()[:16]
         m = _cache.store(name, key, source)
@@ -373,6 +375,8 @@ class FixedProblem:
         st, message = stall_status(st, _message(int(msg), float(val), p), float(cost), since,
                                    gain)
         timing = {"setup": t1 - t0, "lm": t2 - t1, "total": time.perf_counter() - t0}
+        clamps, num_clamped = fixed_clamp_hits(self, x)
+        warn_clamps(clamps, num_clamped)
         if p.verbose:
             print(IterationRecord.HEADER)
             for r in records:
@@ -381,18 +385,22 @@ class FixedProblem:
                       iterations=len(records), initial_cost=float(init), final_cost=float(cost),
                       cost_history=costs, iteration_records=records, timing=timing,
                       method="lm (fixed)", linear_solver="dense cholesky", problem=self,
-                      state=x, unused_keys=tuple(unused))
+                      state=x, unused_keys=tuple(unused), clamps=tuple(clamps),
+                      num_clamped=num_clamped)
 
     def _locate_nonfinite(self, x: np.ndarray) -> str:
         """Name the first factor whose residual or Jacobian is not finite at storage ``x``."""
         values = self.values(x)
+        hits, total = fixed_clamp_hits(self, x)
+        clamped = (f"; at the initial values {total} clamped call(s) are outside their domain, "
+                   f"e.g. {hits[0]}" if total > 0 else "")
         for f in self._col.sources:
             try:
                 f.checked_error(values)
                 f.checked_jacobians(values)
             except NonFiniteError as e:
-                return str(e)
-        return "the cost, gradient or H at the initial values is not finite"
+                return str(e) + clamped
+        return "the cost, gradient or H at the initial values is not finite" + clamped
 
     def _damping(self, p: LMParams) -> tuple:
         """(identity damping, lambda by factor) as LevenbergMarquardt resolves them."""
