@@ -42,7 +42,8 @@ from .solvers.result import Status as Status
 from .variables import Variables as Variables
 
 _LAZY = {"io": ".io", "plot": ".plot", "datasets": ".datasets", "symbolic": ".symbolic",
-         "solvers": ".solvers"}
+         "distributed": ".distributed",
+         "solvers": ".solvers", "cameras": ".cameras"}
 
 
 def __getattr__(name: str):
@@ -51,6 +52,10 @@ def __getattr__(name: str):
 
     if name in _LAZY:
         return importlib.import_module(_LAZY[name], __name__)
+    if name == "solve_many":
+        from .distributed import solve_many
+
+        return solve_many
     if name in ("factor", "const"):
         from .factors import decorator
 

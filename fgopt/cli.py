@@ -1,6 +1,6 @@
 """The ``fgopt`` command line: ``fgopt solve FILE`` and ``fgopt info FILE``.
 
-``solve`` reads a g2o / TORO / BAL file, fixes the gauge of pose graphs with a tight prior on the
+``solve`` reads a g2o / TORO / BAL / Bundler file, fixes the gauge of pose graphs with a tight prior on the
 lowest pose (GTSAM-style; BA relies on LM damping, as Ceres' BAL example), optimizes while
 printing one row per iteration, then a summary. Costs in the summary are measured on the file's
 own edges (``0.5 * sum`` of squared whitened residuals, no prior, no robust loss), the yardstick
@@ -65,7 +65,7 @@ def _positive_int(text: str) -> int:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="fgopt", description="Factor-graph optimization on "
                                 "manifolds: solve or inspect g2o / TORO / BAL files.")
-    sub = p.add_subparsers(dest="command", required=True, metavar="{solve,info}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="{solve,solve-many,info}")
 
     def file_options(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("file", help="g2o / TORO (.g2o, .graph, .txt) or BAL file, optionally "
@@ -94,6 +94,22 @@ def build_parser() -> argparse.ArgumentParser:
                    "only the one-line summary")
     s.set_defaults(run=cmd_solve)
 
+    m = sub.add_parser("solve-many", help="solve many files in parallel on Dask; write each "
+                       "result and a summary table")
+    m.add_argument("files", nargs="+", help="g2o / TORO / BAL files (optionally .gz / .bz2)")
+    where = m.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_positive_int, default=None,
+                       help="worker processes of the local cluster (default: one per core)")
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="a running Dask scheduler (e.g. tcp://host:8786) instead of a local "
+                       "cluster")
+    m.add_argument("--out-dir", required=True, help="folder for the optimized files and "
+                   "summary.md")
+    m.add_argument("--method", choices=["lm", "gn", "dogleg", "gnc"], default="lm")
+    m.add_argument("--max-iterations", type=_positive_int, default=100)
+    m.add_argument("--quiet", action="store_true", help="no progress bar")
+    m.set_defaults(run=cmd_solve_many)
+
     i = sub.add_parser("info", help="counts, initial cost, connectivity and gauge of a file")
     file_options(i)
     i.set_defaults(run=cmd_info)
@@ -105,8 +121,8 @@ def _load(args: argparse.Namespace) -> tuple[str, Any, Any, float]:
 
     t0 = time.perf_counter()
     fmt = detect_format(args.file)
-    if fmt == "bal":
-        graph, values = read(args.file, format="bal")
+    if fmt in ("bal", "bundler"):
+        graph, values = read(args.file, format=fmt)
     else:
         graph, values = read(args.file, format="g2o", skip_unknown=args.skip_unknown,
                              repair_information=args.repair_information)
@@ -165,7 +181,9 @@ def cmd_solve(args: argparse.Namespace) -> int:
           f"({result.method}/{result.linear_solver})", flush=True)
     if not args.quiet and t:
         say("time: " + ", ".join(f"{k} {v:.3f} s" for k, v in t.items()))
-    if args.out is not None:
+    if args.out is not None and fmt == "bundler":
+        print("fgopt: --out: writing Bundler files is not supported", file=sys.stderr)
+    elif args.out is not None:
         (write_bal if fmt == "bal" else write_g2o)(args.out, graph, result.values)
         say(f"wrote {args.out}")
     if args.plot is not None:
@@ -177,6 +195,35 @@ def cmd_solve(args: argparse.Namespace) -> int:
         print(f"fgopt: not converged: {result.status.value} ({result.message})", file=sys.stderr)
         return 1
     return 0
+
+
+def cmd_solve_many(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from .distributed import solve_files, summary_table
+
+    client = None
+    if args.scheduler is not None:
+        try:
+            from dask.distributed import Client
+        except ImportError:
+            raise FgoptError("--scheduler needs dask.distributed: pip install "
+                             "'fgopt[distributed]'") from None
+        client = Client(args.scheduler)
+    try:
+        rows = solve_files(args.files, args.out_dir, method=args.method, client=client,
+                           workers=args.workers, progress=not args.quiet,
+                           max_iterations=args.max_iterations)
+    finally:
+        if client is not None:
+            client.close()
+    table = summary_table(rows)
+    (Path(args.out_dir) / "summary.md").write_text(table)
+    print(table, end="", flush=True)
+    failed = sum(1 for r in rows if "error" in r)
+    if failed:
+        print(f"fgopt: {failed} of {len(rows)} files failed (see summary.md)", file=sys.stderr)
+    return 1 if failed else 0
 
 
 def _short_name(path: str) -> str:

@@ -64,3 +64,19 @@ class FileFormatError(FgoptError, ValueError):
         super().__init__(where + message)
         self.path = path
         self.line = line
+
+
+class CheiralityError(NonFiniteError):
+    """A point is behind a camera (or outside a lens model's valid region): its projection is
+    undefined. A subclass of :class:`NonFiniteError` because inside the optimizer a trial step
+    that causes it is rejected exactly like a step that produces NaN."""
+
+
+class CalibrationError(FgoptError, ValueError):
+    """A camera calibration is invalid (e.g. a non-positive focal length), or an iterative
+    ``calibrate`` did not converge."""
+
+
+class TriangulationError(FgoptError, ValueError):
+    """A landmark cannot be triangulated: fewer than two views, or a rank-deficient system
+    (the views' rays are parallel)."""

@@ -142,7 +142,7 @@ def pose_point_kernel(dim: int) -> FactorKernel:
     return FactorKernel(name, (pose_kind, vector_kind(dim)), dim, dim,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
-                        source=_SOURCE)
+                        source=_SOURCE, recipe=(pose_point_kernel, (dim,)))
 
 
 class PosePointFactor(KernelFactor):

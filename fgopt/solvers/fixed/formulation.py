@@ -105,7 +105,7 @@ def _resolve(f: Any) -> tuple:
 def _fingerprint(ft: Any) -> str:
     fp = _FINGERPRINTS.get(id(ft))
     if fp is None or fp[0] is not ft:
-        h = hashlib.sha256(_cache.function_fingerprint(ft.fn).encode())
+        h = hashlib.sha256(ft.fingerprint.encode())
         h.update(repr((ft.name, tuple((n, tp.__module__, tp.__qualname__) for n, tp in ft.params),
                        ft.method, ft.engine)).encode())
         fp = _FINGERPRINTS[id(ft)] = (ft, h.hexdigest())
