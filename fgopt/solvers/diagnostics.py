@@ -11,6 +11,8 @@ values (the solver's loop never does) and reports each factor whose argument lie
 
 from __future__ import annotations
 
+import os
+import sys
 import warnings
 from dataclasses import dataclass
 from typing import Any
@@ -105,18 +107,26 @@ def fixed_clamp_hits(fp: Any, x: np.ndarray) -> tuple[list[ClampHit], int]:
     return out, count[0]
 
 
+def _warn(message: str) -> None:
+    """A FgoptWarning attributed to the first caller outside the fgopt package."""
+    pkg = os.path.dirname(os.path.dirname(os.path.abspath(__file__))) + os.sep
+    level, f = 3, sys._getframe(2)  # stacklevel k+1 is frame _getframe(k)
+    while f is not None and os.path.abspath(f.f_code.co_filename).startswith(pkg):
+        level, f = level + 1, f.f_back
+    warnings.warn(message, FgoptWarning, stacklevel=level)
+
+
 def warn_unused(keys: list) -> None:
     """Warn that initial values hold keys no factor uses."""
     if len(keys) > 0:
         shown = ", ".join(key_str(k) for k in keys[:8]) + (", ..." if len(keys) > 8 else "")
-        warnings.warn(f"{len(keys)} key(s) in the initial values are used by no factor ({shown}): "
-                      "they are not optimized and are returned unchanged (result.unused_keys)",
-                      FgoptWarning, stacklevel=4)
+        _warn(f"{len(keys)} key(s) in the initial values are used by no factor ({shown}): they "
+              "are not optimized and are returned unchanged (result.unused_keys)")
 
 
 def warn_clamps(hits: list[ClampHit], total: int) -> None:
     """Warn that factors end on a clamped domain (their value there ignores the variables)."""
     if total > 0:
-        warnings.warn(f"{total} factor(s) end with a clamped function argument outside its "
-                      f"domain (value and gradient there ignore the variables), e.g. {hits[0]}; "
-                      "see result.clamps", FgoptWarning, stacklevel=4)
+        _warn(f"{total} factor(s) end with a clamped function argument outside its domain "
+              f"(value and gradient there ignore the variables), e.g. {hits[0]}; see "
+              "result.clamps")
