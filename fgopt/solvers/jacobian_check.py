@@ -24,6 +24,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import FgoptError, NonFiniteError
+from ..factors.base import Factor
+from ..graph import FactorGraph
 from ..key import Key, key_str
 from ..manifolds.base import ops_for
 from ..problem import Problem
@@ -116,7 +118,8 @@ def check_jacobians(graph: Any, values: Variables, step: float = 1e-6, rtol: flo
     """Compare every factor's Jacobians at ``values`` with central differences.
 
     Args:
-        graph: the :class:`~fgopt.FactorGraph` (individual factors and batches).
+        graph: the :class:`~fgopt.FactorGraph` (individual factors and batches), or one factor
+            or a list of factors.
         values: :class:`~fgopt.Variables` with every key the graph uses (not modified).
         step: difference step ``h`` in each variable's tangent space.
         rtol, atol: a block fails when ``max |J - J_num| > atol + rtol * max(|J|, |J_num|)``
@@ -127,6 +130,10 @@ def check_jacobians(graph: Any, values: Variables, step: float = 1e-6, rtol: flo
     """
     if not isinstance(values, Variables):
         raise FgoptError(f"values must be fgopt.Variables, got {type(values).__name__}")
+    if isinstance(graph, Factor):
+        graph = FactorGraph([graph])
+    elif isinstance(graph, (list, tuple)):
+        graph = FactorGraph(graph)
     step = float(step)
     if not step > 0:
         raise FgoptError(f"check_jacobians: step must be positive, got {step}")

@@ -31,6 +31,8 @@ def test_minisam_gps_example_wrong_jacobian_is_flagged():
     text = repr(report)
     assert "3 FAIL" in text and "WrongGPSFactor(x1) wrt x1" in text
     assert text.index("FAIL Wrong") < text.index("ok   between")
+    one = fgopt.check_jacobians(g[2], v)  # a single factor: what a user runs on a new one
+    assert len(one) == 1 and not one.ok and "WrongGPSFactor(x1)" in repr(one)
 
 
 def test_right_jacobians_pass():
