@@ -54,6 +54,11 @@ class ManifoldError(FgoptError, TypeError):
     """A value's type is not a known manifold (register it, or give it dim/local/retract)."""
 
 
+class ManifoldDeclarationError(FgoptError, ValueError):
+    """An ``@fgopt.manifold`` declaration is wrong (sizes, non-finite retract, ``local`` not the
+    inverse of ``retract`` to first order); the message names the method and the failing check."""
+
+
 class FileFormatError(FgoptError, ValueError):
     """A data file is malformed; the message names the file and line."""
 

@@ -17,9 +17,8 @@ from .codegen import ArgLayout, module_source
 from .cse import Program, optimize, total_ops
 from .functions import recording_clamps
 from .jacobians import output_storage
-from .lie import LieGroupBase
 from .linearize import linearization_program
-from .ops import storage_of, symbolic_value
+from .ops import has_own_tangent, storage_of, symbolic_value
 
 
 def _origin(fn: Any) -> str:
@@ -83,7 +82,7 @@ def _user_line(fn: Any, tb: Any) -> tuple[str, str]:
 def residual_of(ftype: Any, sym_args: list) -> list:
     """Run the factor function on symbolic arguments; the flat residual expressions."""
     out = trace(ftype, sym_args)
-    if isinstance(out, LieGroupBase):
+    if has_own_tangent(out):
         raise FgoptError(f"{ftype.name}: returns a {type(out).__name__}; a residual must be a "
                          "vector (e.g. a.local(b) or pose.log())")
     res = output_storage(out)
