@@ -1,0 +1,271 @@
+"""Numba loops of on-manifold IMU preintegration (Forster et al. 2017; GTSAM's
+``ManifoldPreintegration``) and the prediction ``predict(state_i, bias_i)``.
+
+Preintegrated state: ``dR`` (3x3), ``dp``, ``dv``, ``dt`` and the bias Jacobians
+``JRw = d dR/d b_w`` (tangent of dR), ``Jpa, Jpw, Jva, Jvw``. With the bias-corrected (and
+sensor-pose-corrected) sample ``a, w`` and ``E = Exp(w dt)``, one step is::
+
+    dp += dv dt + dR a dt^2/2      dv += dR a dt      dR <- dR E
+    JRw <- E^T JRw - Jr(w dt) dt
+    Jpa += Jva dt - dR dt^2/2      Jpw += Jvw dt - dR hat(a) JRw dt^2/2   (old dR, old JRw)
+    Jva -= dR dt                   Jvw -= dR hat(a) JRw dt
+
+and the covariance of ``[theta, p, v]`` (GTSAM's ``preintMeasCov`` order, in the NavState chart)
+propagates with ``A = d new/d old``, ``B = d new/d a``, ``C = d new/d w``::
+
+    A = [[E^T, 0, 0], [-E^T hat(a) dt^2/2, E^T, E^T dt], [-E^T hat(a) dt, 0, E^T]]
+    B = [0; E^T dt^2/2; E^T dt]        C = [Jr(w dt) dt; 0; 0]
+    P <- A P A^T + B (Sa/dt) B^T + C (Sw/dt) C^T,   P_pp += Si dt
+
+With a sensor pose ``body_P_sensor = (bRs, arm)`` the sample is rotated into the body frame and
+the centrifugal term ``w x (w x arm)`` removed, and ``B``, ``C`` get the chain rule of that
+correction (as GTSAM; GTSAM's bias Jacobians ignore ``bRs``, and so do these, to stay equal).
+The combined (15-state) covariance adds the bias random walk:
+``F = [[A, B, C], [0, I]]``, ``P <- F P F^T + ...``, ``P_bb += S_bias dt`` -- ``B`` and ``C``
+with GTSAM's sign (the derivative with respect to the measurement, not the bias).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from ..manifolds._kernels import skew_poly3
+from ._so3_matrix import exp_matrix, jr_matrix, mm3, mv3
+
+# layout of the packed preintegrated state ``x`` (float64, length STATE_DIM)
+R_, P_, V_, T_ = 0, 9, 12, 15
+JRW, JPA, JPW, JVA, JVW = 16, 25, 34, 43, 52
+STATE_DIM = 61
+
+
+@njit(cache=True)
+def initial_state():
+    x = np.zeros(STATE_DIM)
+    x[R_ + 0] = x[R_ + 4] = x[R_ + 8] = 1.0
+    return x
+
+
+@njit(cache=True)
+def _get3(x, off, m):
+    for i in range(3):
+        for j in range(3):
+            m[i, j] = x[off + 3 * i + j]
+
+
+@njit(cache=True)
+def _put3(x, off, m):
+    for i in range(3):
+        for j in range(3):
+            x[off + 3 * i + j] = m[i, j]
+
+
+@njit(cache=True)
+def _propagate(P, F, Q, M, n):
+    """P <- F P F^T + Q in place (all n x n; ``M`` is scratch). Zeros of F are skipped."""
+    for i in range(n):
+        for j in range(n):
+            acc = 0.0
+            for k in range(n):
+                f = F[i, k]
+                if f != 0.0:
+                    acc += f * P[k, j]
+            M[i, j] = acc
+    for i in range(n):
+        for j in range(i, n):
+            acc = Q[i, j]
+            for k in range(n):
+                f = F[j, k]
+                if f != 0.0:
+                    acc += M[i, k] * f
+            P[i, j] = acc
+            P[j, i] = acc
+
+
+@njit(cache=True)
+def integrate(x, P, acc, gyro, dts, bias_hat, acc_cov, gyro_cov, int_cov, bias_acc_cov,
+              bias_gyro_cov, bRs, arm, has_sensor, has_arm, combined):
+    """Integrate samples ``acc (n, 3)``, ``gyro (n, 3)``, ``dts (n,)`` into ``x`` and ``P`` in
+    place (``P`` is 9x9, or 15x15 when ``combined``)."""
+    n_state = 15 if combined else 9
+    dR = np.empty((3, 3))
+    E = np.empty((3, 3))
+    Et = np.empty((3, 3))
+    Jrw = np.empty((3, 3))
+    H = np.empty((3, 3))
+    DaW = np.zeros((3, 3))
+    DaR = np.empty((3, 3))
+    JRw = np.empty((3, 3))
+    tmp = np.empty((3, 3))
+    tmp2 = np.empty((3, 3))
+    F = np.zeros((n_state, n_state))
+    M = np.empty((n_state, n_state))
+    Q = np.zeros((n_state, n_state))
+    G = np.zeros((9, 6))
+    a = np.empty(3)
+    w = np.empty(3)
+    ws = np.empty(3)
+    wdt = np.empty(3)
+    Ra = np.empty(3)
+    for i in range(9, n_state):
+        F[i, i] = 1.0
+    for s in range(acc.shape[0]):
+        dt = dts[s]
+        for k in range(3):
+            a[k] = acc[s, k] - bias_hat[k]
+            ws[k] = gyro[s, k] - bias_hat[3 + k]
+        if has_sensor:
+            mv3(bRs, ws, w)
+            mv3(bRs, a, Ra)
+            for k in range(3):
+                a[k] = Ra[k]
+            if has_arm:
+                # centrifugal acceleration of the lever arm: a -= w x (w x arm)
+                wa = w[0] * arm[0] + w[1] * arm[1] + w[2] * arm[2]
+                ww = w[0] * w[0] + w[1] * w[1] + w[2] * w[2]
+                for k in range(3):
+                    a[k] -= w[k] * wa - arm[k] * ww
+                # d a / d w_sensor = -((w.arm) I + w arm^T) bRs + 2 arm ws^T
+                for r in range(3):
+                    for c in range(3):
+                        tmp[r, c] = w[r] * arm[c]
+                    tmp[r, r] += wa
+                mm3(tmp, bRs, DaW)
+                for r in range(3):
+                    for c in range(3):
+                        DaW[r, c] = -DaW[r, c] + 2.0 * arm[r] * ws[c]
+        else:
+            for k in range(3):
+                w[k] = ws[k]
+        for k in range(3):
+            wdt[k] = w[k] * dt
+        exp_matrix(wdt, E)
+        jr_matrix(wdt, Jrw)
+        for r in range(3):
+            for c in range(3):
+                Et[r, c] = E[c, r]
+        # H = hat(a)
+        H[0, 0] = H[1, 1] = H[2, 2] = 0.0
+        H[0, 1], H[0, 2], H[1, 0] = -a[2], a[1], a[2]
+        H[1, 2], H[2, 0], H[2, 1] = -a[0], -a[1], a[0]
+        dt22 = 0.5 * dt * dt
+
+        # ---- covariance: F (A, B, C) and the noise Q
+        mm3(Et, H, tmp)  # E^T hat(a)
+        for r in range(3):
+            for c in range(3):
+                e = Et[r, c]
+                F[r, c] = e
+                F[r, 3 + c] = 0.0
+                F[r, 6 + c] = 0.0
+                F[3 + r, c] = -dt22 * tmp[r, c]
+                F[3 + r, 3 + c] = e
+                F[3 + r, 6 + c] = dt * e
+                F[6 + r, c] = -dt * tmp[r, c]
+                F[6 + r, 3 + c] = 0.0
+                F[6 + r, 6 + c] = e
+                G[r, c] = 0.0  # B
+                G[3 + r, c] = dt22 * e
+                G[6 + r, c] = dt * e
+                G[r, 3 + c] = Jrw[r, c] * dt  # C
+                G[3 + r, 3 + c] = 0.0
+                G[6 + r, 3 + c] = 0.0
+        if has_sensor:
+            for blk in range(3):
+                for r in range(3):
+                    for c in range(3):
+                        tmp[r, c] = G[3 * blk + r, 3 + c]
+                        tmp2[r, c] = G[3 * blk + r, c]
+                mm3(tmp, bRs, JRw)  # C bRs
+                for r in range(3):
+                    for c in range(3):
+                        G[3 * blk + r, 3 + c] = JRw[r, c]
+                if has_arm:
+                    mm3(tmp2, DaW, JRw)  # + B DaW
+                    for r in range(3):
+                        for c in range(3):
+                            G[3 * blk + r, 3 + c] += JRw[r, c]
+                mm3(tmp2, bRs, JRw)  # B bRs
+                for r in range(3):
+                    for c in range(3):
+                        G[3 * blk + r, c] = JRw[r, c]
+        # Q = B (Sa/dt) B^T + C (Sw/dt) C^T (+ integration and bias random walk)
+        inv_dt = 1.0 / dt
+        for r in range(9):
+            for c in range(r, 9):
+                acc_rc = 0.0
+                for k in range(3):
+                    for m in range(3):
+                        acc_rc += G[r, k] * acc_cov[k, m] * G[c, m]
+                        acc_rc += G[r, 3 + k] * gyro_cov[k, m] * G[c, 3 + m]
+                acc_rc *= inv_dt
+                Q[r, c] = acc_rc
+                Q[c, r] = acc_rc
+        for r in range(3):
+            for c in range(3):
+                Q[3 + r, 3 + c] += int_cov[r, c] * dt
+        if combined:
+            for r in range(9):
+                for c in range(6):
+                    F[r, 9 + c] = G[r, c]
+            for r in range(3):
+                for c in range(3):
+                    Q[9 + r, 9 + c] = bias_acc_cov[r, c] * dt
+                    Q[12 + r, 12 + c] = bias_gyro_cov[r, c] * dt
+        _propagate(P, F, Q, M, n_state)
+
+        # ---- bias Jacobians (with the old dR and JRw)
+        _get3(x, R_, dR)
+        _get3(x, JRW, JRw)
+        mm3(dR, H, tmp)
+        mm3(tmp, JRw, DaR)  # -d(dR a)/d b_w = dR hat(a) JRw; DaR below is its negative
+        mm3(Et, JRw, tmp)
+        for r in range(3):
+            for c in range(3):
+                idx = 3 * r + c
+                x[JRW + idx] = tmp[r, c] - Jrw[r, c] * dt
+                x[JPA + idx] += x[JVA + idx] * dt - dt22 * dR[r, c]
+                x[JPW + idx] += x[JVW + idx] * dt - dt22 * DaR[r, c]
+                x[JVA + idx] -= dR[r, c] * dt
+                x[JVW + idx] -= DaR[r, c] * dt
+
+        # ---- deltas
+        mv3(dR, a, Ra)
+        for k in range(3):
+            x[P_ + k] += x[V_ + k] * dt + dt22 * Ra[k]
+            x[V_ + k] += Ra[k] * dt
+        mm3(dR, E, tmp)
+        _put3(x, R_, tmp)
+        x[T_] += dt
+
+
+# ----------------------------------------------------------------------------- prediction
+
+
+@njit(cache=True)
+def coriolis_terms(omega, T, E, G1, G2):
+    """Exact rotating-frame integrals for a nav frame turning at ``omega`` (rad/s):
+    ``E = Exp(-omega T)``, ``G1 = int_0^T Exp(omega u) du``,
+    ``G2 = int_0^T int_0^s Exp(omega u) du ds`` (all 3x3; identity-based at omega = 0)."""
+    phi = np.empty(3)
+    for k in range(3):
+        phi[k] = -omega[k] * T
+    exp_matrix(phi, E)
+    t2 = (omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2]) * T * T
+    if t2 < 1e-4:  # t < 0.01: series to t^6, truncation below 1e-18
+        a1 = 0.5 - t2 * (1.0 / 24.0 - t2 * (1.0 / 720.0 - t2 / 40320.0))
+        b1 = 1.0 / 6.0 - t2 * (1.0 / 120.0 - t2 * (1.0 / 5040.0 - t2 / 362880.0))
+        c2 = 1.0 / 24.0 - t2 * (1.0 / 720.0 - t2 * (1.0 / 40320.0 - t2 / 3628800.0))
+    else:
+        t = math.sqrt(t2)
+        a1 = (1.0 - math.cos(t)) / t2
+        b1 = (t - math.sin(t)) / (t2 * t)
+        c2 = (0.5 * t2 - 1.0 + math.cos(t)) / (t2 * t2)
+    # with Phi = hat(omega T): G1 = T (I + a1 Phi + b1 Phi^2), G2 = T^2 (I/2 + b1 Phi + c2 Phi^2)
+    wT = np.empty(3)
+    for k in range(3):
+        wT[k] = omega[k] * T
+    skew_poly3(wT, T, T * a1, T * b1, G1, 0, 0)
+    skew_poly3(wT, 0.5 * T * T, T * T * b1, T * T * c2, G2, 0, 0)
