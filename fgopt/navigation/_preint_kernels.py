@@ -248,24 +248,22 @@ def integrate(x, P, acc, gyro, dts, bias_hat, acc_cov, gyro_cov, int_cov, bias_a
 def coriolis_terms(omega, T, E, G1, G2):
     """Exact rotating-frame integrals for a nav frame turning at ``omega`` (rad/s):
     ``E = Exp(-omega T)``, ``G1 = int_0^T Exp(omega u) du``,
-    ``G2 = int_0^T int_0^s Exp(omega u) du ds`` (all 3x3; identity-based at omega = 0)."""
-    phi = np.empty(3)
-    for k in range(3):
-        phi[k] = -omega[k] * T
-    exp_matrix(phi, E)
+    ``G2 = int_0^T int_0^s Exp(omega u) du ds`` (3x3 each; no allocation). With ``W = hat(omega)``
+    and ``t = |omega| T``: ``E = I - T s W + T^2 a W^2`` (``s = sin t / t``,
+    ``a = (1 - cos t)/t^2``), ``G1 = T I + T^2 a W + T^3 b W^2`` (``b = (t - sin t)/t^3``),
+    ``G2 = T^2/2 I + T^3 b W + T^4 c W^2`` (``c = (t^2/2 - 1 + cos t)/t^4``)."""
     t2 = (omega[0] * omega[0] + omega[1] * omega[1] + omega[2] * omega[2]) * T * T
     if t2 < 1e-4:  # t < 0.01: series to t^6, truncation below 1e-18
-        a1 = 0.5 - t2 * (1.0 / 24.0 - t2 * (1.0 / 720.0 - t2 / 40320.0))
-        b1 = 1.0 / 6.0 - t2 * (1.0 / 120.0 - t2 * (1.0 / 5040.0 - t2 / 362880.0))
-        c2 = 1.0 / 24.0 - t2 * (1.0 / 720.0 - t2 * (1.0 / 40320.0 - t2 / 3628800.0))
+        a = 0.5 - t2 * (1.0 / 24.0 - t2 * (1.0 / 720.0 - t2 / 40320.0))
+        b = 1.0 / 6.0 - t2 * (1.0 / 120.0 - t2 * (1.0 / 5040.0 - t2 / 362880.0))
+        c = 1.0 / 24.0 - t2 * (1.0 / 720.0 - t2 * (1.0 / 40320.0 - t2 / 3628800.0))
     else:
         t = math.sqrt(t2)
-        a1 = (1.0 - math.cos(t)) / t2
-        b1 = (t - math.sin(t)) / (t2 * t)
-        c2 = (0.5 * t2 - 1.0 + math.cos(t)) / (t2 * t2)
-    # with Phi = hat(omega T): G1 = T (I + a1 Phi + b1 Phi^2), G2 = T^2 (I/2 + b1 Phi + c2 Phi^2)
-    wT = np.empty(3)
-    for k in range(3):
-        wT[k] = omega[k] * T
-    skew_poly3(wT, T, T * a1, T * b1, G1, 0, 0)
-    skew_poly3(wT, 0.5 * T * T, T * T * b1, T * T * c2, G2, 0, 0)
+        a = (1.0 - math.cos(t)) / t2
+        b = (t - math.sin(t)) / (t2 * t)
+        c = (0.5 * t2 - 1.0 + math.cos(t)) / (t2 * t2)
+    sinc = 1.0 - t2 * b  # sin t / t
+    T2 = T * T
+    skew_poly3(omega, 1.0, -T * sinc, T2 * a, E, 0, 0)
+    skew_poly3(omega, T, T2 * a, T2 * T * b, G1, 0, 0)
+    skew_poly3(omega, 0.5 * T2, T2 * T * b, T2 * T2 * c, G2, 0, 0)

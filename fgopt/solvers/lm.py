@@ -6,7 +6,9 @@ scale-invariant "diagonal damping") or ``D = I`` (GTSAM's default), predicts the
 ``min_relative_decrease``. On success lambda shrinks by ``max(1/3, 1 - (2 rho - 1)^3)``
 (Nielsen, as Ceres) or by a fixed factor 10 (GTSAM); on failure it grows by a factor ``nu`` that
 doubles each consecutive failure (or by 10). ``LMParams.damping="auto"`` picks GTSAM's pair for
-pure Lie-group problems and Ceres' for problems with vector variables (BA); see LMParams. Damping changes only H's diagonal, so the linear solver's analysis is reused.
+problems with Lie-group variables (pose graphs, navigation) and Ceres' for BA-shaped and
+vector-only ones (:func:`auto_identity`). Damping changes only H's diagonal, so the linear
+solver's analysis is reused.
 """
 
 from __future__ import annotations
@@ -22,6 +24,33 @@ from ..variables import Variables
 from ._run import Callback, Run
 from .params import LMParams
 from .result import Result, Status
+
+
+def auto_identity(problem: Any) -> bool:
+    """``damping="auto"``: identity damping (GTSAM's) unless the problem is BA-shaped, has only
+    vector variables, or has duck-typed (slow-path) variables; diagonal damping (Ceres') there.
+
+    * Pure Lie-group problems (pose graphs): identity; M3500 converges in 5 iterations instead
+      of 8, garage in 4 instead of 7.
+    * Lie groups mixed with vectors, not BA-shaped (navigation: SE3 poses, velocities, IMU
+      biases): identity. The IMU factors make ``diag H`` 1e8 times larger than the curvature of
+      the directions only GPS observes, so Marquardt's ``lambda diag H`` over-damps exactly
+      those: GTSAM's ImuFactorsExample needs 41 iterations with diagonal damping, 3 with
+      identity (as GTSAM).
+    * BA-shaped (:func:`~fgopt.solvers.linear.schur.is_ba_shaped`, e.g. SE3 cameras + points)
+      and vector-only problems (BAL's R^9 cameras): diagonal, scale invariant; identity needs
+      99 iterations on Ladybug-49 where diagonal needs 22.
+    """
+    if len(problem._slow_vars) > 0:
+        return False
+    has_vector = any(is_vector_kind(k) for k in problem.kinds)
+    if not has_vector:
+        return True
+    if all(is_vector_kind(k) for k in problem.kinds):
+        return False
+    from .linear.schur import is_ba_shaped
+
+    return problem.pattern is not None and not is_ba_shaped(problem.pattern)
 
 
 class LevenbergMarquardt:
@@ -43,9 +72,7 @@ class LevenbergMarquardt:
     def iterate(self, run: Run) -> Result:
         p = self.params
         problem = run.problem
-        identity = p.damping == "identity" or (
-            p.damping == "auto" and not any(is_vector_kind(k) for k in problem.kinds)
-            and len(problem._slow_vars) == 0)
+        identity = p.damping == "identity" or (p.damping == "auto" and auto_identity(problem))
         by_factor = p.lambda_policy == "factor" or (p.lambda_policy == "auto" and identity)
         # GTSAM's defaults where LM follows GTSAM (identity damping), Ceres' where it follows Ceres
         run.relative_tolerance = p.relative_tolerance if p.relative_tolerance is not None else (
