@@ -20,7 +20,7 @@ a navigation frame turning at ``omega`` (Coriolis; 0 by default), ``E = Exp(-ome
     phi = Log(Rj^T R^),  rp = Rj^T (p^ - pj),  rv = Rj^T (v^ - vj)
 
 and in GTSAM 4.3's default ``Logmap`` mode the SE_2(3) logarithm of ``X_j^-1 X^``:
-``[phi, Jl^-1(phi) rp, Jl^-1(phi) rv]``. ``CombinedImuFactor`` appends ``b_j - b_i``.
+``[phi, Jl^-1(phi) rp, Jl^-1(phi) rv]``. ``CombinedImuFactor`` appends ``b_i - b_j`` (GTSAM's sign).
 
 **Jacobians** (right perturbations ``R Exp(d)``, ``p + R dt`` of the SE(3) poses, additive
 velocities and biases). A perturbation enters ``R^`` as ``R^ Exp(eta)`` and moves ``p^``, ``v^``
@@ -318,14 +318,14 @@ def combined_batch(pose_i, vel_i, pose_j, vel_j, bias_i, bias_j, consts, with_ja
         imu_rows(pose_i[f], vel_i[f], pose_j[f], vel_j[f], bias_i[f], consts[f], res[f],
                  J9, with_jac, S, s, Ri, Rj)
         for k in range(6):
-            res[f, 9 + k] = bias_j[f, k] - bias_i[f, k]
+            res[f, 9 + k] = bias_i[f, k] - bias_j[f, k]  # GTSAM's Between(bias_j, bias_i)
         if with_jac:
             for i in range(9):
                 for j in range(24):
                     jac[f, i, j] = J9[i, j]
             for k in range(6):
-                jac[f, 9 + k, 18 + k] = -1.0
-                jac[f, 9 + k, 24 + k] = 1.0
+                jac[f, 9 + k, 18 + k] = 1.0
+                jac[f, 9 + k, 24 + k] = -1.0
     return res, jac
 
 

@@ -156,7 +156,8 @@ class ImuFactor(KernelFactor):
 
 class CombinedImuFactor(ImuFactor):
     """``CombinedImuFactor(pose_i, vel_i, pose_j, vel_j, bias_i, bias_j, pim)``: as
-    :class:`ImuFactor` plus the bias random walk ``bias_j - bias_i``; 15 residuals with the
+    :class:`ImuFactor` plus the bias random walk ``bias_i - bias_j`` (GTSAM's sign); 15
+    residuals with the
     15x15 covariance of a :class:`PreintegratedCombinedImu`."""
 
     _NAMES = ("pose_i", "vel_i", "pose_j", "vel_j", "bias_i", "bias_j")

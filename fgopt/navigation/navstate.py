@@ -24,6 +24,8 @@ from ..manifolds import SE3, SO3
 from ..manifolds.base import BatchKind, register
 from ..manifolds.lie import as_float_vector
 from ..manifolds.so2 import as_matrix, normalize_unit
+from ..symbolic.navstate import NavState as SymbolicNavState
+from ..symbolic.ops import register_numeric_twin
 from . import _navstate_kernels as K
 
 
@@ -255,3 +257,4 @@ class NavStateOps:
 _OPS = NavStateOps()
 NavState._kind = _OPS.kind
 register(NavState, _OPS)
+register_numeric_twin(SymbolicNavState, NavState)

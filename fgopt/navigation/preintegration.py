@@ -70,7 +70,7 @@ def _samples(accel: Any, gyro: Any, dt: Any, who: str) -> tuple:
     bad = ~(d > 0.0) | ~np.isfinite(d)
     if np.any(bad):
         i = int(np.argmax(bad))
-        raise FgoptError(f"{who}: sample {i} has dt = {d[i]!r}; dt must be positive and "
+        raise FgoptError(f"{who}: sample {i} has dt = {float(d[i])!r}; dt must be positive and "
                          "finite; nothing was integrated")
     return np.ascontiguousarray(a), np.ascontiguousarray(w), np.ascontiguousarray(d)
 
