@@ -4,7 +4,7 @@ Variables: SE(3) poses (``world_T_body``), 3-vector world-frame velocities and 6
 ``[accelerometer, gyroscope]`` (:class:`~fgopt.navigation.ImuBias` values or plain arrays). Every
 factor of one type shares one numba kernel (:mod:`fgopt.navigation._imu_kernels`), so the
 compiled problem linearizes all IMU factors of a graph in one call. Noise models come from the
-preintegration covariance (GTSAM's ``preintMeasCov``).
+preintegration covariance in the residual's chart (GTSAM's ``residualCovariance``).
 
 ``evaluate_error(*values, pim)`` (classmethod) is GTSAM's ``evaluateError``: the unwhitened
 residual at the given values, with the bias as its 6-vector.
@@ -87,12 +87,12 @@ def gps_kernel() -> FactorKernel:
                         linearize=lambda args, consts: run(args, consts, True), source=_SOURCE)
 
 
-def _pim_noise(pim: PreintegratedImu, who: str, keys: tuple) -> Gaussian:
+def _pim_noise(pim: PreintegratedImu, who: str, keys: tuple, predicted_attitude: Any) -> Gaussian:
     if pim.delta_t <= 0.0:
         raise FgoptError(f"{who}({', '.join(key_str(Key(k)) for k in keys)}): the "
                          "preintegration is empty; integrate IMU samples first")
     try:
-        return Gaussian.from_covariance(pim.covariance)
+        return Gaussian.from_covariance(pim.residual_covariance_at(predicted_attitude))
     except NotPositiveDefiniteError as exc:
         raise NotPositiveDefiniteError(
             f"{who}({', '.join(key_str(Key(k)) for k in keys)}): the preintegrated covariance "
@@ -119,19 +119,21 @@ def _storages(values: tuple, kinds: tuple, names: tuple, who: str) -> tuple:
 
 
 class ImuFactor(KernelFactor):
-    """``ImuFactor(pose_i, vel_i, pose_j, vel_j, bias_i, pim)``: the preintegrated IMU samples
-    between states i and j (GTSAM's 5-variable ImuFactor). 9 residuals ``[rotation, position,
-    velocity]`` in the chart of ``pim.params.error_mode``; noise ``pim.covariance``."""
+    """``ImuFactor(pose_i, vel_i, pose_j, vel_j, bias_i, pim, predicted_attitude=None)``: the
+    preintegrated IMU samples between states i and j (GTSAM's 5-variable ImuFactor). 9 residuals
+    ``[rotation, position, velocity]`` in the chart of ``pim.params.error_mode``; noise
+    ``pim.residual_covariance_at(predicted_attitude)`` (the attitude matters only with Coriolis,
+    as GTSAM's constructor argument)."""
 
     _NAMES = ("pose_i", "vel_i", "pose_j", "vel_j", "bias_i")
 
     def __init__(self, pose_i: int, vel_i: int, pose_j: int, vel_j: int, bias_i: int,
-                 pim: PreintegratedImu):
+                 pim: PreintegratedImu, predicted_attitude: Any = None):
         keys = (pose_i, vel_i, pose_j, vel_j, bias_i)
         self._check_pim(pim, keys)
         self.preintegrated = pim.copy()
         super().__init__(imu_kernel(), keys, pim.constants(),
-                         _pim_noise(pim, type(self).__name__, keys))
+                         _pim_noise(pim, type(self).__name__, keys, predicted_attitude))
 
     @classmethod
     def _check_pim(cls, pim: Any, keys: tuple) -> None:
@@ -163,12 +165,12 @@ class CombinedImuFactor(ImuFactor):
     _NAMES = ("pose_i", "vel_i", "pose_j", "vel_j", "bias_i", "bias_j")
 
     def __init__(self, pose_i: int, vel_i: int, pose_j: int, vel_j: int, bias_i: int,
-                 bias_j: int, pim: PreintegratedCombinedImu):
+                 bias_j: int, pim: PreintegratedCombinedImu, predicted_attitude: Any = None):
         keys = (pose_i, vel_i, pose_j, vel_j, bias_i, bias_j)
         self._check_pim(pim, keys)
         self.preintegrated = pim.copy()
         KernelFactor.__init__(self, combined_imu_kernel(), keys, pim.constants(),
-                              _pim_noise(pim, type(self).__name__, keys))
+                              _pim_noise(pim, type(self).__name__, keys, predicted_attitude))
 
     @classmethod
     def _check_pim(cls, pim: Any, keys: tuple) -> None:

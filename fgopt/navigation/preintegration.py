@@ -184,6 +184,39 @@ class PreintegratedImu:
         return self._P.copy()
 
     @property
+    def residual_covariance(self) -> np.ndarray:
+        """:meth:`residual_covariance_at` the attitude predicted from the identity."""
+        return self.residual_covariance_at(None)
+
+    def residual_covariance_at(self, predicted_attitude: SO3 | Any = None) -> np.ndarray:
+        """Covariance of the IMU factor's residual (GTSAM's ``residualCovarianceAt``).
+
+        The preintegration chart is the factor's, except that with Coriolis (``omega``) the
+        prediction ``v^ = ... - omega x p^`` couples velocity to position: ``J P J^T`` with
+        ``J = [[I, 0, 0], [0, I, 0], [0, -hat(R^T omega), I]]`` at the predicted attitude ``R``
+        (default ``Exp(-omega T) delta_R``, i.e. from ``R_i = I``, as GTSAM's
+        ``residualCovariance``). For the combined factor the bias residual is ``b_i - b_j``
+        while ``covariance`` propagates the drift ``b_j - b_i``: those cross blocks flip sign.
+        """
+        P = self._P.copy()
+        if np.any(self._omega != 0.0):
+            if predicted_attitude is None:
+                R = SO3.exp(-self._omega * self.delta_t).matrix() @ self.delta_R_matrix
+            elif isinstance(predicted_attitude, SO3):
+                R = predicted_attitude.matrix()
+            else:
+                R = SO3.from_matrix(predicted_attitude).matrix()
+            u = R.T @ self._omega
+            J = np.eye(P.shape[0])
+            J[6:9, 3:6] = -np.array([[0.0, -u[2], u[1]], [u[2], 0.0, -u[0]],
+                                     [-u[1], u[0], 0.0]])
+            P = J @ P @ J.T
+        if self._COMBINED:
+            P[:9, 9:] *= -1.0
+            P[9:, :9] *= -1.0
+        return 0.5 * (P + P.T)
+
+    @property
     def bias_jacobian(self) -> np.ndarray:
         """``d [theta, p, v] / d [b_acc, b_gyro]`` (9x6) at ``bias_hat``."""
         x = self._x

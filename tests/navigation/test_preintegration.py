@@ -40,7 +40,9 @@ CASES = {  # name: (combined, body_P_sensor, omega_coriolis, Z up)
 
 @pytest.mark.parametrize("case", list(CASES))
 def test_equals_gtsam_manifold_preintegration(case):
-    """Deltas, covariance (9x9 / 15x15, GTSAM's preintMeasCov order) and predict(state, bias) at
+    """Deltas, covariance (9x9 / 15x15, GTSAM's preintMeasCov order), the factor residual's
+    covariance (GTSAM's residualCovariance / residualCovarianceAt, which differ from
+    preintMeasCov with Coriolis and in the combined bias block) and predict(state, bias) at
     random biases equal GTSAM's PreintegratedImuMeasurementsManifold /
     PreintegratedCombinedMeasurementsManifold on the same samples to 1e-9 (predict exercises the
     first-order bias correction, i.e. the bias Jacobians)."""
@@ -63,6 +65,11 @@ def test_equals_gtsam_manifold_preintegration(case):
     assert np.allclose(pim.delta_v, gpim.deltaVij(), atol=1e-9, rtol=0)
     assert pim.covariance.shape == ((15, 15) if combined else (9, 9))
     assert np.allclose(pim.covariance, gpim.preintMeasCov(), atol=1e-9, rtol=0)
+    assert np.allclose(pim.residual_covariance, gpim.residualCovariance(), atol=1e-9, rtol=0)
+    attitude = SO3.random(rng)
+    assert np.allclose(pim.residual_covariance_at(attitude),
+                       gpim.residualCovarianceAt(gtsam.Rot3(attitude.matrix())), atol=1e-9,
+                       rtol=0)
     for _ in range(3):
         state = NavState.random(rng)
         b = N.BIAS_HAT + 0.05 * rng.normal(size=6)
