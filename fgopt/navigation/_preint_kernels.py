@@ -63,25 +63,101 @@ def _put3(x, off, m):
 
 
 @njit(cache=True)
-def _propagate(P, F, Q, M, n):
-    """P <- F P F^T + Q in place (all n x n; ``M`` is scratch). Zeros of F are skipped."""
-    for i in range(n):
-        for j in range(n):
+def _l_cols(P, a, dt, c1, out, ncol):
+    """out[:9, :ncol] = L P[:9, :ncol] with ``L = [[I, 0, 0], [-c1 H, I, dt I], [-dt H, 0, I]]``,
+    ``H = hat(a)`` (``H x = a x x``)."""
+    for j in range(ncol):
+        p0, p1, p2 = P[0, j], P[1, j], P[2, j]
+        h0 = a[1] * p2 - a[2] * p1
+        h1 = a[2] * p0 - a[0] * p2
+        h2 = a[0] * p1 - a[1] * p0
+        out[0, j], out[1, j], out[2, j] = p0, p1, p2
+        out[3, j] = P[3, j] + dt * P[6, j] - c1 * h0
+        out[4, j] = P[4, j] + dt * P[7, j] - c1 * h1
+        out[5, j] = P[5, j] + dt * P[8, j] - c1 * h2
+        out[6, j] = P[6, j] - dt * h0
+        out[7, j] = P[7, j] - dt * h1
+        out[8, j] = P[8, j] - dt * h2
+
+
+@njit(cache=True)
+def _l_rows(P, a, dt, c1, out):
+    """out[:9, :9] = P[:9, :9] L^T (L of :func:`_l_cols`; a row x times H^T is ``a x x``)."""
+    for i in range(9):
+        p0, p1, p2 = P[i, 0], P[i, 1], P[i, 2]
+        h0 = a[1] * p2 - a[2] * p1
+        h1 = a[2] * p0 - a[0] * p2
+        h2 = a[0] * p1 - a[1] * p0
+        out[i, 0], out[i, 1], out[i, 2] = p0, p1, p2
+        out[i, 3] = P[i, 3] + dt * P[i, 6] - c1 * h0
+        out[i, 4] = P[i, 4] + dt * P[i, 7] - c1 * h1
+        out[i, 5] = P[i, 5] + dt * P[i, 8] - c1 * h2
+        out[i, 6] = P[i, 6] - dt * h0
+        out[i, 7] = P[i, 7] - dt * h1
+        out[i, 8] = P[i, 8] - dt * h2
+
+
+@njit(cache=True)
+def _et_rows(X, Et, out, ncol):
+    """out[:9, :ncol] = blockdiag(Et, Et, Et) X[:9, :ncol]."""
+    for b in range(3):
+        r0 = 3 * b
+        for j in range(ncol):
+            x0, x1, x2 = X[r0, j], X[r0 + 1, j], X[r0 + 2, j]
+            for i in range(3):
+                out[r0 + i, j] = Et[i, 0] * x0 + Et[i, 1] * x1 + Et[i, 2] * x2
+
+
+@njit(cache=True)
+def _propagate_nav(P, a, dt, Et, Q, S1, S2):
+    """P[:9, :9] <- A P A^T + Q[:9, :9] with ``A = blockdiag(Et) L`` (module docstring's A:
+    ``-E^T hat(a)`` blocks are ``Et`` times L's ``-hat(a)``); S1, S2: 9x9 scratch."""
+    c1 = 0.5 * dt * dt
+    _l_cols(P, a, dt, c1, S1, 9)
+    _l_rows(S1, a, dt, c1, S2)
+    _et_rows(S2, Et, S1, 9)
+    # P = S1 blockdiag(E) = (blockdiag(Et) S1^T)^T, written straight into P (symmetric)
+    for b in range(3):
+        c0 = 3 * b
+        for i in range(9):
+            x0, x1, x2 = S1[i, c0], S1[i, c0 + 1], S1[i, c0 + 2]
+            for k in range(3):
+                P[i, c0 + k] = Et[k, 0] * x0 + Et[k, 1] * x1 + Et[k, 2] * x2 + Q[i, c0 + k]
+
+
+@njit(cache=True)
+def _propagate_combined(P, a, dt, Et, G, Q, S1, S2, Z, Y):
+    """P (15x15) <- F P F^T + Q with ``F = [[A, G], [0, I]]``: with ``N, X, Bb`` the blocks of P,
+    ``Z = A X``, ``Y = Z + G Bb``: ``N <- A N A^T + Y G^T + G Z^T + Qn``, ``X <- Y``,
+    ``Bb <- Bb + Qb``."""
+    c1 = 0.5 * dt * dt
+    # Z = A X: X is P[:9, 9:15]; L then blockdiag(Et), on its 6 columns
+    for j in range(6):
+        for i in range(9):
+            S2[i, j] = P[i, 9 + j]
+    _l_cols(S2, a, dt, c1, S1, 6)
+    _et_rows(S1, Et, Z, 6)
+    for i in range(9):
+        for j in range(6):
+            acc = Z[i, j]
+            for k in range(6):
+                acc += G[i, k] * P[9 + k, 9 + j]
+            Y[i, j] = acc
+    # the navigation block: A N A^T + Q first, then the cross terms
+    for i in range(9):
+        for j in range(9):
             acc = 0.0
-            for k in range(n):
-                f = F[i, k]
-                if f != 0.0:
-                    acc += f * P[k, j]
-            M[i, j] = acc
-    for i in range(n):
-        for j in range(i, n):
-            acc = Q[i, j]
-            for k in range(n):
-                f = F[j, k]
-                if f != 0.0:
-                    acc += M[i, k] * f
-            P[i, j] = acc
-            P[j, i] = acc
+            for k in range(6):
+                acc += Y[i, k] * G[j, k] + G[i, k] * Z[j, k]
+            Q[i, j] += acc
+    _propagate_nav(P, a, dt, Et, Q, S1, S2)
+    for i in range(9):
+        for j in range(6):
+            P[i, 9 + j] = Y[i, j]
+            P[9 + j, i] = Y[i, j]
+    for i in range(6):
+        for j in range(6):
+            P[9 + i, 9 + j] += Q[9 + i, 9 + j]
 
 
 @njit(cache=True)
@@ -100,17 +176,18 @@ def integrate(x, P, acc, gyro, dts, bias_hat, acc_cov, gyro_cov, int_cov, bias_a
     JRw = np.empty((3, 3))
     tmp = np.empty((3, 3))
     tmp2 = np.empty((3, 3))
-    F = np.zeros((n_state, n_state))
-    M = np.empty((n_state, n_state))
     Q = np.zeros((n_state, n_state))
     G = np.zeros((9, 6))
+    GS = np.empty((9, 6))
+    S1 = np.empty((9, 9))
+    S2 = np.empty((9, 9))
+    Z = np.empty((9, 6))
+    Y = np.empty((9, 6))
     a = np.empty(3)
     w = np.empty(3)
     ws = np.empty(3)
     wdt = np.empty(3)
     Ra = np.empty(3)
-    for i in range(9, n_state):
-        F[i, i] = 1.0
     for s in range(acc.shape[0]):
         dt = dts[s]
         for k in range(3):
@@ -152,20 +229,10 @@ def integrate(x, P, acc, gyro, dts, bias_hat, acc_cov, gyro_cov, int_cov, bias_a
         H[1, 2], H[2, 0], H[2, 1] = -a[0], -a[1], a[0]
         dt22 = 0.5 * dt * dt
 
-        # ---- covariance: F (A, B, C) and the noise Q
-        mm3(Et, H, tmp)  # E^T hat(a)
+        # ---- covariance: G = [B, C] (A is applied in factored form, _propagate_nav)
         for r in range(3):
             for c in range(3):
                 e = Et[r, c]
-                F[r, c] = e
-                F[r, 3 + c] = 0.0
-                F[r, 6 + c] = 0.0
-                F[3 + r, c] = -dt22 * tmp[r, c]
-                F[3 + r, 3 + c] = e
-                F[3 + r, 6 + c] = dt * e
-                F[6 + r, c] = -dt * tmp[r, c]
-                F[6 + r, 3 + c] = 0.0
-                F[6 + r, 6 + c] = e
                 G[r, c] = 0.0  # B
                 G[3 + r, c] = dt22 * e
                 G[6 + r, c] = dt * e
@@ -194,27 +261,31 @@ def integrate(x, P, acc, gyro, dts, bias_hat, acc_cov, gyro_cov, int_cov, bias_a
         # Q = B (Sa/dt) B^T + C (Sw/dt) C^T (+ integration and bias random walk)
         inv_dt = 1.0 / dt
         for r in range(9):
-            for c in range(r, 9):
+            for k in range(3):
+                ga = 0.0
+                gw = 0.0
+                for m in range(3):
+                    ga += G[r, m] * acc_cov[m, k]
+                    gw += G[r, 3 + m] * gyro_cov[m, k]
+                GS[r, k] = ga * inv_dt
+                GS[r, 3 + k] = gw * inv_dt
+        for r in range(9):
+            for c in range(9):
                 acc_rc = 0.0
-                for k in range(3):
-                    for m in range(3):
-                        acc_rc += G[r, k] * acc_cov[k, m] * G[c, m]
-                        acc_rc += G[r, 3 + k] * gyro_cov[k, m] * G[c, 3 + m]
-                acc_rc *= inv_dt
+                for k in range(6):
+                    acc_rc += GS[r, k] * G[c, k]
                 Q[r, c] = acc_rc
-                Q[c, r] = acc_rc
         for r in range(3):
             for c in range(3):
                 Q[3 + r, 3 + c] += int_cov[r, c] * dt
         if combined:
-            for r in range(9):
-                for c in range(6):
-                    F[r, 9 + c] = G[r, c]
             for r in range(3):
                 for c in range(3):
                     Q[9 + r, 9 + c] = bias_acc_cov[r, c] * dt
                     Q[12 + r, 12 + c] = bias_gyro_cov[r, c] * dt
-        _propagate(P, F, Q, M, n_state)
+            _propagate_combined(P, a, dt, Et, G, Q, S1, S2, Z, Y)
+        else:
+            _propagate_nav(P, a, dt, Et, Q, S1, S2)
 
         # ---- bias Jacobians (with the old dR and JRw)
         _get3(x, R_, dR)

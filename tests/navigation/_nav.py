@@ -23,6 +23,7 @@ SBA = 1e-3 * np.eye(3)
 SBW = 2e-5 * np.eye(3)
 BIAS_HAT = np.array([0.1, -0.2, 0.05, 0.01, 0.02, -0.03])
 SENSOR = SE3(SO3.from_rotvec([0.1, -0.2, 0.3]), [0.2, -0.1, 0.05])
+SENSOR_ROTATION = SE3(SO3.from_rotvec([0.1, -0.2, 0.3]), [0.0, 0.0, 0.0])
 
 
 def rotation_with_angle(rng, angle: float) -> SO3:

@@ -32,6 +32,7 @@ CASES = {  # name: (combined, body_P_sensor, omega_coriolis, Z up)
     "imu": (False, None, None, True),
     "combined": (True, None, None, True),
     "sensor_pose": (False, N.SENSOR, None, True),
+    "sensor_rotation": (False, N.SENSOR_ROTATION, None, True),
     "combined_sensor_pose_ned": (True, N.SENSOR, None, False),
     "coriolis": (False, None, [1e-2, 2e-2, 7.29e-5], True),
     "earth_rate_combined": (True, N.SENSOR, [1e-5, 3e-5, 7.29e-5], False),
