@@ -85,21 +85,21 @@ def pack_constants(state: np.ndarray, bias_hat: np.ndarray, gravity: np.ndarray,
     return c
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _get3(c, off, m):
     for i in range(3):
         for j in range(3):
             m[i, j] = c[off + 3 * i + j]
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _hat(v, m):
     m[0, 0] = m[1, 1] = m[2, 2] = 0.0
     m[0, 1], m[0, 2], m[1, 0] = -v[2], v[1], v[2]
     m[1, 2], m[2, 0], m[2, 1] = -v[0], -v[1], v[0]
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def predict(Ri, pi, vi, b, c, S, s):
     """The prediction of the module docstring into ``S[S_RHAT]``, ``s[v_PH]``, ``s[v_VH]``
     (intermediates stay in ``S`` / ``s`` for the Jacobians)."""
@@ -147,14 +147,14 @@ def predict(Ri, pi, vi, b, c, S, s):
     s[v_VH][2] -= om[0] * ph[1] - om[1] * ph[0]
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _put(J, r0, c0, m, scale):
     for i in range(3):
         for j in range(3):
             J[r0 + i, c0 + j] = scale * m[i, j]
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _columns(J, col, eta_zero, S, Rj):
     """Fill the 9 rows of one 3-column block from ``S[S_ETA]`` (unless ``eta_zero``),
     ``S[S_DP]`` = dp^ and ``S[S_DV]`` = dv^ (``dv^`` gets ``- W dp^`` here)."""
@@ -272,7 +272,7 @@ def imu_rows(pose_i, vi, pose_j, vj, b, c, res, J, with_jac, S, s, Ri, Rj):
         _logmap_rows(J, 2, phi, rv, S)
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def _logmap_rows(J, blk, phi, r, S):
     """Rows ``3 blk .. 3 blk + 2`` of J <- Jl^-1(phi) (those rows) + d/dphi[Jl^-1(phi) r] J[0:3]."""
     L = S[S_JLINV]
