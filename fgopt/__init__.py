@@ -40,15 +40,21 @@ from .solvers.result import Status as Status
 from .variables import Variables as Variables
 
 _LAZY = {"io": ".io", "plot": ".plot", "datasets": ".datasets", "symbolic": ".symbolic",
-         "solvers": ".solvers"}
+         "solvers": ".solvers", "navigation": ".navigation"}
+#: names re-exported from ``fgopt.navigation`` on first use (it costs ~0.1 s to import)
+_NAVIGATION = ("NavState", "ImuBias", "PreintegrationParams", "PreintegratedImu",
+               "PreintegratedCombinedImu", "ImuFactor", "CombinedImuFactor", "GpsFactor")
 
 
 def __getattr__(name: str):
-    """Heavier parts load on first use: ``fgopt.io``, ``fgopt.plot``, ``fgopt.factor`` ..."""
+    """Heavier parts load on first use: ``fgopt.io``, ``fgopt.plot``, ``fgopt.factor``,
+    ``fgopt.navigation`` and its classes (``fgopt.ImuFactor``) ..."""
     import importlib
 
     if name in _LAZY:
         return importlib.import_module(_LAZY[name], __name__)
+    if name in _NAVIGATION:
+        return getattr(importlib.import_module(".navigation", __name__), name)
     if name == "factor":
         from .symbolic.factor import factor
 

@@ -1,13 +1,15 @@
 """``PreintegrationParams``: IMU noise, gravity, sensor pose and Coriolis (GTSAM's
 ``PreintegrationParams`` / ``PreintegrationCombinedParams`` in one frozen dataclass).
 
-Noise is given as continuous-time densities. ``make_u`` / ``make_d`` take the square roots
-(sigma, in units per sqrt(Hz)): ``gyro_sigma`` (rad/s/sqrt(Hz)), ``accel_sigma``
-(m/s^2/sqrt(Hz)), ``integration_sigma`` (m/sqrt(Hz)... the position integration uncertainty),
-``bias_acc_rw_sigma`` and ``bias_gyro_rw_sigma`` (random-walk densities of the biases). A
-scalar is isotropic, three numbers are per-axis; a full 3x3 covariance can be given instead with
-the ``*_covariance`` argument of the same quantity. The dataclass fields are the covariances,
-with GTSAM's names (``gyroscope_covariance`` = ``gyro_sigma**2 I``...).
+Noise is given as continuous-time densities (GTSAM's covariances are their squares; a
+covariance ``S`` adds ``S / dt`` per sample for white noise, ``S dt`` for random walks).
+``make_u`` / ``make_d`` take the square roots: ``gyro_sigma`` (rad/s/sqrt(Hz)),
+``accel_sigma`` (m/s^2/sqrt(Hz)), ``integration_sigma`` (m/sqrt(s): position uncertainty added
+by integrating, ``S dt``), ``bias_acc_rw_sigma`` ((m/s^2)/sqrt(s)) and ``bias_gyro_rw_sigma``
+((rad/s)/sqrt(s)), the bias random walks. A scalar is isotropic, three numbers are per axis; a
+full 3x3 covariance can be given instead with the ``*_covariance`` argument of the same
+quantity. The dataclass fields are the covariances, with GTSAM's names
+(``gyroscope_covariance = gyro_sigma**2 I`` ...).
 
 ``error_mode`` selects the IMU factors' residual chart as GTSAM 4.3's ``ImuFactorErrorMode``:
 ``"logmap"`` (default; the SE_2(3) logarithm of ``X_j^-1 X_predicted``) or
@@ -83,7 +85,7 @@ class PreintegrationParams:
     gyroscope_covariance: Any = field(default_factory=lambda: np.eye(3))
     """Continuous-time gyroscope white-noise covariance ((rad/s)^2/Hz); GTSAM default I."""
     integration_covariance: Any = field(default_factory=lambda: np.eye(3))
-    """Position-integration uncertainty (m^2/Hz, added as ``Si dt``); GTSAM default I."""
+    """Position-integration uncertainty (m^2/s, added as ``Si dt``); GTSAM default I."""
     bias_acc_covariance: Any = None
     """Accelerometer bias random walk ((m/s^2)^2/s); needed by the combined factor."""
     bias_omega_covariance: Any = None

@@ -11,11 +11,12 @@ or wrongly shaped sample, or a non-positive ``dt``, raises an :class:`~fgopt.err
 naming the sample index, and nothing is integrated (the update is atomic).
 
 Between samples ``i`` and ``j`` the preintegrated deltas, in body frame ``i``, are
-``delta_R = R_i^T R_j``, ``delta_p``, ``delta_v`` (gravity and initial velocity removed); a change of
-the bias from ``bias_hat`` is applied to first order through ``bias_jacobian`` (9x6, rows
-``[theta, p, v]``, columns ``[accelerometer, gyroscope]``). ``covariance`` is in GTSAM's
+``delta_R = R_i^T R_j``, ``delta_p``, ``delta_v`` (gravity and initial velocity removed); a
+change of the bias from ``bias_hat`` is applied to first order through ``bias_jacobian`` (9x6,
+rows ``[theta, p, v]``, columns ``[accelerometer, gyroscope]``). ``covariance`` is in GTSAM's
 ``preintMeasCov`` order ``[rotation, position, velocity]`` (then ``[bias_acc, bias_gyro]`` for
-the combined one).
+the combined one); ``residual_covariance`` is the IMU factor's noise (GTSAM's
+``residualCovariance``).
 """
 
 from __future__ import annotations

@@ -54,7 +54,8 @@ def _states(rng, pim, angle=None, bias=None):
     pred = pim.predict(xi, pim.bias_hat if bias is None else bias)
     rot = (N.rotation_with_angle(rng, angle) if angle is not None
            else N.rotation_with_angle(rng, 0.4))
-    xj = NavState(pred.attitude().compose(rot.inverse()), pred.position() + 0.3 * rng.normal(size=3),
+    xj = NavState(pred.attitude().compose(rot.inverse()),
+                  pred.position() + 0.3 * rng.normal(size=3),
                   pred.velocity() + 0.3 * rng.normal(size=3))
     return xi, xj
 
@@ -185,7 +186,6 @@ def test_many_factors_one_batch_and_noise():
     """50 ImuFactors compile into one batch (one kernel call per linearization); each factor's
     noise is its preintegration covariance; the graph's cost is 0.5 sum e^T Sigma^-1 e."""
     rng = np.random.default_rng(16)
-    params = N.fgopt_params()
     graph, values = fgopt.FactorGraph(), Variables()
     expected = 0.0
     state = NavState.random(rng)

@@ -16,7 +16,6 @@ from fgopt.errors import FgoptError, ManifoldError
 from fgopt.factors import numerical_jacobians
 from fgopt.manifolds import SE3, SO3, ops_for
 from fgopt.navigation import ImuBias, NavState
-from fgopt.navigation import _navstate_kernels as K
 
 
 def _load_helpers():

@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fgopt.errors import DimensionMismatchError, FgoptError, NonFiniteError, NotPositiveDefiniteError
+from fgopt.errors import (DimensionMismatchError, FgoptError, NonFiniteError,
+                          NotPositiveDefiniteError)
 from fgopt.manifolds import SO3
 from fgopt.navigation import (ImuBias, NavState, PreintegratedCombinedImu, PreintegratedImu,
                               PreintegrationParams)
