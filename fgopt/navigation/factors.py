@@ -56,7 +56,8 @@ def imu_kernel() -> FactorKernel:
     se3, r3, r6 = SE3.batch_kind(), vector_kind(3), vector_kind(6)
     return FactorKernel("imu_factor", (se3, r3, se3, r3, r6), 9, IK.PIM_CONSTANTS,
                         residual=lambda args, consts: run(args, consts, False)[0],
-                        linearize=lambda args, consts: run(args, consts, True), source=_SOURCE)
+                        linearize=lambda args, consts: run(args, consts, True), source=_SOURCE,
+                        recipe=(imu_kernel, ()))
 
 
 @cache
@@ -72,7 +73,8 @@ def combined_imu_kernel() -> FactorKernel:
     se3, r3, r6 = SE3.batch_kind(), vector_kind(3), vector_kind(6)
     return FactorKernel("combined_imu_factor", (se3, r3, se3, r3, r6, r6), 15, IK.PIM_CONSTANTS,
                         residual=lambda args, consts: run(args, consts, False)[0],
-                        linearize=lambda args, consts: run(args, consts, True), source=_SOURCE)
+                        linearize=lambda args, consts: run(args, consts, True), source=_SOURCE,
+                        recipe=(combined_imu_kernel, ()))
 
 
 @cache
@@ -84,7 +86,8 @@ def gps_kernel() -> FactorKernel:
 
     return FactorKernel("gps_factor", (SE3.batch_kind(),), 3, 6,
                         residual=lambda args, consts: run(args, consts, False)[0],
-                        linearize=lambda args, consts: run(args, consts, True), source=_SOURCE)
+                        linearize=lambda args, consts: run(args, consts, True), source=_SOURCE,
+                        recipe=(gps_kernel, ()))
 
 
 def _pim_noise(pim: PreintegratedImu, who: str, keys: tuple, predicted_attitude: Any) -> Gaussian:

@@ -41,16 +41,24 @@ def auto_identity(problem: Any) -> bool:
       and vector-only problems (BAL's R^9 cameras): diagonal, scale invariant; identity needs
       99 iterations on Ladybug-49 where diagonal needs 22.
     """
-    if len(problem._slow_vars) > 0:
+    return auto_identity_for(problem.kinds, len(problem._slow_vars) > 0,
+                             lambda: problem.pattern)
+
+
+def auto_identity_for(kinds: Any, has_slow: bool, pattern: Any) -> bool:
+    """:func:`auto_identity` from a problem's batch ``kinds``, whether it has slow-path
+    variables, and a callable returning its :class:`~fgopt.structure.HessianPattern` (asked only
+    for problems mixing Lie groups and vectors)."""
+    if has_slow:
         return False
-    has_vector = any(is_vector_kind(k) for k in problem.kinds)
-    if not has_vector:
+    if not any(is_vector_kind(k) for k in kinds):
         return True
-    if all(is_vector_kind(k) for k in problem.kinds):
+    if all(is_vector_kind(k) for k in kinds):
         return False
     from .linear.schur import is_ba_shaped
 
-    return problem.pattern is not None and not is_ba_shaped(problem.pattern)
+    pat = pattern()
+    return pat is not None and not is_ba_shaped(pat)
 
 
 class LevenbergMarquardt:
