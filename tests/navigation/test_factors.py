@@ -225,3 +225,25 @@ def test_factor_input_errors():
                                  PreintegratedImu(params).integrate([0, 0, 9.81], [0, 0, 0], 0.01))
     with pytest.raises(FgoptError, match="position needs 3 numbers"):
         GpsFactor(X(0), [1, 2], Isotropic.sigma(3, 1.0))
+
+
+def test_graph_with_navigation_factors_pickles():
+    """IMU / GPS factors, NavState and bias values pickle (for fgopt.distributed workers): the
+    kernels are rebuilt by recipe and the unpickled problem has the same cost."""
+    import pickle
+
+    rng = np.random.default_rng(17)
+    pim, _ = _pim(rng, True, n=20)
+    xi, xj = _states(rng, pim)
+    graph, values = fgopt.FactorGraph(), Variables()
+    graph.add(CombinedImuFactor(X(0), V(0), X(1), V(1), B(0), B(1), pim))
+    graph.add(GpsFactor(X(1), xj.position() + 0.1, Isotropic.sigma(3, 1.0), lever_arm=[0, 0, 1]))
+    for k, x in ((0, xi), (1, xj)):
+        values.add(X(k), x.pose())
+        values.add(V(k), x.velocity())
+        values.add(B(k), ImuBias.from_vector(N.BIAS_HAT))
+    values.add(key("n", 0), xi)
+    graph2, values2 = pickle.loads(pickle.dumps((graph, values)))
+    p1, p2 = fgopt.Problem(graph, values), fgopt.Problem(graph2, values2)
+    assert p2.cost(p2.initial_state()) == p1.cost(p1.initial_state())
+    assert values2.at(key("n", 0)).equals(xi, 0.0)
