@@ -36,6 +36,8 @@ with ``W = hat(omega)``; for state j: ``d phi/d rot_j = -Jl^-1(phi)``, ``d rp/d 
 hat(rp)``, ``d rp/d pos_j = -I``, ``d rv/d rot_j = hat(rv)``, ``d rv/d vel_j = -Rj^T``. The
 Logmap rows are ``d(Jl^-1(phi) r) = Jl^-1(phi) dr + [d/dphi Jl^-1(phi) r] dphi``.
 
+The batch entries release the GIL (``threads=N`` linearizes chunks in parallel).
+
 Constants row of an IMU factor (``PIM_CONSTANTS`` floats, :func:`pack_constants`):
 ``dR (9, row-major), dp, dv, T, JRw, Jpa, Jpw, Jva, Jvw (9 each), b_hat (6), g (3), omega (3),
 logmap flag``. ``GpsFactor``: ``e = t + R arm - m``, constants ``[m, arm]``.
@@ -286,7 +288,7 @@ def _logmap_rows(J, blk, phi, r, S):
                                  + D[i, 0] * p0 + D[i, 1] * p1 + D[i, 2] * p2)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def imu_batch(pose_i, vel_i, pose_j, vel_j, bias_i, consts, with_jac):
     """``ImuFactor`` residuals ``(n, 9)`` and Jacobians ``(n, 9, 24)``."""
     n = pose_i.shape[0]
@@ -303,7 +305,7 @@ def imu_batch(pose_i, vel_i, pose_j, vel_j, bias_i, consts, with_jac):
     return res, jac
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def combined_batch(pose_i, vel_i, pose_j, vel_j, bias_i, bias_j, consts, with_jac):
     """``CombinedImuFactor`` residuals ``(n, 15)`` and Jacobians ``(n, 15, 30)``."""
     n = pose_i.shape[0]
@@ -340,7 +342,7 @@ def predict_state(pose_i, vi, b, c):
     return S[S_RHAT].copy(), s[v_PH][:3].copy(), s[v_VH][:3].copy()
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def gps_batch(pose, consts, with_jac):
     """``GpsFactor`` residuals ``t + R arm - m`` ``(n, 3)`` and Jacobians ``(n, 3, 6)``
     (``[-R hat(arm), R]``)."""

@@ -160,7 +160,7 @@ def _propagate_combined(P, a, dt, Et, G, Q, S1, S2, Z, Y):
             P[9 + i, 9 + j] += Q[9 + i, 9 + j]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def integrate(x, P, acc, gyro, dts, bias_hat, acc_cov, gyro_cov, int_cov, bias_acc_cov,
               bias_gyro_cov, bRs, arm, has_sensor, has_arm, combined):
     """Integrate samples ``acc (n, 3)``, ``gyro (n, 3)``, ``dts (n,)`` into ``x`` and ``P`` in
