@@ -39,11 +39,12 @@ class LMParams(TerminationParams):
     graphs: M3500 converges in 5 iterations instead of 8, garage 4 instead of 7; IMU + GPS
     navigation: 3 instead of 41), diagonal for BA-shaped and vector-only problems (identity
     damping needs 99 iterations on Ladybug-49 where diagonal needs 22); see
-    ``fgopt.solvers.lm.auto_identity``."""
+    ``fgopt.solvers.lm.auto_policy``."""
     lambda_policy: str = "auto"
     """``"nielsen"``: on success lambda *= max(1/3, 1 - (2 rho - 1)^3), on failure *= nu with nu
     doubling (Ceres); ``"factor"``: /= ``lambda_factor`` on success, *= on failure (GTSAM);
-    ``"auto"``: ``"factor"`` with identity damping, ``"nielsen"`` with diagonal damping."""
+    ``"auto"``: ``"factor"`` for pose graphs (only Lie-group variables), ``"nielsen"``
+    otherwise (``fgopt.solvers.lm.auto_policy``)."""
     lambda_factor: float = 10.0
     linear_solver: str = "auto"
     ordering: str = "amd"

@@ -368,14 +368,9 @@ class FixedProblem:
 
     def _damping(self, p: LMParams) -> tuple:
         """(identity damping, lambda by factor) as LevenbergMarquardt resolves them."""
-        from ..lm import auto_identity_for
+        from ..lm import auto_policy, problem_class_for
 
-        damping = getattr(p, "damping", "diagonal")
-        policy = getattr(p, "lambda_policy", "nielsen")
-        identity = damping == "identity" or (
-            damping == "auto" and auto_identity_for(self.kinds, False, self._pattern))
-        by_factor = policy == "factor" or (policy == "auto" and identity)
-        return identity, by_factor
+        return auto_policy(problem_class_for(self.kinds, False, self._pattern), p)
 
     def _pattern(self):
         """The block pattern of H (natural order; only its variable kinds and couplings matter
