@@ -1,14 +1,14 @@
 """Levenberg-Marquardt with a gain-ratio trust-region test.
 
 Each iteration solves ``(H + lambda D) delta = -g``, with ``D = clip(diag H, min, max)`` (Ceres'
-scale-invariant "diagonal damping") or ``D = I`` (GTSAM's default), predicts the decrease of the quadratic model
-``L(delta) = 0.5 |J delta + r|^2``, and accepts when ``rho = actual / predicted`` exceeds
-``min_relative_decrease``. On success lambda shrinks by ``max(1/3, 1 - (2 rho - 1)^3)``
+scale-invariant "diagonal damping") or ``D = I`` (GTSAM's default), predicts the decrease of the
+quadratic model ``L(delta) = 0.5 |J delta + r|^2``, and accepts when ``rho = actual / predicted``
+exceeds ``min_relative_decrease``. On success lambda shrinks by ``max(1/3, 1 - (2 rho - 1)^3)``
 (Nielsen, as Ceres) or by a fixed factor 10 (GTSAM); on failure it grows by a factor ``nu`` that
 doubles each consecutive failure (or by 10). ``LMParams.damping="auto"`` picks GTSAM's pair for
 pose graphs, identity damping with Nielsen's rule for navigation-like problems (Lie groups
-mixed with vectors), and Ceres' pair for BA-shaped and vector-only ones (:func:`auto_policy`). Damping changes only H's diagonal, so the linear
-solver's analysis is reused.
+mixed with vectors), and Ceres' pair for BA-shaped and vector-only ones (:func:`auto_policy`).
+Damping changes only H's diagonal, so the linear solver's analysis is reused.
 """
 
 from __future__ import annotations
@@ -57,9 +57,9 @@ def auto_policy(cls: str, p: LMParams) -> tuple[bool, bool]:
     """``(identity damping, lambda by a fixed factor)`` for problem class ``cls`` under
     ``LMParams.damping`` / ``lambda_policy`` (``"auto"`` resolved per class, measured):
 
-    * ``"pose"`` (pose graphs): GTSAM's pair, identity damping and lambda multiplied / divided by 10. M3500
-      converges in 5 iterations instead of 8 with Ceres' pair, garage in 4 instead of 7;
-      Nielsen's lambda rule would take 10 on garage, 6 on sphere2500.
+    * ``"pose"`` (pose graphs): GTSAM's pair, identity damping and lambda multiplied / divided
+      by 10. M3500 converges in 5 iterations instead of 8 with Ceres' pair, garage in 4 instead
+      of 7; Nielsen's lambda rule would take 10 on garage, 6 on sphere2500.
     * ``"mixed"`` (navigation: SE3 poses, velocities, IMU biases): identity damping with
       Nielsen's lambda rule. The IMU factors make ``diag H`` ~1e8 times the curvature of the
       directions only GPS observes, so Marquardt's ``lambda diag H`` over-damps exactly those:
