@@ -17,7 +17,13 @@ import os as _os
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     _os.environ.setdefault(_var, "1")
 
-from . import noise as noise
+# numba picks where to cache a function when it is decorated: route fgopt's functions (and the
+# generated kernels) to the private cache root before any fgopt module decorates one.
+from . import _cache_root
+
+_cache_root.route_numba_cache()
+
+from . import noise as noise  # noqa: E402
 from .errors import FgoptError as FgoptError
 from .factors import BetweenFactor as BetweenFactor
 from .factors import Factor as Factor
@@ -41,7 +47,7 @@ from .variables import Variables as Variables
 
 _LAZY = {"io": ".io", "plot": ".plot", "datasets": ".datasets", "symbolic": ".symbolic",
          "distributed": ".distributed",
-         "solvers": ".solvers", "navigation": ".navigation"}
+         "solvers": ".solvers", "cameras": ".cameras", "navigation": ".navigation"}
 #: names re-exported from ``fgopt.navigation`` on first use (it costs ~0.1 s to import)
 _NAVIGATION = ("NavState", "ImuBias", "PreintegrationParams", "PreintegratedImu",
                "PreintegratedCombinedImu", "ImuFactor", "CombinedImuFactor", "GpsFactor")
@@ -49,7 +55,9 @@ _NAVIGATION = ("NavState", "ImuBias", "PreintegrationParams", "PreintegratedImu"
 
 def __getattr__(name: str):
     """Heavier parts load on first use: ``fgopt.io``, ``fgopt.plot``, ``fgopt.factor``,
-    ``fgopt.navigation`` and its classes (``fgopt.ImuFactor``) ..."""
+    ``fgopt.manifold`` / ``Product`` / ``check_manifold``, the numeric ``Unit3``,
+    ``OrientedPlane3``, ``SE23`` (their symbolic twins are ``fgopt.symbolic.Unit3`` ...), and
+    ``fgopt.navigation`` and its classes (``fgopt.ImuFactor`` ...)."""
     import importlib
 
     if name in _LAZY:
@@ -64,4 +72,12 @@ def __getattr__(name: str):
         from .factors.decorator import factor
 
         return factor
+    if name in ("manifold", "Product", "check_manifold"):
+        from .symbolic import declare
+
+        return getattr(declare, name)
+    if name in ("Unit3", "OrientedPlane3", "SE23"):  # numeric value types of shipped manifolds
+        from .symbolic import geometry
+
+        return getattr(geometry, name).Value
     raise AttributeError(f"module 'fgopt' has no attribute {name!r}")

@@ -26,6 +26,7 @@ import bz2
 import gzip
 import math
 import os
+import zlib
 from dataclasses import dataclass
 
 import numba
@@ -351,7 +352,7 @@ def read_bytes(path: str | os.PathLike) -> bytes:
         raise FileFormatError("no such file", p) from None
     except IsADirectoryError:
         raise FileFormatError("is a directory, expected a file", p) from None
-    except (OSError, EOFError) as exc:
+    except (OSError, EOFError, zlib.error) as exc:  # zlib.error: a damaged deflate stream
         raise FileFormatError(f"cannot read: {exc}", p) from None
 
 

@@ -16,7 +16,9 @@ Module map (one job each): ``matrix`` (Matrix, V1..V9, Scalar), ``lie`` (group b
 ``ops`` (storage/tangent ops), ``jacobians`` (tangent-space Jacobians), ``singularity``
 (removable-singularity checker), ``linearize`` (residual + Jacobian programs), ``cse``,
 ``printer``, ``codegen`` (kernel modules), ``cache`` (on-disk cache), ``derive`` (a factor's
-kernel source), ``runtime`` (helpers of generated code). ``@fgopt.factor`` itself, which makes
+kernel source), ``runtime`` (helpers of generated code), ``declare`` (``@fgopt.manifold``:
+user-declared manifolds, ``Product``, ``check_manifold``), ``geometry`` (manifolds declared that
+way that ship with fgopt: ``Unit3``, ``OrientedPlane3``, ``SE23``; loaded on first access). ``@fgopt.factor`` itself, which makes
 factor types from these, is :mod:`fgopt.factors.decorator` (the factors layer).
 
 Importing this package does not import SymPy; ``epsilon`` and ``pi`` (SymPy objects) load it on
@@ -54,6 +56,7 @@ from .functions import sqrt as sqrt
 from .functions import symbols as symbols
 from .functions import tan as tan
 from .functions import tanh as tanh
+from .functions import where as where
 from .lie import LieGroupBase as LieGroupBase
 from .matrix import M22 as M22
 from .matrix import M33 as M33
@@ -86,6 +89,13 @@ _LAZY = {
     "check_removable_singularity": (".singularity", "check_removable_singularity"),
     "python_function": (".codegen", "python_function"),
     "total_ops": (".cse", "total_ops"),
+    "manifold": (".declare", "manifold"),
+    "Product": (".declare", "Product"),
+    "check_manifold": (".declare", "check_manifold"),
+    "DeclaredManifold": (".declare", "DeclaredManifold"),
+    "Unit3": (".geometry", "Unit3"),
+    "OrientedPlane3": (".geometry", "OrientedPlane3"),
+    "SE23": (".geometry", "SE23"),
 }
 
 
