@@ -11,7 +11,7 @@ tangent-space Jacobians::
         return V2(d.norm(), atan2(d[1], d[0])) - measured
 
 Module map (one job each): ``matrix`` (Matrix, V1..V9, Scalar), ``lie`` (group base),
-``rot`` (Rot2, Rot3), ``pose`` (Pose2, Pose3), ``cameras`` (SnavelyCamera, PinholeCamera),
+``rot`` (Rot2, Rot3), ``pose`` (Pose2, Pose3), ``navstate`` (NavState), ``cameras`` (SnavelyCamera, PinholeCamera),
 ``functions`` (epsilon-safe math), ``_sym`` (SymPy side: epsilon, sign_no_zero),
 ``ops`` (storage/tangent ops), ``jacobians`` (tangent-space Jacobians), ``singularity``
 (removable-singularity checker), ``linearize`` (residual + Jacobian programs), ``cse``,
@@ -73,6 +73,7 @@ from .matrix import V9 as V9
 from .matrix import Matrix as Matrix
 from .matrix import Scalar as Scalar
 from .matrix import vector_type as vector_type
+from .navstate import NavState as NavState
 from .pose import Pose2 as Pose2
 from .pose import Pose3 as Pose3
 from .rot import Rot2 as Rot2
