@@ -16,7 +16,8 @@ Module map (one job each): ``matrix`` (Matrix, V1..V9, Scalar), ``lie`` (group b
 ``ops`` (storage/tangent ops), ``jacobians`` (tangent-space Jacobians), ``singularity``
 (removable-singularity checker), ``linearize`` (residual + Jacobian programs), ``cse``,
 ``printer``, ``codegen`` (kernel modules), ``cache`` (on-disk cache), ``derive``, ``factor``
-(``@fgopt.factor``), ``runtime`` (helpers of generated code).
+(``@fgopt.factor``), ``runtime`` (helpers of generated code), ``generate`` (functions with
+tangent Jacobians as numba functions, :func:`generate`; derived in ``_generate_source``).
 
 Importing this package does not import SymPy; ``epsilon`` and ``pi`` (SymPy objects) load it on
 first access.
@@ -55,6 +56,8 @@ from .functions import sqrt as sqrt
 from .functions import symbols as symbols
 from .functions import tan as tan
 from .functions import tanh as tanh
+from .generate import GeneratedFunction as GeneratedFunction
+from .generate import generate as generate
 from .lie import LieGroupBase as LieGroupBase
 from .matrix import M22 as M22
 from .matrix import M33 as M33
