@@ -168,11 +168,22 @@ class ManifoldEKF:
 
     # ------------------------------------------------------------------ construction helpers
     def _default_state(self, process: Callable, params: list, dt: str) -> tuple:
-        """The first k arguments, k = number of returned values (found by a symbolic run)."""
-        from ..symbolic.ops import symbolic_value
+        """The first k arguments, k = number of returned values (from the return annotation,
+        else from a value-only generated module, which needs no SymPy on a cache hit)."""
+        import typing
 
-        out = process(*[symbolic_value(tp, n) for n, tp in params])
-        k = len(out) if isinstance(out, (tuple, list)) else 1
+        from ..symbolic.generate import _type_hints
+
+        try:
+            rt = _type_hints(process, None).get("return")
+        except Exception:  # noqa: BLE001 - unresolvable: count the outputs instead
+            rt = None
+        if rt is not None and typing.get_origin(rt) is tuple:
+            k = len([a for a in typing.get_args(rt) if a is not Ellipsis])
+        elif rt is not None:
+            k = 1
+        else:
+            k = len(generate(process, which=(), name=f"{self.name}_outputs").outputs)
         cand = tuple(n for n, _ in params if n != dt)[:k]
         if len(cand) < k:
             raise FgoptError(f"ManifoldEKF {self.name}: the process returns {k} values but has "
