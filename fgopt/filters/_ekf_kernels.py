@@ -33,6 +33,7 @@ R_NOT_PD = 14
 INNOVATION_NONFINITE = 15
 S_NOT_PD = 16
 RETRACT_NONFINITE = 17
+Z_NONFINITE = 18
 
 #: Relative tolerances: symmetry of noise matrices, and the eigenvalue shift accepted as PSD.
 SYMMETRY_TOL = 1e-9

@@ -48,30 +48,36 @@ from ..symbolic import LieGroupBase, Scalar, generate
 from ..symbolic.generate import GeneratedFunction, numeric_value, _storage
 from . import _ekf_kernels as K
 from . import _models
+from ._step_source import Layout, load, module_source
 
 _UNIT_NORM = {"Rot2": (0, 2), "Rot3": (0, 4), "Pose2": (0, 2), "Pose3": (0, 4)}
 
 
 class _Measurement:
-    """One measurement function: its generated innovation, buffers and layout."""
+    """One measurement function: its generated innovation and where its arrays live."""
 
-    def __init__(self, name: str, innovation: GeneratedFunction, prediction: Callable,
-                 ztype: type, params: list, nx: int, n: int):
-        self.name, self.innovation, self.ztype = name, innovation, ztype
-        self.flat = innovation.flat
+    def __init__(self, index: int, name: str, innovation: GeneratedFunction,
+                 prediction: Callable, ztype: type, params: list):
+        self.index, self.name, self.innovation, self.ztype = index, name, innovation, ztype
         self._prediction_fn = prediction
         self._prediction: GeneratedFunction | None = None
         self.params = params  # [(name, type)] extra arguments, given to update() by keyword
         self.dim = innovation.jacobian_shape[0]
-        self.zslice = innovation.inputs[innovation.params[-1][0]]
-        self.inp = np.zeros(innovation.input_dim)
-        self.y = np.empty(self.dim)
-        self.J = np.empty((self.dim, n))
-        m = self.dim
-        self.S, self.K = np.empty((m, m)), np.empty((n, m))
-        self.HP, self.W = np.empty((m, n)), np.empty((n, m))
-        self.L = np.empty((max(m, 1), max(m, 1)))
-        self.stats = np.empty(m + 1)
+        zname = innovation.params[-1][0]
+        self.zslice = innovation.inputs[zname]
+        self.zdim = self.zslice.stop - self.zslice.start
+        self.poff = innovation.inputs[params[0][0]].start if len(params) > 0 else 0
+        self.pdim = sum(tp.storage_dim() for _, tp in params)
+        self.no_params = np.zeros(0)
+        self.step: Callable | None = None
+        self.y = self.S = self.stats = None  # views into the filter's buffer
+
+    def add_arrays(self, layout: Layout, n: int) -> None:
+        m, p = self.dim, f"m{self.index}_"
+        layout.add(p + "inp", self.innovation.input_dim)
+        for name, shape in (("y", (m,)), ("J", (m, n)), ("S", (m, m)), ("L", (m, m)),
+                            ("K", (n, m)), ("HP", (m, n)), ("W", (n, m)), ("stats", (m + 1,))):
+            layout.add(p + name, *shape)
 
     def prediction(self) -> GeneratedFunction:
         if self._prediction is None:
@@ -145,23 +151,43 @@ class ManifoldEKF:
         self._retract = generate(_models.state_retract(rparams, len(state), self.name),
                                  which=deltas, name=f"{self.name}_retract")
         self._measurements: dict[str, _Measurement] = {}
-        for mname, fn in _named(measurements).items():
-            self._measurements[mname] = self._measurement(mname, fn, types)
+        for i, (mname, fn) in enumerate(_named(measurements).items()):
+            self._measurements[mname] = self._measurement(i, mname, fn, types)
         unit = [(self._storage_slices[s_].start + _UNIT_NORM[tp.__name__][0],
                  _UNIT_NORM[tp.__name__][1])
                 for s_, tp in zip(state, self.state_types) if tp.__name__ in _UNIT_NORM]
         self._unit = np.array(unit, dtype=np.int64).reshape(-1, 2)
-        # buffers: the state lives in the process input [x | u | dt]
-        self._pin = np.zeros(self._process.input_dim)
-        self._xnext = np.empty(self._process.output_dim)
-        self._FG = np.empty(self._process.jacobian_shape)
-        self._P, self._Pn = np.zeros((n, n)), np.empty((n, n))
-        self._L = np.empty((max(n, self.input_dim), max(n, self.input_dim)))
-        self._T = np.empty((n, max(n, self.input_dim)))
-        self._rin = np.zeros(self._retract.input_dim)
-        self._xnew = np.empty(self._retract.output_dim)
-        self._B = np.empty((n, n))
+        # every array lives in one buffer; the state is the prefix of the process input
+        k = max(n, self.input_dim, 1)
+        layout = Layout()
+        layout.add("pin", self._process.input_dim)
+        layout.add("xnext", self._process.output_dim)
+        layout.add("FG", *self._process.jacobian_shape)
+        for a in ("P", "Pn", "B"):
+            layout.add(a, n, n)
+        layout.add("L", k, k)
+        layout.add("T", n, k)
+        layout.add("rin", self._retract.input_dim)
+        layout.add("xnew", self._retract.output_dim)
+        for m in self._measurements.values():
+            m.add_arrays(layout, n)
+        self._buf = np.zeros(layout.size)
+        self._pin = layout.view(self._buf, "pin")
+        self._P = layout.view(self._buf, "P")
+        for m in self._measurements.values():
+            m.y, m.S = layout.view(self._buf, f"m{m.index}_y"), layout.view(self._buf, f"m{m.index}_S")
+            m.stats = layout.view(self._buf, f"m{m.index}_stats")
+        source = module_source(
+            self.name, layout, {"n": n, "nx": self.nx, "nu": self.nu},
+            [tuple(u) for u in self._unit.tolist()], self._process.module.__name__,
+            self._retract.module.__name__,
+            [(m.index, m.innovation.module.__name__, m.zslice.start, m.zdim, m.poff, m.pdim)
+             for m in self._measurements.values()])
+        self._steps = load(self.name, source)
+        for m in self._measurements.values():
+            m.step = getattr(self._steps, f"update_{m.index}")
         self._no_qs = np.zeros((n, n))
+        self._no_u = np.zeros(0)
         self.num_predicts = self.num_updates = 0
         self._last: _Measurement | None = None
         self.set_state(x0, P0)
@@ -201,7 +227,7 @@ class ManifoldEKF:
                 raise FgoptError(f"ManifoldEKF {self.name}: the process returns a "
                                  f"{got.__name__} for state '{s_}' ({want.__name__})")
 
-    def _measurement(self, mname: str, fn: Callable, types: dict) -> _Measurement:
+    def _measurement(self, index: int, mname: str, fn: Callable, types: dict) -> _Measurement:
         mparams = _signature(fn, f"measurement {mname}")
         extra = []
         for pn, tp in mparams:
@@ -214,8 +240,8 @@ class ManifoldEKF:
         state_params = [(s_, types[s_]) for s_ in self.state_names]
         taken = set(self.state_names) | {pn for pn, _ in extra}
         full = state_params + extra
-        index = {pn: i for i, (pn, _) in enumerate(full)}
-        select = tuple(index[pn] for pn, _ in mparams)
+        position = {pn: i for i, (pn, _) in enumerate(full)}
+        select = tuple(position[pn] for pn, _ in mparams)
         pred = _models.prediction(fn, select, full, f"{self.name}_{mname}")
         ztype = _return_type(fn)
         if ztype is None:  # unannotated: find the type from the generated prediction
@@ -224,7 +250,7 @@ class ManifoldEKF:
         innov = generate(_models.innovation(fn, select, full + [(zname, ztype)],
                                             f"{self.name}_{mname}"),
                          which=list(self.state_names), name=f"{self.name}_{mname}_innovation")
-        return _Measurement(mname, innov, pred, ztype, extra, self.nx, self.dim)
+        return _Measurement(index, mname, innov, pred, ztype, extra)
 
     # ------------------------------------------------------------------ state
     def set_state(self, x: Any, P: Any) -> None:
@@ -251,7 +277,7 @@ class ManifoldEKF:
                 raise FgoptError(f"ManifoldEKF {self.name}: x0 has a zero rotation quaternion")
             storage[a:a + n] /= nrm
         Pm = self._matrix(P, (self.dim, self.dim), "P0")
-        code, _ = K._check_noise(Pm, self._L[:self.dim, :self.dim].copy(), False)
+        code, _ = K._check_noise(Pm, np.empty((self.dim, self.dim)), False)
         if code == 1:
             raise NonFiniteError(f"ManifoldEKF {self.name}: P0 is not finite")
         if code == 2:
@@ -341,15 +367,11 @@ class ManifoldEKF:
             Q: covariance of the noise on ``u`` over this step, ``(m, m)`` (symmetric PSD).
             Q_state: optional additive process noise on the error state, ``(n, n)`` (PSD).
         """
-        pin, nx, nu = self._pin, self.nx, self.nu
-        if type(u) is np.ndarray and u.shape == (nu,) and u.dtype == np.float64:
-            pin[nx:nx + nu] = u
-        elif u is None and nu == 0:
-            pass
-        else:
-            pin[nx:nx + nu] = self._vector(u, nu, "u")
+        nu = self.nu
+        if not (type(u) is np.ndarray and u.shape == (nu,) and u.dtype == np.float64):
+            u = self._no_u if u is None and nu == 0 else self._vector(u, nu, "u")
         try:
-            pin[nx + nu] = dt
+            dt = float(dt)
         except (TypeError, ValueError):
             raise FgoptError(f"ManifoldEKF {self.name}.predict: dt must be a number, got "
                              f"{dt!r}") from None
@@ -363,11 +385,9 @@ class ManifoldEKF:
             if not (type(Qs) is np.ndarray and Qs.shape == (self.dim, self.dim)
                     and Qs.dtype == np.float64):
                 Qs = self._matrix(Qs, (self.dim, self.dim), "Q_state")
-        self._process.flat(pin, self._xnext, self._FG)
-        code, idx = K.predict(pin, nx, nu, self._xnext, self._FG, self._P, Q, Qs, use_qs,
-                              self._Pn, self._L, self._T, self._unit)
-        if code != K.OK:
-            self._raise("predict", code, idx, dt=pin[nx + nu])
+        code, idx = self._steps.predict(self._buf, u, dt, Q, Qs, use_qs)
+        if code != 0:
+            self._raise("predict", code, idx, dt=dt)
         self.num_predicts += 1
 
     def update(self, z: Any, R: Any, which: str | None = None, **params: Any) -> None:
@@ -379,32 +399,20 @@ class ManifoldEKF:
             which: name of the measurement function (optional if there is only one).
             params: the measurement function's extra (non-state) arguments.
         """
-        m = self._select(which)
-        inp = m.inp
-        zs = m.zslice
-        if type(z) is np.ndarray and z.shape == (zs.stop - zs.start,) and z.dtype == np.float64:
-            if not np.isfinite(z).all():
-                raise NonFiniteError(f"ManifoldEKF {self.name}.update({m.name}): z is not "
-                                     f"finite: {z}")
-            inp[zs] = z
-        else:
-            inp[zs] = _storage(f"ManifoldEKF {self.name}.update({m.name})", "z", m.ztype, z)
+        m = self._measurements.get(which) if which is not None else None
+        if m is None:
+            m = self._select(which)
+        if not (type(z) is np.ndarray and z.shape == (m.zdim,) and z.dtype == np.float64):
+            z = _storage(f"ManifoldEKF {self.name}.update({m.name})", "z", m.ztype, z)
         if len(m.params) > 0 or len(params) > 0:
-            for pn, val in self._params(m, params).items():
-                inp[m.innovation.inputs[pn]] = val
+            packed = self._params(m, params)
+            pvec = np.concatenate(list(packed.values())) if len(packed) > 0 else m.no_params
+        else:
+            pvec = m.no_params
         if not (type(R) is np.ndarray and R.shape == (m.dim, m.dim) and R.dtype == np.float64):
             R = self._matrix(R, (m.dim, m.dim), "R")
-        nx = self.nx
-        inp[:nx] = self._pin[:nx]
-        m.flat(inp, m.y, m.J)
-        code, idx = K.gain(m.y, m.J, self._P, R, m.S, m.L, m.K, self._Pn, m.HP, self._T,
-                           m.W, self._rin, self._pin, nx, m.stats)
-        if code != K.OK:
-            self._raise(f"update({m.name})", code, idx)
-        self._retract.flat(self._rin, self._xnew, self._B)
-        code, idx = K.commit_update(self._xnew, self._B, self._Pn, self.reset, self._P,
-                                    self._pin, nx, self._unit, self._T)
-        if code != K.OK:
+        code, idx = m.step(self._buf, z, R, pvec, self.reset)
+        if code != 0:
             self._raise(f"update({m.name})", code, idx)
         self._last = m
         self.num_updates += 1
@@ -487,6 +495,7 @@ class ManifoldEKF:
             K.S_NOT_PD: (NotPositiveDefiniteError, "the innovation covariance H P H^T + R is "
                                                    "not positive definite"),
             K.RETRACT_NONFINITE: (NonFiniteError, "the corrected state is not finite"),
+            K.Z_NONFINITE: (NonFiniteError, f"z[{idx}] is not finite"),
         }
         cls, msg = msgs.get(code, (FgoptError, f"failed (code {code})"))
         raise cls(f"{where}: {msg}; the filter is unchanged")
