@@ -39,7 +39,7 @@ Z_NONFINITE = 18
 SYMMETRY_TOL = 1e-9
 PSD_TOL = 1e-12
 
-_JIT = dict(cache=True, fastmath=False, error_model="numpy", nogil=True)
+_JIT = {"cache": True, "fastmath": False, "error_model": "numpy", "nogil": True}
 
 
 @numba.njit(**_JIT)

@@ -43,11 +43,17 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import DimensionMismatchError, FgoptError, NonFiniteError, NotPositiveDefiniteError
+from ..errors import (
+    DimensionMismatchError,
+    FgoptError,
+    NonFiniteError,
+    NotPositiveDefiniteError,
+)
 from ..symbolic import LieGroupBase, Scalar, generate
-from ..symbolic.generate import GeneratedFunction, numeric_value, _storage
+from ..symbolic.generate import GeneratedFunction, numeric_value, value_storage
 from . import _ekf_kernels as K
 from . import _models
+from ._checks import fresh_names, named, return_type, signature, step_error
 from ._step_source import Layout, load, module_source
 
 _UNIT_NORM = {"Rot2": (0, 2), "Rot3": (0, 4), "Pose2": (0, 2), "Pose3": (0, 4)}
@@ -108,7 +114,7 @@ class ManifoldEKF:
                  reset: bool = True, name: str | None = None):
         self.name = name or getattr(process, "__name__", "ekf")
         self.reset = bool(reset)
-        params = _signature(process, "process")
+        params = signature(process, "process")
         names = [n for n, _ in params]
         if dt not in names:
             raise FgoptError(f"ManifoldEKF {self.name}: the process function has no time-step "
@@ -145,13 +151,13 @@ class ManifoldEKF:
         for s_ in inputs:
             self.tangent_slices.pop(s_)
         self._storage_slices = {s_: self._process.inputs[s_] for s_ in state}
-        deltas = _fresh_names([f"delta_{s_}" for s_ in state], set(names))
+        deltas = fresh_names([f"delta_{s_}" for s_ in state], set(names))
         rparams = [(s_, types[s_]) for s_ in state] + [
             (d, _models.tangent_type(types[s_])) for d, s_ in zip(deltas, state)]
         self._retract = generate(_models.state_retract(rparams, len(state), self.name),
                                  which=deltas, name=f"{self.name}_retract")
         self._measurements: dict[str, _Measurement] = {}
-        for i, (mname, fn) in enumerate(_named(measurements).items()):
+        for i, (mname, fn) in enumerate(named(measurements).items()):
             self._measurements[mname] = self._measurement(i, mname, fn, types)
         unit = [(self._storage_slices[s_].start + _UNIT_NORM[tp.__name__][0],
                  _UNIT_NORM[tp.__name__][1])
@@ -198,10 +204,10 @@ class ManifoldEKF:
         else from a value-only generated module, which needs no SymPy on a cache hit)."""
         import typing
 
-        from ..symbolic.generate import _type_hints
+        from ..symbolic.generate import type_hints
 
         try:
-            rt = _type_hints(process, None).get("return")
+            rt = type_hints(process, None).get("return")
         except Exception:  # noqa: BLE001 - unresolvable: count the outputs instead
             rt = None
         if rt is not None and typing.get_origin(rt) is tuple:
@@ -228,7 +234,7 @@ class ManifoldEKF:
                                  f"{got.__name__} for state '{s_}' ({want.__name__})")
 
     def _measurement(self, index: int, mname: str, fn: Callable, types: dict) -> _Measurement:
-        mparams = _signature(fn, f"measurement {mname}")
+        mparams = signature(fn, f"measurement {mname}")
         extra = []
         for pn, tp in mparams:
             if pn in self.state_names:
@@ -243,10 +249,10 @@ class ManifoldEKF:
         position = {pn: i for i, (pn, _) in enumerate(full)}
         select = tuple(position[pn] for pn, _ in mparams)
         pred = _models.prediction(fn, select, full, f"{self.name}_{mname}")
-        ztype = _return_type(fn)
+        ztype = return_type(fn)
         if ztype is None:  # unannotated: find the type from the generated prediction
             ztype = generate(pred, which=()).outputs[0].type
-        zname = _fresh_names(["z"], taken)[0]
+        zname = fresh_names(["z"], taken)[0]
         innov = generate(_models.innovation(fn, select, full + [(zname, ztype)],
                                             f"{self.name}_{mname}"),
                          which=list(self.state_names), name=f"{self.name}_{mname}_innovation")
@@ -270,7 +276,7 @@ class ManifoldEKF:
                 raise FgoptError(f"ManifoldEKF {self.name}: x0 has {len(values)} values for the "
                                  f"state ({', '.join(self.state_names)})")
         for s_, tp, v in zip(self.state_names, self.state_types, values):
-            storage[self._storage_slices[s_]] = _storage(f"ManifoldEKF {self.name}", s_, tp, v)
+            storage[self._storage_slices[s_]] = value_storage(f"ManifoldEKF {self.name}", s_, tp, v)
         for a, n in self._unit:
             nrm = np.linalg.norm(storage[a:a + n])
             if nrm < 1e-9:
@@ -403,7 +409,7 @@ class ManifoldEKF:
         if m is None:
             m = self._select(which)
         if not (type(z) is np.ndarray and z.shape == (m.zdim,) and z.dtype == np.float64):
-            z = _storage(f"ManifoldEKF {self.name}.update({m.name})", "z", m.ztype, z)
+            z = value_storage(f"ManifoldEKF {self.name}.update({m.name})", "z", m.ztype, z)
         if len(m.params) > 0 or len(params) > 0:
             packed = self._params(m, params)
             pvec = np.concatenate(list(packed.values())) if len(packed) > 0 else m.no_params
@@ -438,7 +444,7 @@ class ManifoldEKF:
             raise FgoptError(f"ManifoldEKF {self.name}.update({m.name}): parameters "
                              f"{sorted(names)} expected (missing {missing}, unknown {unknown})")
         where = f"ManifoldEKF {self.name}.update({m.name})"
-        return {pn: _storage(where, pn, tp, params[pn]) for pn, tp in m.params}
+        return {pn: value_storage(where, pn, tp, params[pn]) for pn, tp in m.params}
 
     def _vector(self, v: Any, n: int, what: str) -> np.ndarray:
         try:
@@ -471,34 +477,8 @@ class ManifoldEKF:
         return np.ascontiguousarray(arr)
 
     def _raise(self, step: str, code: int, idx: int, dt: float = 0.0):
-        where = f"ManifoldEKF {self.name}.{step}"
-        n = self.dim
-        msgs = {
-            K.U_NONFINITE: (NonFiniteError, f"u[{idx}] is not finite"),
-            K.DT_INVALID: (FgoptError, f"dt must be positive and finite, got {dt!r}"),
-            K.Q_NONFINITE: (NonFiniteError, "Q is not finite"),
-            K.Q_ASYMMETRIC: (NotPositiveDefiniteError, "Q is not symmetric"),
-            K.Q_NOT_PSD: (NotPositiveDefiniteError, "Q is not positive semi-definite"),
-            K.QS_NONFINITE: (NonFiniteError, "Q_state is not finite"),
-            K.QS_ASYMMETRIC: (NotPositiveDefiniteError, "Q_state is not symmetric"),
-            K.QS_NOT_PSD: (NotPositiveDefiniteError, "Q_state is not positive semi-definite"),
-            K.PROCESS_NONFINITE: (NonFiniteError, f"the process function returned a "
-                                                  f"non-finite state (storage entry {idx})"),
-            K.JACOBIAN_NONFINITE: (NonFiniteError, "a generated Jacobian is not finite"),
-            K.COVARIANCE_NONFINITE: (NonFiniteError, f"the covariance would become non-finite "
-                                                     f"(entry {divmod(max(idx, 0), n)})"),
-            K.R_NONFINITE: (NonFiniteError, "R is not finite"),
-            K.R_ASYMMETRIC: (NotPositiveDefiniteError, "R is not symmetric"),
-            K.R_NOT_PD: (NotPositiveDefiniteError, "R is not positive definite"),
-            K.INNOVATION_NONFINITE: (NonFiniteError, f"the innovation is not finite (entry "
-                                                     f"{idx})"),
-            K.S_NOT_PD: (NotPositiveDefiniteError, "the innovation covariance H P H^T + R is "
-                                                   "not positive definite"),
-            K.RETRACT_NONFINITE: (NonFiniteError, "the corrected state is not finite"),
-            K.Z_NONFINITE: (NonFiniteError, f"z[{idx}] is not finite"),
-        }
-        cls, msg = msgs.get(code, (FgoptError, f"failed (code {code})"))
-        raise cls(f"{where}: {msg}; the filter is unchanged")
+        cls, msg = step_error(code, idx, self.dim, dt)
+        raise cls(f"ManifoldEKF {self.name}.{step}: {msg}; the filter is unchanged")
 
     def __repr__(self) -> str:
         st = ", ".join(f"{n}: {tp.__name__}" for n, tp in zip(self.state_names, self.state_types))
@@ -510,52 +490,3 @@ class ManifoldEKF:
         return (f"ManifoldEKF {self.name}: state ({st}), dim {self.dim}; inputs ({inp or 'none'})"
                 f"; measurements ({meas or 'none'}); {self.num_predicts} predicts, "
                 f"{self.num_updates} updates; 1-sigma {spread}")
-
-
-# ---------------------------------------------------------------------- module helpers
-def _signature(fn: Callable, what: str) -> list:
-    """``[(name, symbolic type)]`` of a function's annotated parameters."""
-    from ..symbolic.generate import _parameters
-
-    if not callable(fn):
-        raise FgoptError(f"ManifoldEKF: the {what} function is not callable: {fn!r}")
-    return list(_parameters(fn, getattr(fn, "__name__", what), None))
-
-
-def _return_type(fn: Callable) -> type | None:
-    from ..symbolic.generate import _type_hints
-    from ..symbolic.ops import normalize_type
-
-    try:
-        rt = _type_hints(fn, None).get("return")
-        return None if rt is None else normalize_type(rt)
-    except Exception:  # noqa: BLE001 - unresolvable or unsupported: derive it instead
-        return None
-
-
-def _named(measurements: Any) -> dict:
-    if measurements is None:
-        return {}
-    if isinstance(measurements, Mapping):
-        return dict(measurements)
-    if callable(measurements):
-        measurements = [measurements]
-    out = {}
-    for fn in measurements:
-        name = getattr(fn, "__name__", None)
-        if name is None or not name.isidentifier() or name in out:
-            raise FgoptError("ManifoldEKF: measurement functions given as a sequence need "
-                             "distinct names (or pass a dict name -> function)")
-        out[name] = fn
-    return out
-
-
-def _fresh_names(wanted: list, taken: set) -> list:
-    out = []
-    for w in wanted:
-        name = w
-        while name in taken:
-            name += "_"
-        taken.add(name)
-        out.append(name)
-    return out

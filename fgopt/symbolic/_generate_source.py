@@ -82,10 +82,10 @@ def run_symbolic(gf: Any) -> tuple[dict, list, bool]:
 def _check_return_annotation(gf: Any, outputs: list, is_tuple: bool) -> None:
     import typing
 
-    from .generate import _type_hints
+    from .generate import type_hints
 
     try:
-        rt = _type_hints(gf.fn, None).get("return")
+        rt = type_hints(gf.fn, None).get("return")
     except Exception:  # noqa: BLE001 - unresolvable return annotation: nothing to check
         return
     if rt is None:
@@ -233,15 +233,15 @@ def derive_source(gf: Any) -> str:
         f"# Source: {signature}",
         f"#   at {_origin(gf.fn)}",
         f"# Input storage layout: {layout}.",
-        f"# Jacobian: {rows}x{cols}, rows = output tangent spaces, columns = tangent spaces of "
-        f"({', '.join(gf.which)}).",
+        (f"# Jacobian: {rows}x{cols}, rows = output tangent spaces, columns = tangent spaces of "
+         f"({', '.join(gf.which)})."),
         "# Do NOT modify by hand: edit the function instead.",
         "# " + "-" * 98,
         f"# total ops: value {ops_value}, jacobian {ops_jac}",
         "# ruff: noqa",
         "# fmt: off",
-        f'"""Generated function ``{gf.name}`` (input {in_dim}, output {out_dim}, '
-        f'jacobian {rows}x{cols})."""',
+        (f'"""Generated function ``{gf.name}`` (input {in_dim}, output {out_dim}, '
+         f'jacobian {rows}x{cols})."""'),
         "",
         "import math",
         "",

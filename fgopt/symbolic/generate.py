@@ -132,7 +132,7 @@ class GeneratedFunction:
         if not self.name.isidentifier():
             self.name = "generated"
         self.method, self.engine = method, engine
-        self.params = _parameters(fn, self.name, scope)
+        self.params = parameters(fn, self.name, scope)
         names = [n for n, _ in self.params]
         self.which: tuple[str, ...] = tuple(names) if which is None else _which(which, names,
                                                                                  self.name)
@@ -275,20 +275,24 @@ class GeneratedFunction:
             arg = next(a for a in self.arguments if a.storage.start <= col < a.storage.stop)
             raise NonFiniteError(f"{self.name}: argument '{arg.name}' is not finite in row {row}")
         out = np.empty((n, self.output_dim))
-        outs = lambda: tuple(out[:, o.storage] for o in self.outputs)  # noqa: E731
         if len(self.which) == 0:
             self.module.batch_value(inp, out)
-            return outs() if self.tuple_output else out
+            return self._split_rows(out)
         jac = np.empty((n, *self.jacobian_shape))
         self.module.batch(inp, out, jac)
-        return (outs() if self.tuple_output else out), jac
+        return self._split_rows(out), jac
+
+    def _split_rows(self, out: np.ndarray):
+        if not self.tuple_output:
+            return out
+        return tuple(out[:, o.storage] for o in self.outputs)
 
     def pack(self, *args: Any, **kwargs: Any) -> np.ndarray:
         """The flat input vector of numeric arguments (checked), as ``flat`` takes it."""
         values = self._bind(args, kwargs)
         inp = np.empty(self.input_dim)
         for a, v in zip(self.arguments, values):
-            inp[a.storage] = _storage(self.name, a.name, a.type, v)
+            inp[a.storage] = value_storage(self.name, a.name, a.type, v)
         return inp
 
     def _bind(self, args: tuple, kwargs: dict) -> list:
@@ -331,14 +335,16 @@ _MISSING = object()
 
 
 # ---------------------------------------------------------------------- helpers
-def _parameters(fn: Callable, name: str, scope: dict | None) -> tuple:
+def parameters(fn: Callable, name: str, scope: dict | None) -> tuple:
+    """``((name, symbolic type), ...)`` of a function's parameters, checked: every one annotated
+    with a symbolic type, no reserved names, no two storage symbols alike."""
     try:
         sig = inspect.signature(fn)
     except (TypeError, ValueError) as exc:
         raise FgoptError(f"generate {name}: cannot read the signature: {exc}") from None
     try:
-        hints = _type_hints(fn, scope)
-    except Exception as exc:  # noqa: BLE001 - any failure to resolve annotations
+        hints = type_hints(fn, scope)
+    except Exception as exc:
         raise FgoptError(f"generate {name}: cannot resolve annotations: {exc}") from exc
     params = []
     for p in sig.parameters.values():
@@ -380,7 +386,7 @@ def _which(which: Iterable[str], names: Sequence[str], name: str) -> tuple[str, 
     return out
 
 
-def _type_hints(fn: Callable, scope: dict | None) -> dict:
+def type_hints(fn: Callable, scope: dict | None) -> dict:
     """Annotations, string ones resolved in the function's globals, the calling scope and
     ``fgopt.symbolic``'s names."""
     try:
@@ -442,8 +448,9 @@ def numeric_value(tp: type, storage: np.ndarray):
     return twin.from_storage(storage) if twin is not None else storage.copy()
 
 
-def _storage(fname: str, name: str, tp: type, value: Any) -> np.ndarray:
-    """One numeric argument as its storage vector (checked)."""
+def value_storage(fname: str, name: str, tp: type, value: Any) -> np.ndarray:
+    """A numeric value of symbolic type ``tp`` as its storage vector (checked: size, finite,
+    numeric twin type). ``fname`` and ``name`` go into error messages."""
     s = tp.storage_dim()
     if issubclass(tp, LieGroupBase) and hasattr(value, "to_storage"):
         twin = _NUMERIC_TWIN.get(tp.__name__)
@@ -469,9 +476,9 @@ def _batch_storage(fname: str, name: str, tp: type, value: Any) -> np.ndarray:
     """One batched argument as ``(n, storage_dim)`` (``n = 1``: the same for every row)."""
     s = tp.storage_dim()
     if isinstance(value, (list, tuple)) and len(value) > 0 and hasattr(value[0], "to_storage"):
-        value = np.stack([_storage(fname, name, tp, v) for v in value])
+        value = np.stack([value_storage(fname, name, tp, v) for v in value])
     elif hasattr(value, "to_storage"):
-        value = _storage(fname, name, tp, value)
+        value = value_storage(fname, name, tp, value)
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:

@@ -317,23 +317,23 @@ def test_state_access_repr_and_jacobians(ins_filter):
 
 # ---------------------------------------------------------------------- bad input
 BAD_PREDICTS = {
-    "u wrong size": (dict(u=np.zeros(5)), "u needs 6 numbers"),
-    "u nan": (dict(u=np.r_[0, 0, np.nan, 0, 0, 9.8]), "u\\[2\\] is not finite"),
-    "dt zero": (dict(dt=0.0), "dt must be positive"),
-    "dt nan": (dict(dt=np.nan), "dt must be positive"),
-    "dt text": (dict(dt="x"), "dt must be a number"),
-    "Q shape": (dict(Q=np.eye(5)), "Q must be 6x6"),
-    "Q negative": (dict(Q=-np.eye(6)), "Q is not positive semi-definite"),
-    "Q asymmetric": (dict(Q=np.eye(6) + np.triu(np.ones((6, 6)), 1)), "Q is not symmetric"),
-    "Q inf": (dict(Q=np.full((6, 6), np.inf)), "Q is not finite"),
-    "Q_state negative": (dict(Q_state=-np.eye(15)), "Q_state is not positive semi-definite"),
+    "u wrong size": ({"u": np.zeros(5)}, "u needs 6 numbers"),
+    "u nan": ({"u": np.r_[0, 0, np.nan, 0, 0, 9.8]}, "u\\[2\\] is not finite"),
+    "dt zero": ({"dt": 0.0}, "dt must be positive"),
+    "dt nan": ({"dt": np.nan}, "dt must be positive"),
+    "dt text": ({"dt": "x"}, "dt must be a number"),
+    "Q shape": ({"Q": np.eye(5)}, "Q must be 6x6"),
+    "Q negative": ({"Q": -np.eye(6)}, "Q is not positive semi-definite"),
+    "Q asymmetric": ({"Q": np.eye(6) + np.triu(np.ones((6, 6)), 1)}, "Q is not symmetric"),
+    "Q inf": ({"Q": np.full((6, 6), np.inf)}, "Q is not finite"),
+    "Q_state negative": ({"Q_state": -np.eye(15)}, "Q_state is not positive semi-definite"),
 }
 
 
 @pytest.mark.parametrize("case", list(BAD_PREDICTS))
 def test_bad_predict_raises_and_leaves_the_filter_unchanged(ins_filter, case):
     """Every bad predict argument gives an FgoptError naming it; state, P, counts unchanged."""
-    kwargs = dict(u=np.r_[0.01, 0.0, 0.0, 0.0, 0.0, GRAVITY], dt=0.01, Q=np.eye(6) * 1e-4)
+    kwargs = {"u": np.r_[0.01, 0.0, 0.0, 0.0, 0.0, GRAVITY], "dt": 0.01, "Q": np.eye(6) * 1e-4}
     change, message = BAD_PREDICTS[case]
     kwargs.update(change)
     snap = _snapshot(ins_filter)
@@ -343,22 +343,22 @@ def test_bad_predict_raises_and_leaves_the_filter_unchanged(ins_filter, case):
 
 
 BAD_UPDATES = {
-    "z wrong size": (dict(z=np.zeros(2)), "'z'.*3 numbers"),
-    "z nan": (dict(z=np.array([0.0, np.nan, 0.0])), "z\\[1\\] is not finite"),
-    "z nan list": (dict(z=[0.0, np.nan, 0.0]), "'z' is not finite"),
-    "R not PD": (dict(R=np.diag([1.0, 0.0, 1.0])), "R is not positive definite"),
-    "R shape": (dict(R=np.eye(2)), "R must be 3x3"),
-    "R asymmetric": (dict(R=np.array([[1.0, 0.5, 0], [0, 1, 0], [0, 0, 1]])),
+    "z wrong size": ({"z": np.zeros(2)}, "'z'.*3 numbers"),
+    "z nan": ({"z": np.array([0.0, np.nan, 0.0])}, "z\\[1\\] is not finite"),
+    "z nan list": ({"z": [0.0, np.nan, 0.0]}, "'z' is not finite"),
+    "R not PD": ({"R": np.diag([1.0, 0.0, 1.0])}, "R is not positive definite"),
+    "R shape": ({"R": np.eye(2)}, "R must be 3x3"),
+    "R asymmetric": ({"R": np.array([[1.0, 0.5, 0], [0, 1, 0], [0, 0, 1]])},
                      "R is not symmetric"),
-    "unknown which": (dict(which="lidar"), "no measurement 'lidar'"),
-    "unexpected parameter": (dict(lever=np.zeros(3)), "unknown \\['lever'\\]"),
+    "unknown which": ({"which": "lidar"}, "no measurement 'lidar'"),
+    "unexpected parameter": ({"lever": np.zeros(3)}, "unknown \\['lever'\\]"),
 }
 
 
 @pytest.mark.parametrize("case", list(BAD_UPDATES))
 def test_bad_update_raises_and_leaves_the_filter_unchanged(ins_filter, case):
     """Every bad update argument gives an FgoptError naming it; state, P, counts unchanged."""
-    kwargs = dict(z=np.array([1.0, 0.5, 0.0]), R=np.eye(3), which="gps")
+    kwargs = {"z": np.array([1.0, 0.5, 0.0]), "R": np.eye(3), "which": "gps"}
     change, message = BAD_UPDATES[case]
     kwargs.update(change)
     snap = _snapshot(ins_filter)

@@ -165,7 +165,7 @@ def test_multiple_mixed_outputs_match_fd(where):
     args = [ROTATIONS[where](rng), rng.normal(size=3), rng.normal(size=3) * 5,
             rng.normal(size=3) * 0.3, rng.normal(size=3) + [0, 0, 9.8], 0.05]
     assert_matches_fd(gf, args)
-    (R1, p1, v1, anorm), J = gf(*args)
+    (R1, p1, _v1, anorm), J = gf(*args)
     assert isinstance(R1, SO3) and p1.shape == (3,) and isinstance(anorm, float)
     assert J[gf.rows[1], gf.cols["v"]] == pytest.approx(np.eye(3) * 0.05)
 
@@ -194,7 +194,7 @@ def test_matrix_output_rows_are_row_major_entries():
     gf = generate(rotation_matrix)
     assert gf.jacobian_shape == (9, 3)
     R = SO3.random(RNG)
-    M, J = gf(R)
+    M, _J = gf(R)
     assert np.allclose(M, R.matrix(), atol=1e-12)
     assert_matches_fd(gf, [R])
 
