@@ -5,12 +5,15 @@
    as the example's ``MakeSharedD(0.0)``, and its noise parameters). Filters: fgopt 15-state
    (attitude, position, velocity, gyro and accelerometer biases), fgopt 9-state with GTSAM's
    exact NavState dynamics, GTSAM NavStateImuEKF (9-state). One pass each (predict every IMU
-   sample, update at every fix), timed after a warm-up pass; position error against the fixes.
+   sample, update at every fix; fgopt also with ``predict_many`` over the samples between two
+   fixes), timed after a warm-up pass; position error against the fixes.
 2. **Per-step cost** (synthetic inputs, the 15-state filter): predict alone, update alone, and
    predict + update at every sample (the issue's target: under 20 us), against GTSAM's
    predict + updateWithVector (9-state). Median of 5 repeats of 20000 steps each.
 
-Single thread (BLAS / numba pinned as the other benchmarks). Run:
+Times are CPU seconds of this process (``time.process_time``), which a busy shared machine
+inflates far less than wall time; the load average is printed before and after. Single thread
+(BLAS / numba pinned as the other benchmarks). Run:
 
     .venv/bin/python -m benchmarks.navigation_ekf
 """
@@ -105,6 +108,35 @@ def run_fgopt(ekf, events, Q, Q_state):
     return errs
 
 
+def blocks(events):
+    """The events as ("imu", (k, 6) inputs [gyro, accel]) and ("gps", xyz) items."""
+    out, run = [], []
+    for ev in events:
+        if ev[0] == 0:
+            run.append(np.r_[ev[2], ev[1]])
+        else:
+            if len(run) > 0:
+                out.append(("imu", np.array(run)))
+                run = []
+            out.append(("gps", ev[1]))
+    if len(run) > 0:
+        out.append(("imu", np.array(run)))
+    return out
+
+
+def run_fgopt_blocks(ekf, items, Q, Q_state):
+    """predict_many over the IMU samples between fixes (one compiled loop per block)."""
+    Rg = np.eye(3) * GPS_SIGMA**2
+    errs = []
+    for kind, data in items:
+        if kind == "imu":
+            ekf.predict_many(data, DT, Q, Q_state)
+        else:
+            errs.append(np.linalg.norm(ekf["p"] - data))
+            ekf.update(data, Rg, "gps")
+    return errs
+
+
 def run_gtsam(gtsam, X0, P0, events):
     p = gtsam.PreintegrationParams.MakeSharedD(0.0)
     p.setAccelerometerCovariance(np.eye(3) * ACC_SIGMA**2)
@@ -126,11 +158,12 @@ def run_gtsam(gtsam, X0, P0, events):
 
 
 def timed(fn, repeats=3):
+    """Median CPU time of ``repeats`` calls, and the last result."""
     out, times = None, []
     for _ in range(repeats):
-        t = time.perf_counter()
+        t = time.process_time()
         out = fn()
-        times.append(time.perf_counter() - t)
+        times.append(time.process_time() - t)
     return statistics.median(times), out
 
 
@@ -168,6 +201,22 @@ def real_data(gtsam):
     run_fgopt(ekf9, events[:200], zero6, Q9)
     t9, e9 = timed(one9)
     rows.append(("fgopt ManifoldEKF, 9-state (GTSAM's dynamics)", t9, e9, n_imu))
+    items = blocks(events)
+    run_fgopt_blocks(ekf15, items[:4], Q, Q15)
+    run_fgopt_blocks(ekf9, items[:4], zero6, Q9)
+
+    def many15():
+        ekf15.set_state((R0, p0, v0, np.zeros(3), np.zeros(3)), P15)
+        return run_fgopt_blocks(ekf15, items, Q, Q15)
+
+    def many9():
+        ekf9.set_state((R0, p0, v0), P9)
+        return run_fgopt_blocks(ekf9, items, zero6, Q9)
+
+    tm15, em15 = timed(many15)
+    rows.append(("fgopt ManifoldEKF, 15-state, predict_many between fixes", tm15, em15, n_imu))
+    tm9, em9 = timed(many9)
+    rows.append(("fgopt ManifoldEKF, 9-state, predict_many between fixes", tm9, em9, n_imu))
     if gtsam is not None:
         X0 = gtsam.NavState(gtsam.Rot3(R0.matrix()), p0, v0)
         tg, (g_ekf, eg) = timed(lambda: run_gtsam(gtsam, X0, P9, events))
@@ -178,7 +227,7 @@ def real_data(gtsam):
               f"{diff:.2e}")
     print(f"\nReal data: {path.name}, {n_imu} IMU samples, "
           f"{sum(1 for e in events if e[0] == 1)} GPS fixes (median of 3 passes)\n")
-    print("| filter | pass (s) | per IMU sample (us) | position error at fixes: RMS / max (m) |")
+    print("| filter | pass (CPU s) | per IMU sample (CPU us) | position error at fixes: RMS / max (m) |")
     print("|---|---|---|---|")
     for name, t, errs, n in rows:
         print(f"| {name} | {t:.3f} | {1e6 * t / n:.2f} | {np.sqrt(np.mean(np.square(errs))):.2e}"
@@ -200,13 +249,13 @@ def per_step(gtsam):
 
     def loop(pred, upd):
         ekf.set_state(x0, np.eye(15))
-        t = time.perf_counter()
+        t = time.process_time()
         for k in range(steps):
             if pred:
                 ekf.predict(U[k], 0.01, Q, Q15)
             if upd:
                 ekf.update(Z[k], Rg, "gps")
-        return (time.perf_counter() - t) / steps * 1e6
+        return (time.process_time() - t) / steps * 1e6
 
     loop(True, True)
     results = {}
@@ -221,17 +270,17 @@ def per_step(gtsam):
 
         def gloop():
             g_ekf = gtsam.NavStateImuEKF(gtsam.NavState(), np.eye(9), p)
-            t = time.perf_counter()
+            t = time.process_time()
             for k in range(steps):
                 g_ekf.predict(U[k, :3], U[k, 3:], 0.01)
                 X = g_ekf.state()
                 H[:, 3:6] = X.attitude().matrix()
                 g_ekf.updateWithVector(X.position(), H, Z[k], Rg, False)
-            return (time.perf_counter() - t) / steps * 1e6
+            return (time.process_time() - t) / steps * 1e6
 
         gloop()
         g = statistics.median(gloop() for _ in range(5))
-    print(f"\nPer step, synthetic inputs, {steps} steps (median of 5), microseconds\n")
+    print(f"\nPer step, synthetic inputs, {steps} steps (median of 5), CPU microseconds\n")
     print("| step | fgopt 15-state | GTSAM 9-state (predict + updateWithVector) | ratio |")
     print("|---|---|---|---|")
     for label, us in results.items():

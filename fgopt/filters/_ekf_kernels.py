@@ -127,7 +127,12 @@ def _normalize(x, unit):
 
 @numba.njit(**_JIT)
 def _sandwich_add(B, c0, M, out, T):
-    """``out += B M B^T`` for ``B = J[:, c0:c0 + M.shape[0]]`` (zeros of B skipped)."""
+    """``out += B M B^T`` for ``B = J[:, c0:c0 + M.shape[0]]`` (M symmetric; zeros of B
+    skipped: generated Jacobians are sparse). ``T`` (at least ``n x k``) receives ``B M``.
+
+    Measured against a dense loop, index lists of the non-zeros and BLAS for a 15-state INS
+    ``F`` (45 of 225 entries non-zero): this plain skip is the fastest (0.7 us vs 1.0-1.9 us).
+    """
     n, k = B.shape[0], M.shape[0]
     for i in range(n):
         for j in range(k):
@@ -146,7 +151,30 @@ def _sandwich_add(B, c0, M, out, T):
 
 
 @numba.njit(**_JIT)
-def predict(pin, nx, nu, xnext, FG, P, Q, Qs, use_qs, Pn, L, T, unit):
+def _validated(A, last, L, psd):
+    """``_check_noise(A)``, skipped when ``A`` equals ``last`` (the last matrix that passed);
+    a matrix that passes is copied into ``last``."""
+    n = A.shape[0]
+    same = True
+    for i in range(n):
+        for j in range(n):
+            if A[i, j] != last[i, j]:  # NaN never equals: checked
+                same = False
+                break
+        if not same:
+            break
+    if same:
+        return 0, -1
+    code, idx = _check_noise(A, L, psd)
+    if code == 0:
+        for i in range(n):
+            for j in range(n):
+                last[i, j] = A[i, j]
+    return code, idx
+
+
+@numba.njit(**_JIT)
+def predict(pin, nx, nu, xnext, FG, P, Q, Qs, use_qs, Pn, L, T, unit, Qlast, Qslast):
     """Checks, then ``P <- F P F^T + G Q G^T (+ Qs)`` and ``x <- f(x, u, dt)`` (committed).
 
     ``pin`` = ``[x storage | u storage | dt]`` (``x`` is the filter's state), ``xnext`` the
@@ -159,11 +187,11 @@ def predict(pin, nx, nu, xnext, FG, P, Q, Qs, use_qs, Pn, L, T, unit):
     dt = pin[nx + nu]
     if not (np.isfinite(dt) and dt > 0.0):
         return DT_INVALID, -1
-    code, idx = _check_noise(Q, L, True)
+    code, idx = _validated(Q, Qlast, L, True)
     if code != 0:
         return Q_NONFINITE + code - 1, idx
     if use_qs:
-        code, idx = _check_noise(Qs, L, True)
+        code, idx = _validated(Qs, Qslast, L, True)
         if code != 0:
             return QS_NONFINITE + code - 1, idx
     i = _first_nonfinite(xnext)
@@ -192,7 +220,7 @@ def predict(pin, nx, nu, xnext, FG, P, Q, Qs, use_qs, Pn, L, T, unit):
 
 
 @numba.njit(**_JIT)
-def gain(y, J, P, R, S, L, K, Pn, HP, AP, W, rin, pin, nx, stats):
+def gain(y, J, P, R, S, L, K, Pn, HP, AP, W, rin, pin, nx, stats, Rlast):
     """Joseph-form update in the tangent space: ``delta = K y`` (into ``rin[nx:]``), ``Pn``.
 
     ``y`` is the innovation ``local(h(x), z)`` and ``J = d y / d x`` (so ``H = -J``);
@@ -207,7 +235,7 @@ def gain(y, J, P, R, S, L, K, Pn, HP, AP, W, rin, pin, nx, stats):
     i = _first_nonfinite(J)
     if i >= 0:
         return JACOBIAN_NONFINITE, i
-    code, idx = _check_noise(R, L, False)
+    code, idx = _validated(R, Rlast, L, False)
     if code != 0:
         return R_NONFINITE + code - 1, idx
     # HP = H P = -J P (m x n), skipping zeros of J

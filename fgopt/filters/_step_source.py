@@ -20,7 +20,7 @@ import numpy as np
 from ..symbolic import cache as _cache
 
 #: Bump when the template changes (it is part of every module's source, hence its key).
-TEMPLATE_VERSION = "1"
+TEMPLATE_VERSION = "3"
 
 
 def _kernels_hash() -> str:
@@ -107,7 +107,32 @@ def module_source(name: str, layout: Layout, dims: dict, unit: list, process: st
         f"    FG = {v('FG')}",
         "    _process(pin, xnext, FG)",
         f"    return K.predict(pin, {nx}, {nu}, xnext, FG, {v('P')}, Q, Qs, use_qs, {v('Pn')},",
-        f"                     {v('L')}, {v('T')}, UNIT)",
+        f"                     {v('L')}, {v('T')}, UNIT, {v('Qlast')}, {v('Qslast')})",
+    ]
+    lines += [
+        "",
+        "",
+        '@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)',
+        "def predict_many(buf, U, dts, Q, Qs, use_qs):",
+        '    """predict() for each row of U; all or nothing: (status, index, failing row)."""',
+        f"    pin = {v('pin')}",
+        f"    P = {v('P')}",
+        f"    backup = {v('backup')}",
+        f"    for i in range({nx}):",
+        "        backup[i] = pin[i]",
+        f"    for i in range({n}):",
+        f"        for j in range({n}):",
+        f"            backup[{nx} + i * {n} + j] = P[i, j]",
+        "    for r in range(U.shape[0]):",
+        "        code, idx = predict(buf, U[r], dts[r], Q, Qs, use_qs)",
+        "        if code != 0:",
+        f"            for i in range({nx}):",
+        "                pin[i] = backup[i]",
+        f"            for i in range({n}):",
+        f"                for j in range({n}):",
+        f"                    P[i, j] = backup[{nx} + i * {n} + j]",
+        "            return code, idx, r",
+        "    return 0, -1, -1",
     ]
     for i, _, zoff, zdim, poff, pdim in measurements:
         p = f"m{i}_"
@@ -136,7 +161,7 @@ def module_source(name: str, layout: Layout, dims: dict, unit: list, process: st
             f"    rin = {v('rin')}",
             f"    code, idx = K.gain(y, J, P, R, {v(p + 'S')}, {v(p + 'L')}, {v(p + 'K')}, Pn,",
             (f"                       {v(p + 'HP')}, T, {v(p + 'W')}, rin, pin, {nx}, "
-             f"{v(p + 'stats')})"),
+             f"{v(p + 'stats')}, {v(p + 'Rlast')})"),
             "    if code != 0:",
             "        return code, idx",
             f"    xnew = {v('xnew')}",

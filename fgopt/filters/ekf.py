@@ -82,6 +82,7 @@ class _Measurement:
         m, p = self.dim, f"m{self.index}_"
         layout.add(p + "inp", self.innovation.input_dim)
         for name, shape in (("y", (m,)), ("J", (m, n)), ("S", (m, m)), ("L", (m, m)),
+                            ("Rlast", (m, m)),
                             ("K", (n, m)), ("HP", (m, n)), ("W", (n, m)), ("stats", (m + 1,))):
             layout.add(p + name, *shape)
 
@@ -172,12 +173,18 @@ class ManifoldEKF:
         for a in ("P", "Pn", "B"):
             layout.add(a, n, n)
         layout.add("L", k, k)
-        layout.add("T", n, k)
+        layout.add("T", k, k)
+        layout.add("Qlast", self.input_dim, self.input_dim)  # last noise matrices that passed
+        layout.add("Qslast", n, n)
+        layout.add("backup", self.nx + n * n)  # state and P before a predict_many
         layout.add("rin", self._retract.input_dim)
         layout.add("xnew", self._retract.output_dim)
         for m in self._measurements.values():
             m.add_arrays(layout, n)
         self._buf = np.zeros(layout.size)
+        last = ["Qlast", "Qslast", *(f"m{m.index}_Rlast" for m in self._measurements.values())]
+        for array in last:
+            layout.view(self._buf, array)[...] = np.nan  # nothing validated yet
         self._pin = layout.view(self._buf, "pin")
         self._P = layout.view(self._buf, "P")
         for m in self._measurements.values():
@@ -395,6 +402,32 @@ class ManifoldEKF:
         if code != 0:
             self._raise("predict", code, idx, dt=dt)
         self.num_predicts += 1
+
+    def predict_many(self, U: Any, dt: Any, Q: Any, Q_state: Any = None) -> None:
+        """``predict`` for each row of ``U`` (``(k, nu)``) in one compiled loop, e.g. the IMU
+        samples between two fixes. ``dt`` is one step or ``(k,)`` steps. All or nothing: if a
+        row fails, the error names it and the filter is as before the call."""
+        try:
+            U = np.ascontiguousarray(U, dtype=np.float64)
+            dts = np.ascontiguousarray(np.broadcast_to(np.asarray(dt, dtype=np.float64),
+                                                       (U.shape[0],)))
+        except (TypeError, ValueError, IndexError):
+            raise DimensionMismatchError(
+                f"ManifoldEKF {self.name}.predict_many: U must be (k, {self.nu}) numbers and dt "
+                f"one step or k steps; got shapes {np.shape(U)}, {np.shape(dt)}") from None
+        if U.ndim != 2 or U.shape[1] != self.nu:
+            raise DimensionMismatchError(f"ManifoldEKF {self.name}.predict_many: U must be "
+                                         f"(k, {self.nu}), got shape {U.shape}")
+        m = self.input_dim
+        Q = self._matrix(Q, (m, m), "Q")
+        if Q_state is None:
+            Qs, use_qs = self._no_qs, False
+        else:
+            Qs, use_qs = self._matrix(Q_state, (self.dim, self.dim), "Q_state"), True
+        code, idx, row = self._steps.predict_many(self._buf, U, dts, Q, Qs, use_qs)
+        if code != 0:
+            self._raise(f"predict_many (row {row})", code, idx, dt=float(dts[row]))
+        self.num_predicts += U.shape[0]
 
     def update(self, z: Any, R: Any, which: str | None = None, **params: Any) -> None:
         """Correct the estimate with measurement ``z`` of function ``which`` (noise ``R``).

@@ -315,6 +315,30 @@ def test_state_access_repr_and_jacobians(ins_filter):
     assert np.allclose(F[9:, 9:], np.eye(6))  # biases are constant
 
 
+def test_predict_many_equals_single_predicts_and_is_atomic():
+    """predict_many over a block equals the single predicts bit for bit; a non-finite row
+    raises naming the row and restores the state and covariance from before the call."""
+    rng = np.random.default_rng(5)
+    U = np.column_stack([rng.normal(size=(50, 3)) * 0.1,
+                         rng.normal(size=(50, 3)) + [0, 0, GRAVITY]])
+    Q, Qs = np.eye(6) * 1e-4, np.diag([0.0] * 9 + [1e-8] * 6)
+    one, many = _ins_filter(), _ins_filter()
+    for u in U:
+        one.predict(u, 0.01, Q, Qs)
+    many.predict_many(U, 0.01, Q, Qs)
+    assert np.array_equal(one.storage, many.storage)
+    assert np.array_equal(one.covariance, many.covariance) and many.num_predicts == 50
+    bad = U.copy()
+    bad[30, 4] = np.inf
+    snap = _snapshot(many)
+    with pytest.raises(fgopt.FgoptError, match="row 30.*u\\[4\\] is not finite"):
+        many.predict_many(bad, 0.01, Q, Qs)
+    assert _unchanged(many, snap)
+    with pytest.raises(fgopt.FgoptError, match="row 2.*dt must be positive"):
+        many.predict_many(U[:5], [0.01, 0.01, -0.01, 0.01, 0.01], Q, Qs)
+    assert _unchanged(many, snap)
+
+
 # ---------------------------------------------------------------------- bad input
 BAD_PREDICTS = {
     "u wrong size": ({"u": np.zeros(5)}, "u needs 6 numbers"),
