@@ -31,9 +31,12 @@ concatenated). The error state lives in the tangent space of the estimate: ``x_t
   moved to the tangent space at the corrected state, ``P <- B P B^T`` with
   ``B = d local(x+, x (+) (K y + e)) / d e`` (the ESKF reset; ``J_r(K y)`` for a rotation).
 
-Each step is one or two generated numba functions and one numba kernel of
-:mod:`fgopt.filters._ekf_kernels`; bad input raises an :class:`~fgopt.FgoptError` naming the
-argument and leaves the filter untouched.
+Each ``predict`` / ``update`` is one call of a generated, cached numba step
+(:mod:`fgopt.filters._step_source`) that runs the generated functions and the kernels of
+:mod:`fgopt.filters._ekf_kernels` on the filter's buffer; ``predict_many`` runs a block of
+inputs (e.g. the IMU samples between two fixes) in one call. Bad input raises an
+:class:`~fgopt.FgoptError` naming the argument (and the row, for blocks) and leaves the filter
+untouched.
 """
 
 from __future__ import annotations
