@@ -24,7 +24,7 @@ $(STAMP): pyproject.toml
 	@test -x $(PY) || { echo "==> creating $(VENV)"; python3 -m venv $(VENV); }
 	@echo "==> installing fgopt and its dependencies into $(VENV)"
 	@$(PY) -m pip install -q --disable-pip-version-check --upgrade pip wheel setuptools
-	@$(PY) -m pip install -q --disable-pip-version-check -e '.[test,notebook]'
+	@$(PY) -m pip install -q --disable-pip-version-check -e '.[test,notebook,distributed]'
 	@touch $(STAMP)
 
 demo: setup

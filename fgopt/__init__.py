@@ -7,7 +7,7 @@
 >>> result = fgopt.optimize(graph, initial, method="lm")
 """
 
-__version__ = "0.1.0"
+from ._version import __version__ as __version__
 
 import os as _os
 
@@ -40,6 +40,7 @@ from .solvers.result import Status as Status
 from .variables import Variables as Variables
 
 _LAZY = {"io": ".io", "plot": ".plot", "datasets": ".datasets", "symbolic": ".symbolic",
+         "distributed": ".distributed",
          "solvers": ".solvers"}
 
 
@@ -49,8 +50,12 @@ def __getattr__(name: str):
 
     if name in _LAZY:
         return importlib.import_module(_LAZY[name], __name__)
+    if name == "solve_many":
+        from .distributed import solve_many
+
+        return solve_many
     if name == "factor":
-        from .symbolic.factor import factor
+        from .factors.decorator import factor
 
         return factor
     raise AttributeError(f"module 'fgopt' has no attribute {name!r}")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from .factors.robust import rho_and_weight
+from .noise.robust import rho_and_weight
 
 
 @njit(cache=True)

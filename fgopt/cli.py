@@ -65,7 +65,7 @@ def _positive_int(text: str) -> int:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="fgopt", description="Factor-graph optimization on "
                                 "manifolds: solve or inspect g2o / TORO / BAL files.")
-    sub = p.add_subparsers(dest="command", required=True, metavar="{solve,info}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="{solve,solve-many,info}")
 
     def file_options(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("file", help="g2o / TORO (.g2o, .graph, .txt) or BAL file, optionally "
@@ -93,6 +93,22 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--quiet", action="store_true", help="no iteration table or log messages; "
                    "only the one-line summary")
     s.set_defaults(run=cmd_solve)
+
+    m = sub.add_parser("solve-many", help="solve many files in parallel on Dask; write each "
+                       "result and a summary table")
+    m.add_argument("files", nargs="+", help="g2o / TORO / BAL files (optionally .gz / .bz2)")
+    where = m.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_positive_int, default=None,
+                       help="worker processes of the local cluster (default: one per core)")
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="a running Dask scheduler (e.g. tcp://host:8786) instead of a local "
+                       "cluster")
+    m.add_argument("--out-dir", required=True, help="folder for the optimized files and "
+                   "summary.md")
+    m.add_argument("--method", choices=["lm", "gn", "dogleg", "gnc"], default="lm")
+    m.add_argument("--max-iterations", type=_positive_int, default=100)
+    m.add_argument("--quiet", action="store_true", help="no progress bar")
+    m.set_defaults(run=cmd_solve_many)
 
     i = sub.add_parser("info", help="counts, initial cost, connectivity and gauge of a file")
     file_options(i)
@@ -177,6 +193,35 @@ def cmd_solve(args: argparse.Namespace) -> int:
         print(f"fgopt: not converged: {result.status.value} ({result.message})", file=sys.stderr)
         return 1
     return 0
+
+
+def cmd_solve_many(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from .distributed import solve_files, summary_table
+
+    client = None
+    if args.scheduler is not None:
+        try:
+            from dask.distributed import Client
+        except ImportError:
+            raise FgoptError("--scheduler needs dask.distributed: pip install "
+                             "'fgopt[distributed]'") from None
+        client = Client(args.scheduler)
+    try:
+        rows = solve_files(args.files, args.out_dir, method=args.method, client=client,
+                           workers=args.workers, progress=not args.quiet,
+                           max_iterations=args.max_iterations)
+    finally:
+        if client is not None:
+            client.close()
+    table = summary_table(rows)
+    (Path(args.out_dir) / "summary.md").write_text(table)
+    print(table, end="", flush=True)
+    failed = sum(1 for r in rows if "error" in r)
+    if failed:
+        print(f"fgopt: {failed} of {len(rows)} files failed (see summary.md)", file=sys.stderr)
+    return 1 if failed else 0
 
 
 def _short_name(path: str) -> str:

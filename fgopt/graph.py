@@ -59,6 +59,12 @@ class FactorGraph:
     def batches(self) -> list:
         return self._batches
 
+    def copy(self) -> "FactorGraph":
+        """A new graph with the same factors and batches (adding to it leaves this one alone)."""
+        out = FactorGraph(self._factors)
+        out._batches = list(self._batches)
+        return out
+
     def extend(self, factors: Iterable[Factor]) -> "FactorGraph":
         for f in factors:
             self.add(f)

@@ -28,7 +28,7 @@ from .batch import FactorBatch, batch_from_factors
 from .errors import (DimensionMismatchError, EmptyProblemError, FgoptError, KeyNotFoundError,
                      ManifoldError, NonFiniteError)
 from .factors.base import Factor
-from .factors.noise import base_noise, loss_code_and_param
+from .noise.models import base_noise, loss_code_and_param
 from .key import Key, key_str
 from .manifolds.base import SCALAR_KIND, BatchKind, is_vector_kind, ops_for
 from .structure import HessianPattern, build_pattern, fill_reducing_order, scatter_positions

@@ -25,7 +25,7 @@ from ..errors import DimensionMismatchError, FgoptError, ManifoldError, NonFinit
 from ..key import Key, as_key, key_str
 from ..manifolds.base import ops_for
 from .kernel import FactorKernel
-from .noise import Loss, base_noise, resolve_loss
+from ..noise.models import Loss, base_noise, resolve_loss
 
 
 class Factor:

@@ -9,6 +9,7 @@ repairs, skipped lines) go to the ``fgopt.io`` logger.
 from .bal import read_bal as read_bal
 from .bal import reprojection_kernel as reprojection_kernel
 from .bal import write_bal as write_bal
+from .bal import write_bal_arrays as write_bal_arrays
 from .dispatch import detect_format as detect_format
 from .dispatch import read as read
 from .g2o import FIX_SIGMA as FIX_SIGMA

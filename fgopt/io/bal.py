@@ -155,9 +155,19 @@ def write_bal(path: str | os.PathLike, graph: Any, values: Any) -> None:
         rows.append(np.array(block))
     ci = np.searchsorted(cam_keys, keys[:, 0])
     pj = np.searchsorted(pt_keys, keys[:, 1])
-    out = [f"{cam_keys.shape[0]} {pt_keys.shape[0]} {keys.shape[0]}"]
+    write_bal_arrays(path, ci, pj, meas, rows[0], rows[1])
+
+
+def write_bal_arrays(path: str | os.PathLike, camera_index: np.ndarray, point_index: np.ndarray,
+                     observations: np.ndarray, cameras: np.ndarray, points: np.ndarray) -> None:
+    """Write a BAL file from arrays: per observation its camera and point index and ``(x, y)``;
+    ``cameras (nc, 9)``, ``points (np, 3)``. Numbers round-trip exactly (``repr``)."""
+    ci = np.asarray(camera_index, dtype=np.int64)
+    pj = np.asarray(point_index, dtype=np.int64)
+    uv = np.asarray(observations, dtype=float).reshape(-1, 2)
+    out = [f"{cameras.shape[0]} {points.shape[0]} {ci.shape[0]}"]
     out += [f"{c} {q} {x!r} {y!r}" for c, q, (x, y) in zip(ci.tolist(), pj.tolist(),
-                                                           meas.tolist())]
-    out += list(map(repr, rows[0].reshape(-1).tolist()))
-    out += list(map(repr, rows[1].reshape(-1).tolist()))
+                                                           uv.tolist())]
+    out += list(map(repr, np.asarray(cameras, dtype=float).reshape(-1).tolist()))
+    out += list(map(repr, np.asarray(points, dtype=float).reshape(-1).tolist()))
     write_text(path, "\n".join(out) + "\n")

@@ -48,6 +48,36 @@ class BatchKind:
     #: no normalization): the fast path for bulk construction. ``None``: use ``from_storage``.
     wrap: Callable[[np.ndarray], Any] | None = field(default=None, repr=False)
 
+    def __post_init__(self) -> None:
+        _KINDS.setdefault(self.name, self)
+
+    def __reduce__(self):
+        # Kinds compare by identity, so a pickled kind is the same-named kind of the receiving
+        # process (its batched functions are that process's compiled code, never shipped).
+        if _KINDS.get(self.name) is not self:
+            raise ManifoldError(f"manifold kind {self.name!r} cannot be pickled: another kind of "
+                                "that name was made first in this process")
+        return (kind_named, (self.name,))
+
+
+#: Every kind made in this process, by name (the first of a name wins).
+_KINDS: dict[str, BatchKind] = {}
+
+
+def kind_named(name: str) -> BatchKind:
+    """The kind called ``name`` in this process (how pickled kinds are restored)."""
+    kind = _KINDS.get(name)
+    if kind is None:
+        from .. import manifolds  # noqa: F401  (registers the built-in groups' kinds)
+
+        kind = _KINDS.get(name)
+    if kind is None and name.startswith("R") and name[1:].isdigit():
+        kind = vector_kind(int(name[1:]))
+    if kind is None:
+        raise ManifoldError(f"no manifold kind named {name!r} in this process: import the module "
+                            "that defines it before unpickling values or factors of that kind")
+    return kind
+
 
 @runtime_checkable
 class ManifoldOps(Protocol):

@@ -30,6 +30,9 @@ def marginals(result: Any, keys: Iterable[int] | None = None, graph: Any = None,
     """
     if result is not None:
         problem, state = result.problem, result.state
+        if problem is None:
+            raise FgoptError("marginals: this Result has no compiled problem (it was pickled, "
+                             "e.g. returned by solve_many); pass graph= and values=result.values")
     else:
         if graph is None or values is None:
             raise FgoptError("marginals: pass a Result, or graph= and values=")

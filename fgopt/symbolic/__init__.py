@@ -15,9 +15,11 @@ Module map (one job each): ``matrix`` (Matrix, V1..V9, Scalar), ``lie`` (group b
 ``functions`` (epsilon-safe math), ``_sym`` (SymPy side: epsilon, sign_no_zero),
 ``ops`` (storage/tangent ops), ``jacobians`` (tangent-space Jacobians), ``singularity``
 (removable-singularity checker), ``linearize`` (residual + Jacobian programs), ``cse``,
-``printer``, ``codegen`` (kernel modules), ``cache`` (on-disk cache), ``derive``, ``factor``
-(``@fgopt.factor``), ``runtime`` (helpers of generated code), ``generate`` (functions with
-tangent Jacobians as numba functions, :func:`generate`; derived in ``_generate_source``).
+``printer``, ``codegen`` (kernel modules), ``cache`` (on-disk cache), ``derive`` (a factor's
+kernel source), ``runtime`` (helpers of generated code), ``generate`` (functions with tangent
+Jacobians as numba functions, :func:`generate`; derived in ``_generate_source``).
+``@fgopt.factor`` itself, which makes factor types from these, is
+:mod:`fgopt.factors.decorator` (the factors layer).
 
 Importing this package does not import SymPy; ``epsilon`` and ``pi`` (SymPy objects) load it on
 first access.
@@ -27,12 +29,10 @@ from __future__ import annotations
 
 from typing import Any
 
+from . import cache as cache
 from .cameras import PinholeCamera as PinholeCamera
 from .cameras import SnavelyCamera as SnavelyCamera
 from .cameras import angle_axis_rotate as angle_axis_rotate
-from .factor import SymbolicFactor as SymbolicFactor
-from .factor import SymbolicFactorType as SymbolicFactorType
-from .factor import factor as factor
 from .functions import Abs as Abs
 from .functions import Max as Max
 from .functions import Min as Min
@@ -92,6 +92,11 @@ _LAZY = {
 }
 
 
+#: ``@factor`` lives in the factors layer (it makes Factor types); these names stay reachable from
+#: ``fgopt.symbolic`` because user code and notebooks import them from here.
+_FACTOR_NAMES = ("factor", "SymbolicFactor", "SymbolicFactorType")
+
+
 def __getattr__(name: str) -> Any:
     if name in _LAZY:
         import importlib
@@ -99,4 +104,10 @@ def __getattr__(name: str) -> Any:
         mod, attr = _LAZY[name]
         m = importlib.import_module(mod, __name__)
         return m.sp.pi if name == "pi" else getattr(m, attr)
+    if name in _FACTOR_NAMES:
+        # layer-exception: a compatibility alias resolved on first use, once the factors layer
+        # is importable; nothing in fgopt.symbolic itself uses these names.
+        from ..factors import decorator
+
+        return getattr(decorator, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -63,7 +63,7 @@ FINGERPRINT_MODULES = ("_sym", "cameras", "codegen", "cse", "derive", "functions
 @lru_cache(maxsize=1)
 def package_fingerprint() -> str:
     """Hash of fgopt's version and the sources of :data:`FINGERPRINT_MODULES`."""
-    from .. import __version__
+    from .._version import __version__
 
     h = hashlib.sha256(__version__.encode())
     here = Path(__file__).parent
@@ -126,12 +126,13 @@ def function_fingerprint(fn: Callable) -> str:
     return h.hexdigest()
 
 
-def kernel_key(fn: Callable, parts: tuple) -> str:
-    """Cache key of one generated module: function fingerprint + ``parts`` + package."""
+def kernel_key(fn: Callable, parts: tuple, fingerprint: str | None = None) -> str:
+    """Cache key of one generated module: function fingerprint (``fingerprint`` when the caller
+    already knows it) + ``parts`` + package."""
     from .codegen import CODEGEN_VERSION
 
     h = hashlib.sha256()
-    h.update(function_fingerprint(fn).encode())
+    h.update((fingerprint or function_fingerprint(fn)).encode())
     h.update(repr(parts).encode())
     h.update(package_fingerprint().encode())
     h.update(CODEGEN_VERSION.encode())

@@ -1,6 +1,6 @@
 """Derivation of one factor kernel module: symbolic residual -> programs -> source.
 
-Called by :class:`~fgopt.symbolic.factor.SymbolicFactorType` on a cache miss (this is where
+Called by :class:`~fgopt.factors.decorator.SymbolicFactorType` on a cache miss (this is where
 SymPy gets imported).
 """
 

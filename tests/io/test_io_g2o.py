@@ -12,7 +12,7 @@ from fgopt import FactorGraph, Variables, key
 from fgopt.errors import FgoptError, FileFormatError
 from fgopt.factors.library.pose_point import PosePointFactor
 from fgopt.factors.library.prior_between import BetweenFactor
-from fgopt.factors.noise import Gaussian
+from fgopt.noise import Gaussian
 from fgopt.io import FIX_SIGMA, read, read_g2o, write_g2o
 from fgopt.manifolds import SE2, SE3
 

@@ -147,4 +147,4 @@ def bal_kernel() -> FactorKernel:
     return FactorKernel("bal_reprojection", (vector_kind(9), vector_kind(3)), 2, 2,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
-                        source=_SOURCE)
+                        source=_SOURCE, recipe=(bal_kernel, ()))

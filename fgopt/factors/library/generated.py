@@ -95,7 +95,15 @@ def vector_factor_types(n: int) -> tuple:
 
     between.__annotations__ = {"a": tp, "b": tp, "measured": tp}
     prior.__annotations__ = {"x": tp, "prior": tp}
-    return (factor(between, name=f"between_{name}"), factor(prior, name=f"prior_{name}"))
+    types = (factor(between, name=f"between_{name}"), factor(prior, name=f"prior_{name}"))
+    for i, t in enumerate(types):
+        t.recipe = (vector_factor_type, (n, i))  # made here, not importable by name
+    return types
+
+
+def vector_factor_type(n: int, which: int):
+    """``vector_factor_types(n)[which]`` (how those types pickle)."""
+    return vector_factor_types(n)[which]
 
 
 _LIE_TYPES = {"SO2": (between_rot2, prior_rot2), "SE2": (between_pose2, prior_pose2),

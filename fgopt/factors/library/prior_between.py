@@ -18,7 +18,7 @@ import numpy as np
 from ...errors import ManifoldError
 from ...manifolds.base import ops_for
 from ..base import KernelFactor
-from ..noise import Loss
+from ...noise.models import Loss
 from ..numerical import numerical_jacobians
 
 

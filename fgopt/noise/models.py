@@ -7,7 +7,7 @@ definition) or, with a robust loss, ``rho(|r|)`` where ``rho(t) ~ t^2 / 2`` near
 Robust losses are applied by iteratively re-weighted least squares: at each linearization the
 factor's whitened Jacobian and residual are scaled by ``sqrt(w)`` with ``w = rho'(t) / t``.
 Each loss has a small integer ``code`` and one parameter so the compiled problem can evaluate it
-inside its numba scatter kernel (see :func:`fgopt.factors.robust.rho_and_weight`).
+inside its numba scatter kernel (see :func:`fgopt.noise.robust.rho_and_weight`).
 """
 
 from __future__ import annotations
@@ -247,7 +247,7 @@ class Barron(RobustLoss):
     """Barron's general adaptive loss with shape ``alpha`` and scale ``k``:
     ``rho(t) = k^2 |a-2|/a (((t/k)^2/|a-2| + 1)^(a/2) - 1)``; ``alpha`` = 2 is L2, 1
     pseudo-Huber, 0 Cauchy, -2 Geman-McClure (epsilon-safe at 0 and 2, see
-    :mod:`fgopt.factors.robust`)."""
+    :mod:`fgopt.noise.robust`)."""
 
     code = LOSS_BARRON
 

@@ -33,7 +33,7 @@ _UNARY = {"sin": "sin", "cos": "cos", "tan": "tan", "asin": "asin", "acos": "aco
 
 class _Translator:
     def __init__(self, inputs: dict) -> None:
-        from . import _sym
+        from ...symbolic import _sym
 
         self.sp = _sym.sp
         self.s = _sym

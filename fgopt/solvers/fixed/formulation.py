@@ -6,7 +6,7 @@ for the whole linearization -- whitened residuals, the dense ``H = J^T J``, ``g 
 the cost -- with subexpressions shared across factors, and a dense Levenberg-Marquardt loop
 around it (no sparse structure, no batching, no Python per iteration)::
 
-    from fgopt.symbolic.fixed import compile_fixed, optimize_fixed
+    from fgopt.solvers.fixed import compile_fixed, optimize_fixed
 
     result = optimize_fixed(graph, initial)             # compile (cached) + LM
     fp = compile_fixed(graph, initial)                  # or keep the compiled problem:
@@ -43,13 +43,13 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import FgoptError, NonFiniteError
-from ..key import Key, key_str
-from ..solvers.params import LMParams
-from ..solvers.result import IterationRecord, Result, Status
-from ..variables import Variables
-from . import cache as _cache
-from ._fixed_codegen import FIXED_CODEGEN_VERSION, FactorSpec, VarSpec
+from ...errors import FgoptError, NonFiniteError
+from ...key import Key, key_str
+from ..params import LMParams
+from ..result import IterationRecord, Result, Status
+from ...variables import Variables
+from ...symbolic import cache as _cache
+from ._codegen import FIXED_CODEGEN_VERSION, FactorSpec, VarSpec
 
 _GIDS = {"SO2": 0, "SE2": 1, "SO3": 2, "SE3": 3, "Sim3": 4}
 #: In-process memo: structure key -> generated module.
@@ -62,8 +62,8 @@ STATS = {"derived": 0, "loaded": 0, "memo": 0}
 # ------------------------------------------------------------------------------------ collect
 def _resolve(f: Any) -> tuple:
     """(SymbolicFactorType, variable pattern) of a factor, or raise FgoptError."""
-    from ..factors.library.prior_between import BetweenFactor, PriorFactor
-    from .factor import KERNEL_ORIGINS, SymbolicFactor
+    from ...factors.library.prior_between import BetweenFactor, PriorFactor
+    from ...factors.decorator import KERNEL_ORIGINS, SymbolicFactor
 
     if isinstance(f, SymbolicFactor) and not isinstance(f, (BetweenFactor, PriorFactor)):
         ft = f.factor_type
@@ -76,8 +76,8 @@ def _resolve(f: Any) -> tuple:
         return origin[1], origin[2]  # e.g. a BAL reader row: the generated bal_reprojection
     if isinstance(f, (BetweenFactor, PriorFactor)) and f.kernel is not None:
         # built-ins: the hand-written kernel or the generated twin, same residual and constants
-        from ..factors.library import generated as gen
-        from ..factors.library import lie_kernels
+        from ...factors.library import generated as gen
+        from ...factors.library import lie_kernels
 
         kind = f.kernel.arg_kinds[0]
         between = isinstance(f, BetweenFactor)
@@ -103,7 +103,7 @@ def _resolve(f: Any) -> tuple:
 def _fingerprint(ft: Any) -> str:
     fp = _FINGERPRINTS.get(id(ft))
     if fp is None or fp[0] is not ft:
-        h = hashlib.sha256(_cache.function_fingerprint(ft.fn).encode())
+        h = hashlib.sha256(ft.fingerprint.encode())
         h.update(repr((ft.name, tuple((n, tp.__module__, tp.__qualname__) for n, tp in ft.params),
                        ft.method, ft.engine)).encode())
         fp = _FINGERPRINTS[id(ft)] = (ft, h.hexdigest())
@@ -122,9 +122,9 @@ class _Collected:
 
 
 def _collect(graph: Any, values: Variables) -> _Collected:
-    from ..factors.noise import LOSS_NONE, loss_code_and_param
-    from ..manifolds.base import ops_for
-    from .factor import batch_kind_of
+    from ...noise.models import LOSS_NONE, loss_code_and_param
+    from ...manifolds.base import ops_for
+    from ...factors.decorator import batch_kind_of
 
     # batch rows (file readers use graph.add_batch) are materialized as factor instances: the
     # fixed formulation is for small problems, where that costs microseconds
@@ -220,7 +220,7 @@ def _module(col: _Collected, use_cache: bool, info: dict) -> Any:
         STATS["loaded"] += 1
         info["source"] = "disk"
     else:
-        from ._fixed_codegen import build_program, module_source
+        from ._codegen import build_program, module_source
 
         t0 = time.perf_counter()
         prog, const_syms = build_program(col.variables, col.factors, info)
@@ -368,7 +368,7 @@ class FixedProblem:
 
     def _damping(self, p: LMParams) -> tuple:
         """(identity damping, lambda by factor) as LevenbergMarquardt resolves them."""
-        from ..manifolds.base import is_vector_kind
+        from ...manifolds.base import is_vector_kind
 
         damping = getattr(p, "damping", "diagonal")
         policy = getattr(p, "lambda_policy", "nielsen")

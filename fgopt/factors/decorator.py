@@ -34,14 +34,14 @@ from typing import Any
 import numpy as np
 
 from ..errors import DimensionMismatchError, FgoptError
-from ..factors.base import KernelFactor
-from ..factors.kernel import FactorKernel
 from ..key import Key
-from . import cache as _cache
-from .codegen import RESERVED_NAMES
-from .lie import LieGroupBase
-from .matrix import Matrix, Scalar
-from .ops import normalize_type
+from ..symbolic import cache as _cache
+from ..symbolic.codegen import RESERVED_NAMES
+from ..symbolic.lie import LieGroupBase
+from ..symbolic.matrix import Matrix, Scalar
+from ..symbolic.ops import normalize_type
+from .base import KernelFactor
+from .kernel import FactorKernel
 
 _MISSING = object()
 _NO_CONSTANTS = np.zeros(0)
@@ -131,6 +131,27 @@ class SymbolicFactorType:
         self._sources: dict = {}
         self._modules: dict = {}
         self._default_variables = tuple(variables) if variables is not None else None
+        self._options = dict(name=name, method=method, engine=engine, hessian=hessian,
+                             cache=cache, variables=variables)
+        self._fingerprint: str | None = None
+        #: ``(function, args)`` returning this type in any process, for types made by code
+        #: rather than defined at module level (see :mod:`fgopt.factors.portable`).
+        self.recipe: tuple | None = None
+
+    @property
+    def fingerprint(self) -> str:
+        """Hash of the residual function's code and the globals it uses (part of cache keys)."""
+        if self._fingerprint is None:
+            self._fingerprint = _cache.function_fingerprint(self.fn)
+        return self._fingerprint
+
+    def __reduce__(self):
+        # By reference when the type is importable (a module-level definition), else by the
+        # function's source text and the globals it reads; either way the receiving process
+        # loads or derives its own kernels (see fgopt.factors.portable).
+        from .portable import reduce_factor_type
+
+        return reduce_factor_type(self)
 
     # ------------------------------------------------------------------ instances
     def __call__(self, *args: Any, loss: Any = None, **kwargs: Any) -> SymbolicFactor:
@@ -213,7 +234,8 @@ class SymbolicFactorType:
         k = self._kernels.get(pattern)
         if k is None:
             module = self._module(pattern)
-            k = _kernel_from_module(module, self.params, pattern, self.name)
+            k = _kernel_from_module(module, self.params, pattern, self.name,
+                                    recipe=(SymbolicFactorType.kernel, (self, pattern)))
             KERNEL_ORIGINS[id(k)] = (k, self, pattern)
             self._kernels[pattern] = k
             self._sources[pattern] = k.source
@@ -236,12 +258,12 @@ class SymbolicFactorType:
     def _module(self, pattern: tuple):
         parts = (self.name, tuple((n, tp.__module__, tp.__qualname__) for n, tp in self.params),
                  pattern, self.method, self.engine, self.hessian)
-        key = _cache.kernel_key(self.fn, parts) if self.use_cache else None
+        key = _cache.kernel_key(self.fn, parts, self.fingerprint) if self.use_cache else None
         if key is not None:
             module = _cache.load(self.name, key)
             if module is not None:
                 return module
-        from .derive import derive_source
+        from ..symbolic.derive import derive_source
 
         source = derive_source(self, pattern)
         _cache.STATS["derived"] += 1
@@ -260,7 +282,7 @@ class SymbolicFactorType:
 
     def symbolic(self, *names: str):
         """Run the function on symbolic arguments; returns ``(args, output)``."""
-        from .ops import symbolic_value
+        from ..symbolic.ops import symbolic_value
 
         names = names or tuple(n for n, _ in self.params)
         args = [symbolic_value(tp, n) for n, (_, tp) in zip(names, self.params)]
@@ -299,11 +321,12 @@ def batch_kind_of(tp: type):
     return getattr(M, twin).batch_kind()
 
 
-def _kernel_from_module(module: Any, params: tuple, pattern: tuple, name: str) -> FactorKernel:
+def _kernel_from_module(module: Any, params: tuple, pattern: tuple, name: str,
+                        recipe: tuple | None = None) -> FactorKernel:
     meta = module.META
     kinds = tuple(batch_kind_of(tp) for (_, tp), v in zip(params, pattern) if v)
     with open(module.__file__) as fh:
         source = fh.read()
     return FactorKernel(name=name, arg_kinds=kinds, residual_dim=meta["residual_dim"],
                         num_constants=module.NUM_CONSTANTS, residual=module.residual,
-                        linearize=module.linearize, source=source)
+                        linearize=module.linearize, source=source, recipe=recipe)

@@ -11,7 +11,7 @@ from fgopt.key import key
 from fgopt.manifolds import SE2
 from fgopt.symbolic import V2, Pose2, Scalar, atan2
 
-from ._helpers import assert_jacobian_matches_fd
+from tests.symbolic._helpers import assert_jacobian_matches_fd
 
 
 @fgopt.factor

@@ -1,4 +1,4 @@
-"""The fixed formulation (fgopt.symbolic.fixed) against the dynamic, batched problem.
+"""The fixed formulation (fgopt.solvers.fixed) against the dynamic, batched problem.
 
 Robot localization as in the SymForce paper, Sec. VIII-C (2D here): SE2 poses, odometry
 BetweenFactors, bearing/range to known landmarks (an @fgopt.factor). Small (3 poses, 6 landmarks)
@@ -19,7 +19,7 @@ from fgopt.errors import FgoptError
 from fgopt.factors import Factor
 from fgopt.solvers import LevenbergMarquardt, LMParams
 from fgopt.symbolic import V2, Pose2, atan2, cos, factor, sin
-from fgopt.symbolic import fixed as fx
+from fgopt.solvers import fixed as fx
 
 
 @factor(name="test_fixed_bearing_range")
