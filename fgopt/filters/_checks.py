@@ -6,7 +6,14 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from ..errors import FgoptError, NonFiniteError, NotPositiveDefiniteError
+import numpy as np
+
+from ..errors import (
+    DimensionMismatchError,
+    FgoptError,
+    NonFiniteError,
+    NotPositiveDefiniteError,
+)
 from . import _ekf_kernels as K
 
 
@@ -85,3 +92,54 @@ def fresh_names(wanted: list, taken: set) -> list:
         taken.add(name)
         out.append(name)
     return out
+
+
+def default_state(process: Callable, params: list, dt: str, name: str) -> tuple:
+    """The first k arguments, k = number of returned values (from the return annotation,
+    else from a value-only generated module, which needs no SymPy on a cache hit)."""
+    import typing
+
+    from ..symbolic import generate
+    from ..symbolic.generate import type_hints
+
+    try:
+        rt = type_hints(process, None).get("return")
+    except Exception:  # noqa: BLE001 - unresolvable: count the outputs instead
+        rt = None
+    if rt is not None and typing.get_origin(rt) is tuple:
+        k = len([a for a in typing.get_args(rt) if a is not Ellipsis])
+    elif rt is not None:
+        k = 1
+    else:
+        k = len(generate(process, which=(), name=f"{name}_outputs").outputs)
+    cand = tuple(n for n, _ in params if n != dt)[:k]
+    if len(cand) < k:
+        raise FgoptError(f"ManifoldEKF {name}: the process returns {k} values but has "
+                         f"only {len(cand)} arguments besides '{dt}'")
+    return cand
+
+
+def as_vector(v: Any, n: int, what: str, layout: str) -> np.ndarray:
+    """``v`` as ``n`` floats, or a DimensionMismatchError naming ``what`` and its layout."""
+    try:
+        arr = np.asarray(v, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise DimensionMismatchError(f"{what} must be {n} numbers, got {v!r}") from None
+    if arr.shape[0] != n:
+        raise DimensionMismatchError(f"{what} needs {n} numbers ({layout}), got {arr.shape[0]}")
+    return arr
+
+
+def as_matrix(A: Any, shape: tuple, what: str) -> np.ndarray:
+    """``A`` (or the diagonal of variances it lists) as a C-contiguous ``shape`` array."""
+    try:
+        arr = np.array(A, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise DimensionMismatchError(f"{what} must be a {shape[0]}x{shape[1]} matrix, got "
+                                     f"{A!r}") from None
+    if arr.ndim == 1 and arr.shape[0] == shape[0]:
+        arr = np.diag(arr)
+    if arr.shape != shape:
+        raise DimensionMismatchError(f"{what} must be {shape[0]}x{shape[1]}, got shape "
+                                     f"{arr.shape}")
+    return np.ascontiguousarray(arr)

@@ -56,7 +56,16 @@ from ..symbolic import LieGroupBase, Scalar, generate
 from ..symbolic.generate import GeneratedFunction, numeric_value, value_storage
 from . import _ekf_kernels as K
 from . import _models
-from ._checks import fresh_names, named, return_type, signature, step_error
+from ._checks import (
+    as_matrix,
+    as_vector,
+    default_state,
+    fresh_names,
+    named,
+    return_type,
+    signature,
+    step_error,
+)
 from ._step_source import Layout, load, module_source
 
 _UNIT_NORM = {"Rot2": (0, 2), "Rot3": (0, 4), "Pose2": (0, 2), "Pose3": (0, 4)}
@@ -128,7 +137,7 @@ class ManifoldEKF:
             raise FgoptError(f"ManifoldEKF {self.name}: the time step '{dt}' must be a Scalar, "
                              f"not {types[dt].__name__}")
         if state is None:
-            state = self._default_state(process, params, dt)
+            state = default_state(process, params, dt, self.name)
         state = tuple(state)
         unknown = [s for s in state if s not in names or s == dt]
         if len(unknown) > 0 or len(state) == 0 or len(set(state)) != len(state):
@@ -209,29 +218,6 @@ class ManifoldEKF:
         self.set_state(x0, P0)
 
     # ------------------------------------------------------------------ construction helpers
-    def _default_state(self, process: Callable, params: list, dt: str) -> tuple:
-        """The first k arguments, k = number of returned values (from the return annotation,
-        else from a value-only generated module, which needs no SymPy on a cache hit)."""
-        import typing
-
-        from ..symbolic.generate import type_hints
-
-        try:
-            rt = type_hints(process, None).get("return")
-        except Exception:  # noqa: BLE001 - unresolvable: count the outputs instead
-            rt = None
-        if rt is not None and typing.get_origin(rt) is tuple:
-            k = len([a for a in typing.get_args(rt) if a is not Ellipsis])
-        elif rt is not None:
-            k = 1
-        else:
-            k = len(generate(process, which=(), name=f"{self.name}_outputs").outputs)
-        cand = tuple(n for n, _ in params if n != dt)[:k]
-        if len(cand) < k:
-            raise FgoptError(f"ManifoldEKF {self.name}: the process returns {k} values but has "
-                             f"only {len(cand)} arguments besides '{dt}'")
-        return cand
-
     def _check_process_outputs(self) -> None:
         outs = [o.type for o in self._process.outputs]
         if len(outs) != len(self.state_types):
@@ -483,34 +469,12 @@ class ManifoldEKF:
         return {pn: value_storage(where, pn, tp, params[pn]) for pn, tp in m.params}
 
     def _vector(self, v: Any, n: int, what: str) -> np.ndarray:
-        try:
-            arr = np.asarray(v, dtype=np.float64).reshape(-1)
-        except (TypeError, ValueError):
-            raise DimensionMismatchError(f"ManifoldEKF {self.name}: {what} must be {n} numbers, "
-                                         f"got {v!r}") from None
-        if arr.shape[0] != n:
-            raise DimensionMismatchError(f"ManifoldEKF {self.name}: {what} needs {n} numbers "
-                                         f"({self._layout(what)}), got {arr.shape[0]}")
-        return arr
-
-    def _layout(self, what: str) -> str:
-        if what == "u":
-            return ", ".join(f"{n}: {tp.__name__}" for n, tp in zip(self.input_names,
-                                                                   self.input_types)) or "none"
-        return what
+        layout = ", ".join(f"{a}: {tp.__name__}" for a, tp in zip(self.input_names,
+                                                                 self.input_types)) or "none"
+        return as_vector(v, n, f"ManifoldEKF {self.name}: {what}", layout)
 
     def _matrix(self, A: Any, shape: tuple, what: str) -> np.ndarray:
-        try:
-            arr = np.array(A, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise DimensionMismatchError(f"ManifoldEKF {self.name}: {what} must be a "
-                                         f"{shape[0]}x{shape[1]} matrix, got {A!r}") from None
-        if arr.ndim == 1 and arr.shape[0] == shape[0]:
-            arr = np.diag(arr)  # a vector of variances
-        if arr.shape != shape:
-            raise DimensionMismatchError(f"ManifoldEKF {self.name}: {what} must be "
-                                         f"{shape[0]}x{shape[1]}, got shape {arr.shape}")
-        return np.ascontiguousarray(arr)
+        return as_matrix(A, shape, f"ManifoldEKF {self.name}: {what}")
 
     def _raise(self, step: str, code: int, idx: int, dt: float = 0.0):
         cls, msg = step_error(code, idx, self.dim, dt)
