@@ -68,7 +68,14 @@ from ._checks import (
 )
 from ._step_source import Layout, load, module_source
 
+#: (start, length) of the unit-norm part of a group's storage, renormalized after every step;
+#: other symbolic groups may declare it as a class attribute ``UNIT_NORM = (start, length)``.
 _UNIT_NORM = {"Rot2": (0, 2), "Rot3": (0, 4), "Pose2": (0, 2), "Pose3": (0, 4)}
+
+
+def _unit_norm(tp: type) -> tuple | None:
+    hook = getattr(tp, "UNIT_NORM", None)
+    return tuple(hook) if hook is not None else _UNIT_NORM.get(tp.__name__)
 
 
 class _Measurement:
@@ -172,9 +179,8 @@ class ManifoldEKF:
         self._measurements: dict[str, _Measurement] = {}
         for i, (mname, fn) in enumerate(named(measurements).items()):
             self._measurements[mname] = self._measurement(i, mname, fn, types)
-        unit = [(self._storage_slices[s_].start + _UNIT_NORM[tp.__name__][0],
-                 _UNIT_NORM[tp.__name__][1])
-                for s_, tp in zip(state, self.state_types) if tp.__name__ in _UNIT_NORM]
+        unit = [(self._storage_slices[s_].start + _unit_norm(tp)[0], _unit_norm(tp)[1])
+                for s_, tp in zip(state, self.state_types) if _unit_norm(tp) is not None]
         self._unit = np.array(unit, dtype=np.int64).reshape(-1, 2)
         # every array lives in one buffer; the state is the prefix of the process input
         k = max(n, self.input_dim, 1)
