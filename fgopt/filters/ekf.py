@@ -70,7 +70,8 @@ from ._step_source import Layout, load, module_source
 
 #: (start, length) of the unit-norm part of a group's storage, renormalized after every step;
 #: other symbolic groups may declare it as a class attribute ``UNIT_NORM = (start, length)``.
-_UNIT_NORM = {"Rot2": (0, 2), "Rot3": (0, 4), "Pose2": (0, 2), "Pose3": (0, 4)}
+_UNIT_NORM = {"Rot2": (0, 2), "Rot3": (0, 4), "Pose2": (0, 2), "Pose3": (0, 4),
+              "NavState": (0, 4)}
 
 
 def _unit_norm(tp: type) -> tuple | None:

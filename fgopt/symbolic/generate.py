@@ -424,7 +424,14 @@ def _resolve_type(desc: Sequence) -> type | None:
 
 
 def numeric_twin(tp: type):
-    """The ``fgopt.manifolds`` class of a symbolic group type, or ``None``."""
+    """The numeric class of a symbolic group type (``fgopt.manifolds``' ``SO3`` for ``Rot3``,
+    or one registered by a higher layer in ``fgopt.symbolic.ops.NUMERIC_TWINS`` where that
+    registry exists), or ``None``."""
+    from . import ops
+
+    registered = getattr(ops, "NUMERIC_TWINS", {}).get(tp)
+    if registered is not None:
+        return registered
     twin = _NUMERIC_TWIN.get(tp.__name__)
     if twin is None:
         return None
@@ -453,11 +460,11 @@ def value_storage(fname: str, name: str, tp: type, value: Any) -> np.ndarray:
     numeric twin type). ``fname`` and ``name`` go into error messages."""
     s = tp.storage_dim()
     if issubclass(tp, LieGroupBase) and hasattr(value, "to_storage"):
-        twin = _NUMERIC_TWIN.get(tp.__name__)
-        if twin is not None and type(value).__name__ != twin:
+        twin = numeric_twin(tp)
+        if twin is not None and not isinstance(value, twin):
             raise FgoptError(f"{fname}: argument '{name}' is a {tp.__name__}; got a "
-                             f"{type(value).__name__} (give an fgopt.manifolds.{twin} or its "
-                             "storage)")
+                             f"{type(value).__name__} (give a {twin.__module__}.{twin.__name__} "
+                             "or its storage)")
         value = value.to_storage()
     try:
         arr = np.asarray(value, dtype=np.float64).reshape(-1)
