@@ -42,7 +42,7 @@ def navstate_dynamics(R: Rot3, p: V3, v: V3, gyro: V3, accel: V3, dt: Scalar):
     X+ = W(g, dt) phi_dt(X) U(w, f, dt)), with J_l and the double integral as series in W."""
     W = _skew(gyro * dt)
     Jl, N, Wk = M33.eye(), M33.eye() * 0.5, M33.eye()
-    for k in range(1, 10):
+    for k in range(1, 5):  # |w dt| <= 0.05 here: the W^5 term is below 1e-9 relative
         Wk = Wk * W
         Jl = Jl + Wk * (1.0 / math.factorial(k + 1))
         N = N + Wk * (1.0 / math.factorial(k + 2))
