@@ -131,6 +131,12 @@ class GeneratedFunction:
         self.name = name or getattr(fn, "__name__", "generated")
         if not self.name.isidentifier():
             self.name = "generated"
+        from .jacobians import METHODS
+        from .linearize import ENGINES
+
+        if method not in METHODS or engine not in ENGINES:
+            raise FgoptError(f"generate {self.name}: method must be one of {METHODS} and engine "
+                             f"one of {ENGINES}; got {method!r}, {engine!r}")
         self.method, self.engine = method, engine
         self.params = parameters(fn, self.name, scope)
         names = [n for n, _ in self.params]

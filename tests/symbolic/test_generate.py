@@ -324,6 +324,8 @@ def test_bad_functions_raise_fgopt_errors():
         generate(branching, cache=False)
     with pytest.raises(fgopt.FgoptError, match="annotated Rot3"):
         generate(wrong_return, cache=False)
+    with pytest.raises(fgopt.FgoptError, match="method must be one of"):
+        generate(rot_step, method="numeric")
 
 
 def test_generate_stays_in_its_layer():
