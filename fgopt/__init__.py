@@ -41,11 +41,13 @@ from .variables import Variables as Variables
 
 _LAZY = {"io": ".io", "plot": ".plot", "datasets": ".datasets", "symbolic": ".symbolic",
          "distributed": ".distributed",
-         "solvers": ".solvers"}
+         "solvers": ".solvers", "cameras": ".cameras"}
 
 
 def __getattr__(name: str):
-    """Heavier parts load on first use: ``fgopt.io``, ``fgopt.plot``, ``fgopt.factor`` ..."""
+    """Heavier parts load on first use: ``fgopt.io``, ``fgopt.plot``, ``fgopt.factor``,
+    ``fgopt.manifold`` / ``Product`` / ``check_manifold``, and the numeric ``Unit3``,
+    ``OrientedPlane3``, ``SE23`` (their symbolic twins are ``fgopt.symbolic.Unit3`` ...)."""
     import importlib
 
     if name in _LAZY:
@@ -58,4 +60,12 @@ def __getattr__(name: str):
         from .factors.decorator import factor
 
         return factor
+    if name in ("manifold", "Product", "check_manifold"):
+        from .symbolic import declare
+
+        return getattr(declare, name)
+    if name in ("Unit3", "OrientedPlane3", "SE23"):  # numeric value types of shipped manifolds
+        from .symbolic import geometry
+
+        return getattr(geometry, name).Value
     raise AttributeError(f"module 'fgopt' has no attribute {name!r}")

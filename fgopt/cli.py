@@ -1,6 +1,6 @@
 """The ``fgopt`` command line: ``fgopt solve FILE`` and ``fgopt info FILE``.
 
-``solve`` reads a g2o / TORO / BAL file, fixes the gauge of pose graphs with a tight prior on the
+``solve`` reads a g2o / TORO / BAL / Bundler file, fixes the gauge of pose graphs with a tight prior on the
 lowest pose (GTSAM-style; BA relies on LM damping, as Ceres' BAL example), optimizes while
 printing one row per iteration, then a summary. Costs in the summary are measured on the file's
 own edges (``0.5 * sum`` of squared whitened residuals, no prior, no robust loss), the yardstick
@@ -121,8 +121,8 @@ def _load(args: argparse.Namespace) -> tuple[str, Any, Any, float]:
 
     t0 = time.perf_counter()
     fmt = detect_format(args.file)
-    if fmt == "bal":
-        graph, values = read(args.file, format="bal")
+    if fmt in ("bal", "bundler"):
+        graph, values = read(args.file, format=fmt)
     else:
         graph, values = read(args.file, format="g2o", skip_unknown=args.skip_unknown,
                              repair_information=args.repair_information)
@@ -181,7 +181,9 @@ def cmd_solve(args: argparse.Namespace) -> int:
           f"({result.method}/{result.linear_solver})", flush=True)
     if not args.quiet and t:
         say("time: " + ", ".join(f"{k} {v:.3f} s" for k, v in t.items()))
-    if args.out is not None:
+    if args.out is not None and fmt == "bundler":
+        print("fgopt: --out: writing Bundler files is not supported", file=sys.stderr)
+    elif args.out is not None:
         (write_bal if fmt == "bal" else write_g2o)(args.out, graph, result.values)
         say(f"wrote {args.out}")
     if args.plot is not None:

@@ -1,11 +1,13 @@
-"""Synthetic problems for demos, tests and scale benchmarks (no files needed): pose graphs and
-bundle adjustment.
+"""Synthetic problems for demos, tests and scale benchmarks (no files needed): pose graphs,
+bundle adjustment and small SfM scenes.
 
 ``manhattan_2d`` walks a robot on a unit grid (Olson et al.'s "Manhattan world"): each step moves
 1 m forward, turning by 0 or +-90 degrees at random; revisiting a grid cell already seen adds a
 loop closure to one of the earlier poses there. Odometry and loop closures are the true relative
 poses perturbed by Gaussian noise of the given sigmas; the initial guess composes the noisy
-odometry, so it drifts. ``grid_3d`` does the same in a 3D grid with SE(3) poses.
+odometry, so it drifts. ``grid_3d`` does the same in a 3D grid with SE(3) poses. ``sfm_cube`` is
+GTSAM's ``SFMExample`` scene (8 cameras around a cube of 8 points), with projection or smart
+factors; ``bal_synthetic`` a BAL-convention bundle-adjustment problem of any size.
 """
 
 from __future__ import annotations
@@ -124,6 +126,66 @@ def grid_3d(num_poses: int = 1000, seed: int = 0, rotation_sigma: float = 0.01,
         seen.append(i)
         truth_poses.append(pose)
     return SyntheticPoseGraph(graph, initial, truth, loops)
+
+
+@dataclass
+class SyntheticSfm:
+    graph: FactorGraph
+    initial: Variables
+    truth: Variables
+    calibration: object
+    measurements: np.ndarray  # (num_poses, num_points, 2) pixels
+
+
+def sfm_cube(smart: bool = False, seed: int = 0, pose_noise: float = 0.1,
+             point_noise: float = 0.1) -> SyntheticSfm:
+    """GTSAM's ``SFMExample`` scene: 8 landmarks on the corners of a 20 m cube, 8 cameras
+    ``Cal3_S2(50, 50, 0, 50, 50)`` on a circle of radius 40 m at height 10 m looking at its
+    centre (``PinholeCamera.lookat``), exact pixel measurements with 1-pixel noise models.
+
+    ``smart=False`` (``SFMExample.py``): a ProjectionFactor per (pose, point), priors on ``x0``
+    (sigmas 0.3 rad, 0.1 m) and ``l0`` (0.1 m); initial poses ``retract(pose_noise * N(0, I))``
+    and points ``+ point_noise * N(0, I)`` (``seed``). ``smart=True``
+    (``SFMExample_SmartFactor.cpp``): a SmartProjectionFactor per landmark, priors on ``x0`` and
+    ``x1`` (sigmas 0.1 rad, 0.3 m), initial poses ``pose * delta`` with GTSAM's fixed ``delta``
+    (Rodrigues(-0.1, 0.2, 0.25), (0.05, -0.10, 0.20)).
+    """
+    from .cameras import Cal3_S2, PinholeCamera, ProjectionFactor, SmartProjectionFactor
+    from .noise import Isotropic
+
+    K = Cal3_S2(50.0, 50.0, 0.0, 50.0, 50.0)
+    points = np.array([[x, y, z] for z in (10.0, -10.0)
+                       for x, y in ((10.0, 10.0), (-10.0, 10.0), (-10.0, -10.0), (10.0, -10.0))])
+    angles = np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False)
+    poses = [PinholeCamera.lookat([40.0 * np.cos(t), 40.0 * np.sin(t), 10.0], np.zeros(3),
+                                  [0.0, 0.0, 1.0], K).pose() for t in angles]
+    z = np.array([PinholeCamera(p, K).project(points) for p in poses])
+    pixel = Isotropic.sigma(2, 1.0)
+    graph, initial, truth = FactorGraph(), Variables(), Variables()
+    for i, p in enumerate(poses):
+        truth.add(key("x", i), p)
+    rng = np.random.default_rng(seed)
+    if smart:
+        for j in range(points.shape[0]):
+            graph.add(SmartProjectionFactor([key("x", i) for i in range(8)], z[:, j], K, pixel))
+        prior = Diagonal.sigmas([0.1, 0.1, 0.1, 0.3, 0.3, 0.3])
+        graph.add(PriorFactor(key("x", 0), poses[0], prior))
+        graph.add(PriorFactor(key("x", 1), poses[1], prior))
+        delta = SE3(SO3.exp([-0.1, 0.2, 0.25]), [0.05, -0.10, 0.20])
+        for i, p in enumerate(poses):
+            initial.add(key("x", i), p * delta)
+        return SyntheticSfm(graph, initial, truth, K, z)
+    graph.add(PriorFactor(key("x", 0), poses[0], Diagonal.sigmas([0.3, 0.3, 0.3, 0.1, 0.1, 0.1])))
+    for i, p in enumerate(poses):
+        for j in range(points.shape[0]):
+            graph.add(ProjectionFactor(key("x", i), key("l", j), z[i, j], pixel, K))
+    graph.add(PriorFactor(key("l", 0), points[0], Diagonal.sigmas([0.1, 0.1, 0.1])))
+    for i, p in enumerate(poses):
+        initial.add(key("x", i), p.retract(pose_noise * rng.normal(size=6)))
+    for j, pt in enumerate(points):
+        truth.add(key("l", j), pt)
+        initial.add(key("l", j), pt + point_noise * rng.normal(size=3))
+    return SyntheticSfm(graph, initial, truth, K, z)
 
 
 @dataclass

@@ -45,6 +45,11 @@ class ManifoldError(FgoptError, TypeError):
     """A value's type is not a known manifold (register it, or give it dim/local/retract)."""
 
 
+class ManifoldDeclarationError(FgoptError, ValueError):
+    """An ``@fgopt.manifold`` declaration is wrong (sizes, non-finite retract, ``local`` not the
+    inverse of ``retract`` to first order); the message names the method and the failing check."""
+
+
 class FileFormatError(FgoptError, ValueError):
     """A data file is malformed; the message names the file and line."""
 
@@ -55,3 +60,19 @@ class FileFormatError(FgoptError, ValueError):
         super().__init__(where + message)
         self.path = path
         self.line = line
+
+
+class CheiralityError(NonFiniteError):
+    """A point is behind a camera (or outside a lens model's valid region): its projection is
+    undefined. A subclass of :class:`NonFiniteError` because inside the optimizer a trial step
+    that causes it is rejected exactly like a step that produces NaN."""
+
+
+class CalibrationError(FgoptError, ValueError):
+    """A camera calibration is invalid (e.g. a non-positive focal length), or an iterative
+    ``calibrate`` did not converge."""
+
+
+class TriangulationError(FgoptError, ValueError):
+    """A landmark cannot be triangulated: fewer than two views, or a rank-deficient system
+    (the views' rays are parallel)."""

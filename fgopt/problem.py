@@ -455,8 +455,9 @@ class Problem:
                 row = asm.first_nonfinite_row(arr)
                 if row >= 0:
                     keys = ", ".join(key_str(Key(int(k))) for k in b.source.keys[row])
+                    hint = b.kernel.nonfinite_hint or "check its measurement and variables"
                     return (f"{b.kernel.name}({keys}) (factor {b.source._where(row)}) has a "
-                            f"non-finite {what}: check its measurement and variables")
+                            f"non-finite {what}: {hint}")
         view = _StateView(self, state)
         for s in self._slow:
             try:

@@ -37,9 +37,10 @@ from ..errors import DimensionMismatchError, FgoptError
 from ..key import Key
 from ..symbolic import cache as _cache
 from ..symbolic.codegen import RESERVED_NAMES
+from ..symbolic.declare.twin import DeclaredManifold
 from ..symbolic.lie import LieGroupBase
 from ..symbolic.matrix import Matrix, Scalar
-from ..symbolic.ops import normalize_type
+from ..symbolic.ops import normalize_type, type_key
 from .base import KernelFactor
 from .kernel import FactorKernel
 
@@ -59,7 +60,8 @@ def factor(fn: Callable | None = None, *, name: str | None = None, method: str =
 
     Args:
         fn: ``def f(a: Pose3, b: V3, ...) -> V3``; every parameter annotated with a symbolic
-            type (``Rot2, Rot3, Pose2, Pose3, V1..V9, Matrix.shaped(r, c), Scalar``).
+            type (``Rot2, Rot3, Pose2, Pose3, V1..V9, Matrix.shaped(r, c), Scalar``, or a
+            manifold declared with ``@fgopt.manifold``).
         name: factor name (default ``fn.__name__``).
         method: tangent-space Jacobian method, ``"retraction"`` (first-order retraction, the
             default) or ``"chain"`` (symbolic chain rule).
@@ -190,7 +192,13 @@ class SymbolicFactorType:
         if type(value) is np.ndarray and value.shape == (s,) and value.dtype == np.float64:
             return value  # fast path (KernelFactor copies it)
         name, tp = self.params[i]
-        if issubclass(tp, LieGroupBase) and hasattr(value, "to_storage"):
+        if issubclass(tp, DeclaredManifold) and hasattr(value, "to_storage"):
+            if type(value) is not tp.Value:
+                raise FgoptError(f"{self.name}: argument '{name}' is a {tp.__name__}; got a "
+                                 f"{type(value).__name__} (give a {tp.__name__}.Value, its "
+                                 "storage, or a key)")
+            value = value.to_storage()
+        elif issubclass(tp, LieGroupBase) and hasattr(value, "to_storage"):
             twin = _NUMERIC_TWIN.get(tp.__name__)
             if twin is not None and type(value).__name__ != twin:
                 raise FgoptError(f"{self.name}: argument '{name}' is a {tp.__name__}; got a "
@@ -256,7 +264,7 @@ class SymbolicFactorType:
         return module.linearize_hessian
 
     def _module(self, pattern: tuple):
-        parts = (self.name, tuple((n, tp.__module__, tp.__qualname__) for n, tp in self.params),
+        parts = (self.name, tuple((n,) + type_key(tp) for n, tp in self.params),
                  pattern, self.method, self.engine, self.hessian)
         key = _cache.kernel_key(self.fn, parts, self.fingerprint) if self.use_cache else None
         if key is not None:
@@ -315,6 +323,8 @@ def batch_kind_of(tp: type):
         return M.SCALAR_KIND
     if issubclass(tp, Matrix):
         return M.vector_kind(tp.storage_dim())
+    if issubclass(tp, DeclaredManifold):
+        return tp.Value.batch_kind()
     twin = _NUMERIC_TWIN.get(tp.__name__)
     if twin is None or not hasattr(M, twin):
         raise FgoptError(f"no numeric manifold for symbolic type {tp.__name__}")

@@ -48,6 +48,9 @@ class FactorKernel:
     residual: ResidualFn = field(repr=False)
     linearize: LinearizeFn = field(repr=False)
     source: str = field(default="", repr=False)
+    #: Why this kernel may return NaN on purpose (e.g. a point behind a camera), appended to the
+    #: optimizer's error when the initial estimate produces one.
+    nonfinite_hint: str = field(default="", repr=False)
     #: ``(function, args)`` that returns this kernel again in any process; how a kernel pickles
     #: (the receiving process rebuilds or loads it; compiled code is never shipped). The function
     #: must return one object per distinct ``args`` (kernels compare by identity).

@@ -1,4 +1,4 @@
-"""Read and write factor-graph files: g2o / TORO pose graphs and BAL bundle adjustment.
+"""Read and write factor-graph files: g2o / TORO pose graphs, BAL and Bundler bundle adjustment.
 
 ``read(path)`` picks the reader by content (and extension); ``read_g2o`` / ``write_g2o`` and
 ``read_bal`` / ``write_bal`` are the specific entries. Malformed input raises
@@ -10,9 +10,11 @@ from .bal import read_bal as read_bal
 from .bal import reprojection_kernel as reprojection_kernel
 from .bal import write_bal as write_bal
 from .bal import write_bal_arrays as write_bal_arrays
+from .bundler import read_bundler as read_bundler
 from .dispatch import detect_format as detect_format
 from .dispatch import read as read
 from .g2o import FIX_SIGMA as FIX_SIGMA
 from .g2o import add_gauge_prior as add_gauge_prior
 from .g2o import read_g2o as read_g2o
 from .g2o_write import write_g2o as write_g2o
+from .stereo_vo import read_stereo_vo as read_stereo_vo

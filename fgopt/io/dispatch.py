@@ -1,7 +1,8 @@
 """``read(path)``: pick the reader from the file's content (and extension).
 
-A file whose first token is a number is BAL (its header ``cameras points observations``);
-a file whose first token is a record tag (``VERTEX_SE2``, ``EDGE2``, ...) is g2o / TORO.
+A file starting with ``# Bundle file`` is a Bundler ``.out`` file; otherwise a file whose first
+token is a number is BAL (its header ``cameras points observations``); a file whose first token
+is a record tag (``VERTEX_SE2``, ``EDGE2``, ...) is g2o / TORO.
 ``.gz`` / ``.bz2`` files are decompressed first.
 """
 
@@ -15,16 +16,18 @@ from ..graph import FactorGraph
 from ..variables import Variables
 from ._scan import read_bytes
 
-FORMATS = ("g2o", "bal")
+FORMATS = ("g2o", "bal", "bundler")
 _FIRST_TOKEN = re.compile(rb"^[ \t\r\f\v]*([^\s#]+)", re.MULTILINE)
 _G2O_EXT = (".g2o", ".graph")
 
 
 def detect_format(path: str | os.PathLike, data: bytes | None = None) -> str:
-    """``"g2o"`` or ``"bal"``; raises :class:`FileFormatError` when neither fits."""
+    """``"g2o"``, ``"bal"`` or ``"bundler"``; raises :class:`FileFormatError` when none fits."""
     p = os.fspath(path)
     if data is None:
         data = read_bytes(p)
+    if data.lstrip()[:13] == b"# Bundle file":
+        return "bundler"
     m = _FIRST_TOKEN.search(data[:1 << 16])
     if m is None:
         raise FileFormatError("the file is empty (no records)", p)
@@ -44,14 +47,15 @@ def read(path: str | os.PathLike, *, format: str | None = None, add_prior: bool 
     """Read any supported file; returns ``(graph, initial)``.
 
     Args:
-        path: a g2o / TORO pose graph (``.g2o``, ``.graph``, ``.txt``) or a BAL problem,
-            optionally ``.gz`` / ``.bz2`` compressed.
-        format: ``"g2o"`` or ``"bal"`` to skip detection.
+        path: a g2o / TORO pose graph (``.g2o``, ``.graph``, ``.txt``), a BAL problem or a
+            Bundler ``.out`` file, optionally ``.gz`` / ``.bz2`` compressed.
+        format: ``"g2o"``, ``"bal"`` or ``"bundler"`` to skip detection.
         add_prior, skip_unknown, repair_information: g2o options, see :func:`read_g2o`
             (BAL files have no gauge prior, unknown tags or information matrices; passing a
             non-default value for one is an error).
     """
     from .bal import read_bal
+    from .bundler import read_bundler
     from .g2o import read_g2o
 
     p = os.fspath(path)
@@ -70,4 +74,9 @@ def read(path: str | os.PathLike, *, format: str | None = None, add_prior: bool 
             raise FgoptError("read: add_prior, skip_unknown and repair_information apply to g2o "
                              f"files; {p} is a BAL file")
         return read_bal(p, data=data)
+    if format == "bundler":
+        if add_prior or skip_unknown or repair_information is not None:
+            raise FgoptError("read: add_prior, skip_unknown and repair_information apply to g2o "
+                             f"files; {p} is a Bundler file")
+        return read_bundler(p, data=data)
     raise FgoptError(f"read: unknown format {format!r}; choose one of {', '.join(FORMATS)}")

@@ -47,6 +47,9 @@ class BatchKind:
     #: Build a value from an owned, read-only storage row already on the manifold (no checks,
     #: no normalization): the fast path for bulk construction. ``None``: use ``from_storage``.
     wrap: Callable[[np.ndarray], Any] | None = field(default=None, repr=False)
+    #: What the kernels compute, for cache keys of code generated over this kind (declared
+    #: manifolds: their declaration key; built-in kinds: empty, their name says it all).
+    key: str = field(default="", repr=False)
 
     def __post_init__(self) -> None:
         _KINDS.setdefault(self.name, self)

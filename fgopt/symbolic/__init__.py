@@ -17,8 +17,10 @@ Module map (one job each): ``matrix`` (Matrix, V1..V9, Scalar), ``lie`` (group b
 (removable-singularity checker), ``linearize`` (residual + Jacobian programs), ``cse``,
 ``printer``, ``codegen`` (kernel modules), ``cache`` (on-disk cache), ``derive`` (a factor's
 kernel source), ``runtime`` (helpers of generated code), ``generate`` (functions with tangent
-Jacobians as numba functions, :func:`generate`; derived in ``_generate_source``).
-``@fgopt.factor`` itself, which makes factor types from these, is
+Jacobians as numba functions, :func:`generate`; derived in ``_generate_source``), ``declare``
+(``@fgopt.manifold``: user-declared manifolds, ``Product``, ``check_manifold``), ``geometry``
+(manifolds declared that way that ship with fgopt: ``Unit3``, ``OrientedPlane3``, ``SE23``;
+loaded on first access). ``@fgopt.factor`` itself, which makes factor types from these, is
 :mod:`fgopt.factors.decorator` (the factors layer).
 
 Importing this package does not import SymPy; ``epsilon`` and ``pi`` (SymPy objects) load it on
@@ -56,6 +58,7 @@ from .functions import sqrt as sqrt
 from .functions import symbols as symbols
 from .functions import tan as tan
 from .functions import tanh as tanh
+from .functions import where as where
 from .generate import GeneratedFunction as GeneratedFunction
 from .generate import generate as generate
 from .lie import LieGroupBase as LieGroupBase
@@ -89,6 +92,13 @@ _LAZY = {
     "check_removable_singularity": (".singularity", "check_removable_singularity"),
     "python_function": (".codegen", "python_function"),
     "total_ops": (".cse", "total_ops"),
+    "manifold": (".declare", "manifold"),
+    "Product": (".declare", "Product"),
+    "check_manifold": (".declare", "check_manifold"),
+    "DeclaredManifold": (".declare", "DeclaredManifold"),
+    "Unit3": (".geometry", "Unit3"),
+    "OrientedPlane3": (".geometry", "OrientedPlane3"),
+    "SE23": (".geometry", "SE23"),
 }
 
 

@@ -13,9 +13,8 @@ from ..errors import FgoptError
 from .codegen import ArgLayout, module_source
 from .cse import Program, optimize, total_ops
 from .jacobians import output_storage
-from .lie import LieGroupBase
 from .linearize import linearization_program
-from .ops import storage_of, symbolic_value
+from .ops import has_own_tangent, storage_of, symbolic_value
 
 
 def _origin(fn: Any) -> str:
@@ -36,7 +35,7 @@ def residual_of(ftype: Any, sym_args: list) -> list:
                 "Python `if` runs once, at code generation; write branchless code with "
                 "Min/Max/sign_no_zero (see fgopt.symbolic.functions)") from exc
         raise
-    if isinstance(out, LieGroupBase):
+    if has_own_tangent(out):
         raise FgoptError(f"{ftype.name}: returns a {type(out).__name__}; a residual must be a "
                          "vector (e.g. a.local(b) or pose.log())")
     res = output_storage(out)

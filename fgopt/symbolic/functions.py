@@ -141,6 +141,50 @@ def safe_div(a: Any, b: Any, epsilon: Any = _DEFAULT):
     return s.as_expr(a) / (b + s.snz(b) * _eps(epsilon))
 
 
+def _indicator(cond: Any):
+    """0/1 expression of a condition: relations ``<= < >= >`` (SymPy relationals), ``&``, ``|``,
+    ``~`` of those, or an expression already 0 or 1. ``Heaviside`` underneath: the generated
+    code is a select, and its derivative is 0 (as for ``sign_no_zero``)."""
+    sp = _s().sp
+    if isinstance(cond, (bool, int)) and not isinstance(cond, sp.Basic):
+        return sp.S.One if cond else sp.S.Zero
+    if cond is sp.true or cond is sp.false:
+        return sp.S.One if cond is sp.true else sp.S.Zero
+    if isinstance(cond, (sp.LessThan, sp.StrictLessThan, sp.GreaterThan, sp.StrictGreaterThan)):
+        lhs, rhs = cond.lhs, cond.rhs
+        if isinstance(cond, (sp.GreaterThan, sp.StrictGreaterThan)):
+            lhs, rhs = rhs, lhs  # a >= b  <=>  b <= a
+        strict = isinstance(cond, (sp.StrictLessThan, sp.StrictGreaterThan))
+        return sp.Heaviside(rhs - lhs, 0 if strict else 1)
+    if isinstance(cond, sp.And):
+        return sp.Mul(*[_indicator(c) for c in cond.args])
+    if isinstance(cond, sp.Or):
+        return 1 - sp.Mul(*[1 - _indicator(c) for c in cond.args])
+    if isinstance(cond, sp.Not):
+        return 1 - _indicator(cond.args[0])
+    if isinstance(cond, (sp.Equality, sp.Unequality)):
+        raise TypeError("where(): == and != conditions are not supported (they are measure-zero "
+                        "events in floating point); use <= / >=")
+    return _s().as_expr(cond)
+
+
+def where(cond: Any, a: Any, b: Any):
+    """``a`` where ``cond`` holds, else ``b`` (entry-wise on matrices), without a branch.
+
+    ``cond`` is a relation of expressions (``Abs(x) <= Abs(y)``), combined with ``&``, ``|``,
+    ``~``. Evaluates ``h a + (1 - h) b`` with ``h`` the 0/1 indicator of ``cond``, so both
+    branches must be finite everywhere. The derivative follows the selected branch.
+    """
+    from .matrix import Matrix, _as_matrix
+
+    h = _indicator(cond)
+    if isinstance(a, Matrix) or isinstance(b, Matrix):
+        shape = a.shape if isinstance(a, Matrix) else b.shape
+        am, bm = _as_matrix(a, shape), _as_matrix(b, shape)
+        return am * h + bm * (1 - h)
+    return h * _s().as_expr(a) + (1 - h) * _s().as_expr(b)
+
+
 def pow(x: Any, p: Any):
     return _s().as_expr(x) ** _s().as_expr(p)
 
@@ -183,4 +227,5 @@ __all__ = [
     "symbols",
     "tan",
     "tanh",
+    "where",
 ]

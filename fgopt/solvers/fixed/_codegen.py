@@ -23,7 +23,7 @@ and a dense Levenberg-Marquardt loop ``_lm`` (Cholesky of the damped H, retracti
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from ...symbolic.cse import Program, optimize, prune, total_ops
@@ -34,11 +34,13 @@ FIXED_CODEGEN_VERSION = "3"
 
 @dataclass(frozen=True)
 class VarSpec:
-    gid: int  # Lie group id of fgopt.manifolds._kernels, or -1 for vectors / scalars
+    gid: int  # Lie group id of fgopt.manifolds._kernels, -1 vectors / scalars, -2 declared
     storage_dim: int
     tangent_dim: int
     storage_off: int
     tangent_off: int
+    #: declared manifolds: their printed retract (``RETRACT_CODE`` of the generated module)
+    retract_code: Any = field(default=None, compare=False)
 
 
 @dataclass(frozen=True)
@@ -424,6 +426,13 @@ def _retract_source(variables: list) -> str:
     lines = ["    _xs = np.empty(8)", "    _ds = np.empty(8)", "    _os = np.empty(8)"]
     for v in variables:
         so, to, s, d = v.storage_off, v.tangent_off, v.storage_dim, v.tangent_dim
+        if v.retract_code is not None:  # declared manifold: its generated retract, inlined
+            code = v.retract_code
+            lines += [f"    {x} = _x[{so + k}]" for k, x in enumerate(code["x"])]
+            lines += [f"    {x} = _d[{to + k}]" for k, x in enumerate(code["d"])]
+            lines += [f"    {t} = {e}" for t, e in code["stmts"]]
+            lines += [f"    _out[{so + k}] = {e}" for k, e in enumerate(code["out"])]
+            continue
         if v.gid < 0:
             for k in range(s):
                 lines.append(f"    _out[{so + k}] = _x[{so + k}] + _d[{to + k}]")

@@ -103,8 +103,10 @@ def _resolve(f: Any) -> tuple:
 def _fingerprint(ft: Any) -> str:
     fp = _FINGERPRINTS.get(id(ft))
     if fp is None or fp[0] is not ft:
+        from ...symbolic.ops import type_key
+
         h = hashlib.sha256(ft.fingerprint.encode())
-        h.update(repr((ft.name, tuple((n, tp.__module__, tp.__qualname__) for n, tp in ft.params),
+        h.update(repr((ft.name, tuple((n,) + type_key(tp) for n, tp in ft.params),
                        ft.method, ft.engine)).encode())
         fp = _FINGERPRINTS[id(ft)] = (ft, h.hexdigest())
     return fp[1]
@@ -191,15 +193,22 @@ def _collect(graph: Any, values: Variables) -> _Collected:
         woff += nw
         parts.append((fpr, pattern, idx_t, c.shape[0], r, mask_t))
     h = hashlib.sha256(repr(parts).encode())
+    from ...manifolds.base import is_vector_kind
+    from ...manifolds.declared import declared_type
+
     variables, so, to = [], 0, 0
     for kind in kinds:
         gid = _GIDS.get(kind.name, -1)
-        if gid < 0 and kind.name != "scalar" and not kind.name.startswith("R"):
+        declared = declared_type(kind)
+        code = None
+        if declared is not None:
+            gid, code = -2, declared._spec.retract_code
+        elif gid < 0 and not is_vector_kind(kind):
             raise FgoptError(f"fixed formulation: variables of kind {kind.name} are not supported")
-        variables.append(VarSpec(gid, kind.storage_dim, kind.dim, so, to))
+        variables.append(VarSpec(gid, kind.storage_dim, kind.dim, so, to, code))
         so += kind.storage_dim
         to += kind.dim
-    h.update(repr([(k.name, k.dim, k.storage_dim) for k in kinds]).encode())
+    h.update(repr([(k.name, k.dim, k.storage_dim, k.key) for k in kinds]).encode())
     h.update(_cache.package_fingerprint().encode())
     h.update(FIXED_CODEGEN_VERSION.encode())
     return _Collected(keys, kinds, variables, specs,
