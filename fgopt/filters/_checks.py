@@ -46,21 +46,21 @@ def step_error(code: int, idx: int, n: int, dt: float) -> tuple[type, str]:
     return msgs.get(code, (FgoptError, f"failed (code {code})"))
 
 
-def signature(fn: Callable, what: str) -> list:
+def signature(fn: Callable, what: str, scope: dict | None = None) -> list:
     """``[(name, symbolic type)]`` of a function's annotated parameters."""
     from ..symbolic.generate import parameters
 
     if not callable(fn):
         raise FgoptError(f"ManifoldEKF: the {what} function is not callable: {fn!r}")
-    return list(parameters(fn, getattr(fn, "__name__", what), None))
+    return list(parameters(fn, getattr(fn, "__name__", what), scope))
 
 
-def return_type(fn: Callable) -> type | None:
+def return_type(fn: Callable, scope: dict | None = None) -> type | None:
     from ..symbolic.generate import type_hints
     from ..symbolic.ops import normalize_type
 
     try:
-        rt = type_hints(fn, None).get("return")
+        rt = type_hints(fn, scope).get("return")
         return None if rt is None else normalize_type(rt)
     except Exception:  # noqa: BLE001 - unresolvable or unsupported: derive it instead
         return None
@@ -94,16 +94,16 @@ def fresh_names(wanted: list, taken: set) -> list:
     return out
 
 
-def default_state(process: Callable, params: list, dt: str, name: str) -> tuple:
+def default_state(process: Callable, params: list, dt: str, name: str,
+                  scope: dict | None = None) -> tuple:
     """The first k arguments, k = number of returned values (from the return annotation,
     else from a value-only generated module, which needs no SymPy on a cache hit)."""
     import typing
 
-    from ..symbolic import generate
-    from ..symbolic.generate import type_hints
+    from ..symbolic.generate import GeneratedFunction, type_hints
 
     try:
-        rt = type_hints(process, None).get("return")
+        rt = type_hints(process, scope).get("return")
     except Exception:  # noqa: BLE001 - unresolvable: count the outputs instead
         rt = None
     if rt is not None and typing.get_origin(rt) is tuple:
@@ -111,7 +111,8 @@ def default_state(process: Callable, params: list, dt: str, name: str) -> tuple:
     elif rt is not None:
         k = 1
     else:
-        k = len(generate(process, which=(), name=f"{name}_outputs").outputs)
+        k = len(GeneratedFunction(process, which=(), name=f"{name}_outputs", method="retraction",
+                                  engine="auto", cache=True, scope=scope).outputs)
     cand = tuple(n for n, _ in params if n != dt)[:k]
     if len(cand) < k:
         raise FgoptError(f"ManifoldEKF {name}: the process returns {k} values but has "

@@ -23,7 +23,15 @@ import inspect
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from ..symbolic import LieGroupBase, Matrix, Scalar
+from ..symbolic import Matrix, Scalar
+from ..symbolic.ops import has_own_tangent
+
+
+def is_declared_value(v: Any) -> bool:
+    """A value of a manifold declared with ``@fgopt.manifold``."""
+    from ..symbolic.declare.twin import DeclaredManifold
+
+    return isinstance(v, DeclaredManifold)
 
 
 def _with_signature(fn: Callable, name: str, params: Sequence[tuple[str, type]]) -> Callable:
@@ -46,7 +54,7 @@ def tangent_type(tp: type) -> type:
 
 def retract_value(x: Any, d: Any) -> Any:
     """``x (+) d`` for a symbolic value (group: ``x * Exp(d)``; vector / scalar: ``x + d``)."""
-    if isinstance(x, LieGroupBase):
+    if has_own_tangent(x):
         return x.retract(d)
     if isinstance(x, Matrix):
         return type(x).from_storage([a + b for a, b in zip(x.to_storage(), d.to_storage())])
@@ -55,7 +63,7 @@ def retract_value(x: Any, d: Any) -> Any:
 
 def local_value(a: Any, b: Any) -> Any:
     """``b (-) a`` in ``a``'s tangent space (group: ``Log(a^-1 b)``; vector: ``b - a``)."""
-    if isinstance(a, LieGroupBase):
+    if has_own_tangent(a):
         return a.local(b)
     if isinstance(a, Matrix):
         return Matrix.shaped(len(a), 1)([v - u for u, v in zip(a.to_storage(), b.to_storage())])
@@ -72,7 +80,9 @@ def process_model(process: Callable, order: tuple, params: Sequence[tuple[str, t
         out = process(*[args[j] for j in order])
         if single and not isinstance(out, (tuple, list)):
             out = (out,)
-        return tuple(out)
+        # declared manifolds come back projected by their own normalize (quaternions of the
+        # built-in groups are renormalized numerically after each step instead)
+        return tuple(o.normalize() if is_declared_value(o) else o for o in out)
 
     return _with_signature(process_model, f"{process.__name__}_process", params)
 

@@ -41,6 +41,7 @@ untouched.
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -52,8 +53,13 @@ from ..errors import (
     NonFiniteError,
     NotPositiveDefiniteError,
 )
-from ..symbolic import LieGroupBase, Scalar, generate
-from ..symbolic.generate import GeneratedFunction, numeric_value, value_storage
+from ..symbolic import Scalar, generate
+from ..symbolic.generate import (
+    MANIFOLD_TYPES,
+    GeneratedFunction,
+    numeric_value,
+    value_storage,
+)
 from . import _ekf_kernels as K
 from . import _models
 from ._checks import (
@@ -135,7 +141,8 @@ class ManifoldEKF:
                  reset: bool = True, name: str | None = None):
         self.name = name or getattr(process, "__name__", "ekf")
         self.reset = bool(reset)
-        params = signature(process, "process")
+        scope = sys._getframe(1).f_locals  # resolves string annotations of local names
+        params = signature(process, "process", scope)
         names = [n for n, _ in params]
         if dt not in names:
             raise FgoptError(f"ManifoldEKF {self.name}: the process function has no time-step "
@@ -145,7 +152,7 @@ class ManifoldEKF:
             raise FgoptError(f"ManifoldEKF {self.name}: the time step '{dt}' must be a Scalar, "
                              f"not {types[dt].__name__}")
         if state is None:
-            state = default_state(process, params, dt, self.name)
+            state = default_state(process, params, dt, self.name, scope)
         state = tuple(state)
         unknown = [s for s in state if s not in names or s == dt]
         if len(unknown) > 0 or len(state) == 0 or len(set(state)) != len(state):
@@ -179,7 +186,7 @@ class ManifoldEKF:
                                  which=deltas, name=f"{self.name}_retract")
         self._measurements: dict[str, _Measurement] = {}
         for i, (mname, fn) in enumerate(named(measurements).items()):
-            self._measurements[mname] = self._measurement(i, mname, fn, types)
+            self._measurements[mname] = self._measurement(i, mname, fn, types, scope)
         unit = [(self._storage_slices[s_].start + _unit_norm(tp)[0], _unit_norm(tp)[1])
                 for s_, tp in zip(state, self.state_types) if _unit_norm(tp) is not None]
         self._unit = np.array(unit, dtype=np.int64).reshape(-1, 2)
@@ -232,12 +239,13 @@ class ManifoldEKF:
                              f"for a state of {len(self.state_types)} ({', '.join(self.state_names)})")
         for s_, want, got in zip(self.state_names, self.state_types, outs):
             if want.storage_dim() != got.storage_dim() or want.dim() != got.dim() or (
-                    issubclass(want, LieGroupBase) != issubclass(got, LieGroupBase)):
+                    issubclass(want, MANIFOLD_TYPES) != issubclass(got, MANIFOLD_TYPES)):
                 raise FgoptError(f"ManifoldEKF {self.name}: the process returns a "
                                  f"{got.__name__} for state '{s_}' ({want.__name__})")
 
-    def _measurement(self, index: int, mname: str, fn: Callable, types: dict) -> _Measurement:
-        mparams = signature(fn, f"measurement {mname}")
+    def _measurement(self, index: int, mname: str, fn: Callable, types: dict,
+                     scope: dict) -> _Measurement:
+        mparams = signature(fn, f"measurement {mname}", scope)
         extra = []
         for pn, tp in mparams:
             if pn in self.state_names:
@@ -252,7 +260,7 @@ class ManifoldEKF:
         position = {pn: i for i, (pn, _) in enumerate(full)}
         select = tuple(position[pn] for pn, _ in mparams)
         pred = _models.prediction(fn, select, full, f"{self.name}_{mname}")
-        ztype = return_type(fn)
+        ztype = return_type(fn, scope)
         if ztype is None:  # unannotated: find the type from the generated prediction
             ztype = generate(pred, which=()).outputs[0].type
         zname = fresh_names(["z"], taken)[0]

@@ -16,10 +16,11 @@ from typing import Any
 
 from ..errors import FgoptError
 from .cse import Program, optimize, temp_symbols, total_ops
+from .declare.twin import DeclaredManifold
 from .lie import LieGroupBase
 from .linearize import linearization_program
 from .matrix import Matrix, Scalar
-from .ops import storage_of, symbolic_value, tangent_D_storage_of
+from .ops import has_own_tangent, storage_of, symbolic_value, tangent_D_storage_of
 
 
 def _sp():
@@ -37,7 +38,7 @@ def _origin(fn: Any) -> str:
 
 def output_type(value: Any) -> type:
     """The symbolic type of one output value."""
-    if isinstance(value, LieGroupBase):
+    if has_own_tangent(value):
         return type(value)
     if isinstance(value, Matrix):
         return Matrix.shaped(*value.shape)
@@ -70,7 +71,7 @@ def run_symbolic(gf: Any) -> tuple[dict, list, bool]:
         raise FgoptError(f"{gf.name}: the function returns nothing")
     sp = _sp()
     for i, o in enumerate(outputs):
-        ok = isinstance(o, (LieGroupBase, Matrix, int, float)) or (
+        ok = isinstance(o, (LieGroupBase, DeclaredManifold, Matrix, int, float)) or (
             isinstance(o, sp.Basic) and not isinstance(o, sp.MatrixBase))
         if not ok or (isinstance(o, Matrix) and o.SHAPE is None and len(o.to_storage()) == 0):
             raise FgoptError(f"{gf.name}: output {i} is a {type(o).__name__}; return groups, "
@@ -133,7 +134,7 @@ def _to_output_tangents(prog: Program, outputs: list) -> Program:
     for o in outputs:
         s = len(storage_of(o))
         rows = J[r0:r0 + s, :]
-        if isinstance(o, LieGroupBase):
+        if has_own_tangent(o):
             rows = tangent_D_storage_of(type(o).from_storage(res_syms[r0:r0 + s])) * rows
         blocks.append(rows)
         r0 += s
@@ -152,7 +153,7 @@ def programs(gf: Any) -> tuple[Program, Program | None, list, bool, dict]:
     if len(gf.which) > 0:
         lin = linearization_program(res, [args[n] for n in gf.which], method=gf.method,
                                     engine=gf.engine)
-        if any(isinstance(o, LieGroupBase) for o in outputs):
+        if any(has_own_tangent(o) for o in outputs):
             lin = _to_output_tangents(lin, outputs)
     return value, lin, outputs, is_tuple, args
 
