@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from . import _assembly as asm
+from . import _assembly_np as asm_np
 from .batch import FactorBatch, batch_from_factors
 from .errors import (DimensionMismatchError, EmptyProblemError, FgoptError, KeyNotFoundError,
                      ManifoldError, NonFiniteError)
@@ -35,6 +36,16 @@ from .structure import HessianPattern, build_pattern, fill_reducing_order, scatt
 from ._threads import PARALLEL_MIN_BATCH, linearize_batch_threaded
 from .variables import Variables
 
+
+
+#: Batches up to this size are assembled by the NumPy twins (no numba import or cache load);
+#: the same threshold as generated kernels' NumPy twins.
+NUMPY_MAX_BATCH = 1000
+
+
+def _asm(n: int):
+    """The assembly kernels for a batch of ``n`` instances: NumPy when small, else numba."""
+    return asm_np if n <= NUMPY_MAX_BATCH else asm
 
 @dataclass(eq=False)
 class State:
@@ -340,8 +351,8 @@ class Problem:
         total = 0.0
         for b in self.batches:
             res = b.kernel.residual(b.gather(state), b.source.constants)
-            total += asm.batch_cost(res, b.sqrt_info, b.unit, b.source.loss_code,
-                                    b.source.loss_param, b.source.loss_shape)
+            total += _asm(len(b.source)).batch_cost(res, b.sqrt_info, b.unit, b.source.loss_code,
+                                                    b.source.loss_param, b.source.loss_shape)
         if self._slow:
             view = _StateView(self, state)
             for s in self._slow:
@@ -350,8 +361,8 @@ class Problem:
                 except NonFiniteError:
                     total = np.nan
                     continue
-                total += asm.batch_cost(e[None], s.sqrt_info, s.unit, s.loss_code, s.loss_param,
-                                        s.loss_shape)
+                total += asm_np.batch_cost(e[None], s.sqrt_info, s.unit, s.loss_code,
+                                           s.loss_param, s.loss_shape)
         self.timing["cost"] += time.perf_counter() - t0
         return float(total) if np.isfinite(total) else float("nan")
 
@@ -400,10 +411,9 @@ class Problem:
                 continue
             res, jac = b.kernel.linearize(b.gather(state), b.source.constants)
             t1 = time.perf_counter()
-            total += asm.scatter_batch(res, jac, b.sqrt_info, b.unit, b.source.loss_code,
-                                       b.source.loss_param, b.source.loss_shape, b.arg_dims,
-                                       b.arg_local_off, b.toff,
-                                       b.pos, H, g, b.weights)
+            total += _asm(len(b.source)).scatter_batch(
+                res, jac, b.sqrt_info, b.unit, b.source.loss_code, b.source.loss_param,
+                b.source.loss_shape, b.arg_dims, b.arg_local_off, b.toff, b.pos, H, g, b.weights)
             t_lin += t1 - t0
             t_asm += time.perf_counter() - t1
         if self._slow:
@@ -413,10 +423,10 @@ class Problem:
                 e = s.factor.checked_error(view)
                 Js = s.factor.checked_jacobians(view)
                 J = np.concatenate(Js, axis=1)[None]
-                total += asm.scatter_batch(e[None], J, s.sqrt_info, s.unit, s.loss_code,
-                                           s.loss_param, s.loss_shape, s.arg_dims,
-                                           s.arg_local_off, s.toff,
-                                           s.pos, H, g, np.ones(1))
+                total += asm_np.scatter_batch(e[None], J, s.sqrt_info, s.unit, s.loss_code,
+                                              s.loss_param, s.loss_shape, s.arg_dims,
+                                              s.arg_local_off, s.toff,
+                                              s.pos, H, g, np.ones(1))
             t_lin += time.perf_counter() - t0
         self.timing["linearize"] += t_lin
         self.timing["assemble"] += t_asm

@@ -263,14 +263,25 @@ class SymbolicFactorType:
                              "J^T J and J^T r")
         return module.linearize_hessian
 
-    def _module(self, pattern: tuple):
+    def cache_key(self, pattern: tuple) -> str:
+        """The kernel cache key of a variable pattern (function, pattern, options, package)."""
         parts = (self.name, tuple((n,) + type_key(tp) for n, tp in self.params),
                  pattern, self.method, self.engine, self.hessian)
-        key = _cache.kernel_key(self.fn, parts, self.fingerprint) if self.use_cache else None
+        return _cache.kernel_key(self.fn, parts, self.fingerprint)
+
+    def _module(self, pattern: tuple):
+        key = self.cache_key(pattern) if self.use_cache else None
         if key is not None:
-            module = _cache.load(self.name, key)
+            module = _cache.load(self.name, key, required=self._required())
             if module is not None:
                 return module
+            # built-in factors ship their generated source: nothing is derived at first use
+            from .library.shipped import shipped_source
+
+            source = shipped_source(self.name, key)
+            if source is not None:
+                _cache.STATS["shipped"] += 1
+                return _cache.store(self.name, key, source)
         from ..symbolic.derive import derive_source
 
         source = derive_source(self, pattern)
@@ -280,6 +291,11 @@ class SymbolicFactorType:
 
             key = "nocache_" + hashlib.sha256(source.encode()).hexdigest()[:16]
         return _cache.store(self.name, key, source)
+
+    def _required(self) -> tuple[str, ...]:
+        """What a generated module of this type must define (else its cache entry is redone)."""
+        base = ("META", "NUM_CONSTANTS", "residual", "linearize")
+        return base + ("linearize_hessian",) if self.hessian else base
 
     @property
     def source(self) -> str:
@@ -335,8 +351,7 @@ def _kernel_from_module(module: Any, params: tuple, pattern: tuple, name: str,
                         recipe: tuple | None = None) -> FactorKernel:
     meta = module.META
     kinds = tuple(batch_kind_of(tp) for (_, tp), v in zip(params, pattern) if v)
-    with open(module.__file__) as fh:
-        source = fh.read()
+    source = module.__fgopt_source__  # the verified text that ran, not a re-read of the file
     return FactorKernel(name=name, arg_kinds=kinds, residual_dim=meta["residual_dim"],
                         num_constants=module.NUM_CONSTANTS, residual=module.residual,
                         linearize=module.linearize, source=source, recipe=recipe)

@@ -6,8 +6,6 @@ import dataclasses
 from typing import Any
 
 from ..errors import FgoptError
-from .chordal import chordal_initialization as chordal_initialization
-from .covariance import marginals as marginals
 from .dogleg import Dogleg as Dogleg
 from .gnc import GNC as GNC
 from .gnc import GNCParams as GNCParams
@@ -22,6 +20,22 @@ from .params import TerminationParams as TerminationParams
 from .result import IterationRecord as IterationRecord
 from .result import Result as Result
 from .result import Status as Status
+
+
+
+def __getattr__(name: str):
+    """``chordal_initialization`` and ``marginals`` load on first use (they import scipy's
+    sparse package, which a small solve does not need)."""
+    if name == "chordal_initialization":
+        from .chordal import chordal_initialization
+
+        return chordal_initialization
+    if name == "marginals":
+        from .covariance import marginals
+
+        return marginals
+    raise AttributeError(f"module 'fgopt.solvers' has no attribute {name!r}")
+
 
 _METHODS = {"lm": (LevenbergMarquardt, LMParams), "gn": (GaussNewton, GaussNewtonParams),
             "dogleg": (Dogleg, DoglegParams), "gnc": (GNC, GNCParams)}

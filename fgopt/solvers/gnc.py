@@ -44,7 +44,6 @@ from ..errors import FgoptError
 from ..key import key_char, key_index
 from ..problem import Problem
 from ..variables import Variables
-from .chordal import _PoseGraph, chordal_state
 from .linear.base import make_linear_solver
 from .lm import LevenbergMarquardt
 from .params import LMParams
@@ -159,6 +158,8 @@ class GNC:
                                                     verbose=False))
         inliers = _known_inlier_mask(problem, p.known_inliers)
         c2 = _thresholds(problem, p.inlier_probability)
+        from .chordal import _PoseGraph, chordal_state  # scipy.sparse: only when GNC runs
+
         use_chordal = p.initialization in ("auto", "chordal") and _PoseGraph(problem).ok
         if p.initialization == "chordal" and not use_chordal:
             raise FgoptError("GNC initialization='chordal' needs a pose graph (SE2 or SE3 poses, "

@@ -7,6 +7,7 @@ SymPy gets imported).
 from __future__ import annotations
 
 import inspect
+from pathlib import Path
 from typing import Any
 
 from ..errors import FgoptError
@@ -18,8 +19,14 @@ from .ops import has_own_tangent, storage_of, symbolic_value
 
 
 def _origin(fn: Any) -> str:
+    """``file:line`` of the factor function; relative (``fgopt/...``) inside the package, so the
+    generated source of a built-in factor is the same bytes in every checkout (it is shipped)."""
     try:
-        return f"{inspect.getsourcefile(fn)}:{inspect.getsourcelines(fn)[1]}"
+        path = Path(inspect.getsourcefile(fn)).resolve()
+        package_parent = Path(__file__).resolve().parents[2]
+        if path.is_relative_to(package_parent / "fgopt"):
+            path = path.relative_to(package_parent)
+        return f"{path.as_posix()}:{inspect.getsourcelines(fn)[1]}"
     except (OSError, TypeError):
         return f"{getattr(fn, '__module__', '?')}.{getattr(fn, '__qualname__', '?')}"
 

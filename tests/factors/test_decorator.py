@@ -42,7 +42,7 @@ def test_instances_and_kernels():
     h = range_bearing(key("x", 1), np.array([1.0, 2.0]), np.array([4.0, 0.3]))
     assert h.kernel is not f.kernel and h.kernel.num_constants == 4
     src = range_bearing.source
-    assert "# total ops:" in src and "@numba.njit(cache=True" in src and "def _linearize_kernel" in src
+    assert "# total ops:" in src and "@njit(cache=True" in src and "def _linearize_kernel" in src
 
 
 def test_values_and_jacobians_match_numpy():

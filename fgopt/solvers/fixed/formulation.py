@@ -217,6 +217,10 @@ def _collect(graph: Any, values: Variables) -> _Collected:
 
 
 # ------------------------------------------------------------------------------------ module
+#: What FixedProblem uses of a generated module (a cached entry without them is regenerated).
+_REQUIRED = ("N", "S", "NUM_AUX", "META", "_precompute", "_lm")
+
+
 def _module(col: _Collected, use_cache: bool, info: dict) -> Any:
     m = _MODULES.get(col.key)
     if m is not None:
@@ -224,7 +228,7 @@ def _module(col: _Collected, use_cache: bool, info: dict) -> Any:
         info["source"] = "memo"
         return m
     name = f"fixed_{len(col.variables)}v_{len(col.factors)}f"
-    m = _cache.load(name, col.key) if use_cache else None
+    m = _cache.load(name, col.key, required=_REQUIRED) if use_cache else None
     if m is not None:
         STATS["loaded"] += 1
         info["source"] = "disk"
@@ -274,8 +278,7 @@ class FixedProblem:
 
     @property
     def source(self) -> str:
-        with open(self.module.__file__) as fh:
-            return fh.read()
+        return self.module.__fgopt_source__  # the text that was verified and run
 
     @property
     def ops(self) -> dict:
