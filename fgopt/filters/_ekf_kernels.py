@@ -6,14 +6,18 @@ input buffer, ``P``) only as its last act, after every check passed: a step eith
 completely or not at all. Kernels return a status code (``OK`` or one of the codes below) and
 an index (the offending entry) that :mod:`fgopt.filters.ekf` turns into an ``FgoptError``.
 
+Kernels are :func:`fgopt._jit.njit` proxies: numba is imported and they are compiled (or loaded
+from numba's cache) on first use, not when ``fgopt.filters`` is imported.
+
 Products skip the structural zeros of the generated Jacobians (``F``, ``G``, ``H`` are mostly
 zeros for navigation models), which keeps a 15-state predict + update in a few microseconds.
 """
 
 from __future__ import annotations
 
-import numba
 import numpy as np
+
+from .._jit import njit
 
 OK = 0
 U_NONFINITE = 1
@@ -42,7 +46,7 @@ PSD_TOL = 1e-12
 _JIT = {"cache": True, "fastmath": False, "error_model": "numpy", "nogil": True}
 
 
-@numba.njit(**_JIT)
+@njit(**_JIT)
 def _first_nonfinite(a):
     flat = a.reshape(-1)
     for i in range(flat.shape[0]):
@@ -51,7 +55,7 @@ def _first_nonfinite(a):
     return -1
 
 
-@numba.njit(**_JIT)
+@njit(**_JIT)
 def _cholesky(A, L, shift):
     """Lower Cholesky factor of ``A + shift I`` into ``L``; False if a pivot is not positive."""
     n = A.shape[0]
@@ -80,7 +84,7 @@ def _cholesky(A, L, shift):
     return True
 
 
-@numba.njit(**_JIT)
+@njit(**_JIT)
 def _check_noise(A, L, psd):
     """0 fine, 1 non-finite, 2 asymmetric, 3 not PSD / PD; and the offending index."""
     n = A.shape[0]
@@ -103,7 +107,7 @@ def _check_noise(A, L, psd):
     return 0, -1
 
 
-@numba.njit(**_JIT)
+@njit(**_JIT)
 def _symmetrize(A):
     n = A.shape[0]
     for i in range(n):
@@ -113,7 +117,7 @@ def _symmetrize(A):
             A[j, i] = v
 
 
-@numba.njit(**_JIT)
+@njit(**_JIT)
 def _normalize(x, unit):
     for r in range(unit.shape[0]):
         a, n = unit[r, 0], unit[r, 1]
@@ -125,7 +129,7 @@ def _normalize(x, unit):
             x[k] /= s
 
 
-@numba.njit(**_JIT)
+@njit(**_JIT)
 def _sandwich_add(B, c0, M, out, T):
     """``out += B M B^T`` for ``B = J[:, c0:c0 + M.shape[0]]`` (M symmetric; zeros of B
     skipped: generated Jacobians are sparse). ``T`` (at least ``n x k``) receives ``B M``.
@@ -150,7 +154,7 @@ def _sandwich_add(B, c0, M, out, T):
                     out[i, j] += b * T[j, a]
 
 
-@numba.njit(**_JIT)
+@njit(**_JIT)
 def _validated(A, last, L, psd):
     """``_check_noise(A)``, skipped when ``A`` equals ``last`` (the last matrix that passed);
     a matrix that passes is copied into ``last``."""
@@ -173,7 +177,7 @@ def _validated(A, last, L, psd):
     return code, idx
 
 
-@numba.njit(**_JIT)
+@njit(**_JIT)
 def predict(pin, nx, nu, xnext, FG, P, Q, Qs, use_qs, Pn, L, T, unit, Qlast, Qslast):
     """Checks, then ``P <- F P F^T + G Q G^T (+ Qs)`` and ``x <- f(x, u, dt)`` (committed).
 
@@ -219,7 +223,7 @@ def predict(pin, nx, nu, xnext, FG, P, Q, Qs, use_qs, Pn, L, T, unit, Qlast, Qsl
     return OK, -1
 
 
-@numba.njit(**_JIT)
+@njit(**_JIT)
 def gain(y, J, P, R, S, L, K, Pn, HP, AP, W, rin, pin, nx, stats, Rlast):
     """Joseph-form update in the tangent space: ``delta = K y`` (into ``rin[nx:]``), ``Pn``.
 
@@ -321,7 +325,7 @@ def gain(y, J, P, R, S, L, K, Pn, HP, AP, W, rin, pin, nx, stats, Rlast):
     return OK, -1
 
 
-@numba.njit(**_JIT)
+@njit(**_JIT)
 def commit_update(xnew, G, Pn, reset, P, pin, nx, unit, T):
     """``P <- G Pn G^T`` (if ``reset``) or ``Pn``, and ``x <- xnew`` (normalized), committed.
 

@@ -80,6 +80,12 @@ _UNIT_NORM = {"Rot2": (0, 2), "Rot3": (0, 4), "Pose2": (0, 2), "Pose3": (0, 4),
               "NavState": (0, 4)}
 
 
+def _dispatcher(kernel: Any) -> Any:
+    """The numba dispatcher behind a :func:`fgopt._jit.njit` proxy (imports numba; compiling
+    still waits for the first call)."""
+    return getattr(kernel, "dispatcher", kernel)
+
+
 def _unit_norm(tp: type) -> tuple | None:
     hook = getattr(tp, "UNIT_NORM", None)
     return tuple(hook) if hook is not None else _UNIT_NORM.get(tp.__name__)
@@ -224,7 +230,10 @@ class ManifoldEKF:
              for m in self._measurements.values()])
         self._steps = load(self.name, source)
         for m in self._measurements.values():
-            m.step = getattr(self._steps, f"update_{m.index}")
+            m.step = _dispatcher(getattr(self._steps, f"update_{m.index}"))
+        # the numba dispatchers themselves (not fgopt._jit's proxies): one call per step
+        self._predict_step = _dispatcher(self._steps.predict)
+        self._predict_many_step = _dispatcher(self._steps.predict_many)
         self._no_qs = np.zeros((n, n))
         self._no_u = np.zeros(0)
         self.num_predicts = self.num_updates = 0
@@ -402,7 +411,7 @@ class ManifoldEKF:
             if not (type(Qs) is np.ndarray and Qs.shape == (self.dim, self.dim)
                     and Qs.dtype == np.float64):
                 Qs = self._matrix(Qs, (self.dim, self.dim), "Q_state")
-        code, idx = self._steps.predict(self._buf, u, dt, Q, Qs, use_qs)
+        code, idx = self._predict_step(self._buf, u, dt, Q, Qs, use_qs)
         if code != 0:
             self._raise("predict", code, idx, dt=dt)
         self.num_predicts += 1
@@ -428,7 +437,7 @@ class ManifoldEKF:
             Qs, use_qs = self._no_qs, False
         else:
             Qs, use_qs = self._matrix(Q_state, (self.dim, self.dim), "Q_state"), True
-        code, idx, row = self._steps.predict_many(self._buf, U, dts, Q, Qs, use_qs)
+        code, idx, row = self._predict_many_step(self._buf, U, dts, Q, Qs, use_qs)
         if code != 0:
             self._raise(f"predict_many (row {row})", code, idx, dt=float(dts[row]))
         self.num_predicts += U.shape[0]

@@ -193,7 +193,7 @@ def _body(prog: Program, args: dict, offsets: dict, outputs: dict, batched: bool
 
 
 def _function(fn_name: str, params: str, doc: str, ops: int, body: list, batched: bool) -> str:
-    head = ['@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)',
+    head = ['@njit(cache=True, fastmath=False, error_model="numpy", nogil=True)',
             f"def {fn_name}({params}):",
             f'    """{doc}"""',
             f"    # total ops: {ops}"]
@@ -246,7 +246,7 @@ def derive_source(gf: Any) -> str:
         "",
         "import math",
         "",
-        "import numba",
+        "from fgopt._jit import njit",
         "import numpy as np",
         "",
         f"EPSILON = {EPSILON_VALUE!r}",

@@ -227,7 +227,10 @@ class GeneratedFunction:
 
     @property
     def source(self) -> str:
-        """The generated module's source."""
+        """The generated module's source (the verified text the cache executed)."""
+        text = getattr(self.module, "__fgopt_source__", None)
+        if text is not None:
+            return text
         with open(self.module.__file__) as fh:
             return fh.read()
 
