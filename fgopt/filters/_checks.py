@@ -48,7 +48,7 @@ def step_error(code: int, idx: int, n: int, dt: float) -> tuple[type, str]:
 
 def signature(fn: Callable, what: str, scope: dict | None = None) -> list:
     """``[(name, symbolic type)]`` of a function's annotated parameters."""
-    from ..symbolic.generate import parameters
+    from ..symbolic.generated import parameters
 
     if not callable(fn):
         raise FgoptError(f"ManifoldEKF: the {what} function is not callable: {fn!r}")
@@ -56,7 +56,7 @@ def signature(fn: Callable, what: str, scope: dict | None = None) -> list:
 
 
 def return_type(fn: Callable, scope: dict | None = None) -> type | None:
-    from ..symbolic.generate import type_hints
+    from ..symbolic.generated import type_hints
     from ..symbolic.ops import normalize_type
 
     try:
@@ -100,7 +100,7 @@ def default_state(process: Callable, params: list, dt: str, name: str,
     else from a value-only generated module, which needs no SymPy on a cache hit)."""
     import typing
 
-    from ..symbolic.generate import GeneratedFunction, type_hints
+    from ..symbolic.generated import GeneratedFunction, type_hints
 
     try:
         rt = type_hints(process, scope).get("return")

@@ -54,7 +54,7 @@ from ..errors import (
     NotPositiveDefiniteError,
 )
 from ..symbolic import Scalar, generate
-from ..symbolic.generate import (
+from ..symbolic.generated import (
     MANIFOLD_TYPES,
     GeneratedFunction,
     numeric_value,

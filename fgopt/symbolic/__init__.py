@@ -16,8 +16,8 @@ Module map (one job each): ``matrix`` (Matrix, V1..V9, Scalar), ``lie`` (group b
 ``ops`` (storage/tangent ops), ``jacobians`` (tangent-space Jacobians), ``singularity``
 (removable-singularity checker), ``linearize`` (residual + Jacobian programs), ``cse``,
 ``printer``, ``codegen`` (kernel modules), ``cache`` (on-disk cache), ``derive`` (a factor's
-kernel source), ``runtime`` (helpers of generated code), ``generate`` (functions with tangent
-Jacobians as numba functions, :func:`generate`; derived in ``_generate_source``), ``declare``
+kernel source), ``runtime`` (helpers of generated code), ``generated`` (:func:`generate`:
+functions with tangent Jacobians as numba functions; derived in ``_generate_source``), ``declare``
 (``@fgopt.manifold``: user-declared manifolds, ``Product``, ``check_manifold``), ``geometry``
 (manifolds declared that way that ship with fgopt: ``Unit3``, ``OrientedPlane3``, ``SE23``;
 loaded on first access). ``@fgopt.factor`` itself, which makes factor types from these, is
@@ -59,8 +59,6 @@ from .functions import symbols as symbols
 from .functions import tan as tan
 from .functions import tanh as tanh
 from .functions import where as where
-from .generate import GeneratedFunction as GeneratedFunction
-from .generate import generate as generate
 from .lie import LieGroupBase as LieGroupBase
 from .matrix import M22 as M22
 from .matrix import M33 as M33
@@ -92,6 +90,8 @@ _LAZY = {
     "check_removable_singularity": (".singularity", "check_removable_singularity"),
     "python_function": (".codegen", "python_function"),
     "total_ops": (".cse", "total_ops"),
+    "generate": (".generated", "generate"),
+    "GeneratedFunction": (".generated", "GeneratedFunction"),
     "manifold": (".declare", "manifold"),
     "Product": (".declare", "Product"),
     "check_manifold": (".declare", "check_manifold"),

@@ -1,6 +1,6 @@
 """Derivation and source of a :func:`fgopt.symbolic.generate` module (SymPy runs here).
 
-Called by :class:`~fgopt.symbolic.generate.GeneratedFunction` on a cache miss. The function is
+Called by :class:`~fgopt.symbolic.generated.GeneratedFunction` on a cache miss. The function is
 run on symbolic arguments, its outputs flattened to storage expressions, and two programs are
 built: the value (``res``) and the value with the stacked tangent-space Jacobian (``res``,
 ``jac``). The storage Jacobian comes from :func:`~fgopt.symbolic.linearize.linearization_program`;
@@ -83,7 +83,7 @@ def run_symbolic(gf: Any) -> tuple[dict, list, bool]:
 def _check_return_annotation(gf: Any, outputs: list, is_tuple: bool) -> None:
     import typing
 
-    from .generate import type_hints
+    from .generated import type_hints
 
     try:
         rt = type_hints(gf.fn, None).get("return")
@@ -203,7 +203,7 @@ def _function(fn_name: str, params: str, doc: str, ops: int, body: list, batched
 
 
 def derive_source(gf: Any) -> str:
-    """The generated module of ``gf`` (a :class:`~fgopt.symbolic.generate.GeneratedFunction`)."""
+    """The generated module of ``gf`` (a :class:`~fgopt.symbolic.generated.GeneratedFunction`)."""
     from ._sym import EPSILON_VALUE
 
     value, lin, outputs, is_tuple, args = programs(gf)

@@ -72,7 +72,7 @@ _RESERVED = RESERVED_NAMES | {"epsilon", "NAME", "flat", "flat_value", "batch", 
 __all__ = ["MANIFOLD_TYPES", "GeneratedFunction", "Slot", "generate", "numeric_twin",
            "numeric_value", "parameters", "type_hints", "value_storage"]
 
-_SOURCES = ("generate.py", "_generate_source.py")
+_SOURCES = ("generated.py", "_generate_source.py")
 
 
 def _implementation_hash() -> str:
