@@ -27,6 +27,7 @@ _cache_root.route_numba_cache()
 # ``fgopt.key`` is both a submodule and the function: import it eagerly (it is tiny) so the
 # function, not the module the import system binds, is what ``fgopt.key`` names.
 from .errors import FgoptError as FgoptError
+from .errors import FgoptWarning as FgoptWarning
 from .key import Key as Key
 from .key import key as key
 
@@ -47,12 +48,14 @@ _ATTRS = {
     "Sim3": (".manifolds", "Sim3"),
     "Problem": (".problem", "Problem"),
     "chordal_initialization": (".solvers", "chordal_initialization"),
+    "check_jacobians": (".solvers", "check_jacobians"),
     "marginals": (".solvers", "marginals"),
     "optimize": (".solvers", "optimize"),
     "Result": (".solvers.result", "Result"),
     "Status": (".solvers.result", "Status"),
     "Variables": (".variables", "Variables"),
     "factor": (".factors.decorator", "factor"),
+    "const": (".factors.decorator", "const"),
     "io": (".io", None),
     "plot": (".plot", None),
     "datasets": (".datasets", None),
@@ -69,7 +72,7 @@ _ATTRS = {
 #: ``fgopt.symbolic.Unit3`` ...).
 _DECLARED_VALUES = ("Unit3", "OrientedPlane3", "SE23")
 
-__all__ = ["__version__", "FgoptError", "Key", "key", *_ATTRS, *_DECLARED_VALUES]
+__all__ = ["__version__", "FgoptError", "FgoptWarning", "Key", "key", *_ATTRS, *_DECLARED_VALUES]
 
 
 def __getattr__(name: str):

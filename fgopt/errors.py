@@ -10,6 +10,11 @@ class FgoptError(Exception):
     """Root of every error fgopt raises on purpose."""
 
 
+class FgoptWarning(UserWarning):
+    """Something a result depends on that the user probably did not intend (e.g. initial values
+    no factor uses); the run goes on, and the result records it."""
+
+
 class KeyNotFoundError(FgoptError, KeyError):
     """A key is used that the `Variables` (or the graph) does not hold."""
 
@@ -23,6 +28,10 @@ class DuplicateKeyError(FgoptError):
 
 class DimensionMismatchError(FgoptError, ValueError):
     """A value, measurement, noise model or Jacobian has the wrong size."""
+
+
+class FgoptIndexError(FgoptError, IndexError):
+    """An index is out of range (e.g. an entry of a symbolic vector)."""
 
 
 class NotPositiveDefiniteError(FgoptError, ValueError):

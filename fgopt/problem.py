@@ -204,6 +204,9 @@ class Problem:
         self._kind_vars = [np.nonzero(self.var_kind == kid)[0] for kid in range(len(self.kinds))]
         self._slow_vars = np.nonzero(self.var_kind < 0)[0]
         self._extra = values  # for unused keys and the final Variables
+        #: Keys of ``values`` that no factor uses (returned unchanged in the final values).
+        self.unused_keys: list[Key] = ([k for k in value_of if k not in self._var_of_key]
+                                       if len(value_of) > V else [])
         self._sorted = np.argsort(self.var_keys)
 
     @staticmethod
@@ -345,8 +348,26 @@ class Problem:
             return state.objects[v]
         return self.kinds[kid].from_storage(state.storages[kid][self.var_row[v]])
 
+    @staticmethod
+    def state_is_finite(state: State) -> bool:
+        """True when every stored value of ``state`` is finite (Python-manifold values that
+        expose no storage are not checked)."""
+        if not all(bool(np.isfinite(s).all()) for s in state.storages):
+            return False
+        for x in state.objects.values():
+            try:
+                data = ops_for(x).to_storage(x)
+            except Exception:  # noqa: BLE001 - duck-typed manifolds have no storage
+                continue
+            if not np.all(np.isfinite(data)):
+                return False
+        return True
+
     def cost(self, state: State) -> float:
-        """Total cost ``sum rho_i`` (``0.5 |r|^2`` without robust losses); NaN if not finite."""
+        """Total cost ``sum rho_i`` (``0.5 |r|^2`` without robust losses); NaN if not finite
+        (also when a value of ``state`` is not finite)."""
+        if not self.state_is_finite(state):
+            return float("nan")
         t0 = time.perf_counter()
         total = 0.0
         for b in self.batches:
@@ -371,7 +392,8 @@ class Problem:
         if self.pattern is None:
             raise FgoptError("this Problem was built without structure")
         total = self._linearize_into(state, self.H_data, self.g)
-        if not (np.isfinite(total) and np.all(np.isfinite(self.g))):
+        if not (np.isfinite(total) and np.all(np.isfinite(self.g))
+                and np.all(np.isfinite(self.H_data))):
             raise NonFiniteError(self.locate_nonfinite(state))
         return total
 
@@ -379,8 +401,12 @@ class Problem:
         """Linearize a trial state into spare buffers; return its cost (NaN if not finite).
 
         Trust-region methods call this instead of ``cost`` so an accepted step needs no second
-        evaluation of the residuals: :meth:`accept_candidate` swaps the buffers in.
+        evaluation of the residuals: :meth:`accept_candidate` swaps the buffers in. A trial
+        point with a non-finite value, cost, residual or Jacobian gives NaN: the caller rejects
+        it as a step, and the current linearization stays as it was.
         """
+        if not self.state_is_finite(state):
+            return float("nan")
         if self._spare is None:
             self._spare = (np.zeros_like(self.H_data), np.zeros_like(self.g))
         H, g = self._spare

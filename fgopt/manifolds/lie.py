@@ -44,6 +44,14 @@ class InvalidGroupElementError(FgoptError, ValueError):
     """A value given to a Lie group constructor is not a group element (e.g. scale <= 0)."""
 
 
+def as_float(value: Any, what: str) -> float:
+    """``float(value)``, or a DimensionMismatchError naming ``what``."""
+    try:
+        return float(value)
+    except (TypeError, ValueError) as exc:
+        raise DimensionMismatchError(f"{what}: expected a number, got {value!r}") from exc
+
+
 def as_float_vector(value: Any, n: int, what: str) -> np.ndarray:
     """``value`` as a fresh float64 array of shape ``(n,)``, or a clear error."""
     try:

@@ -1,4 +1,5 @@
-"""Nonlinear optimizers (LM, Gauss-Newton, Dogleg) over a compiled problem, and ``optimize``."""
+"""Nonlinear optimizers (LM, Gauss-Newton, Dogleg) over a compiled problem, ``optimize``, and
+``check_jacobians`` (a factor's Jacobians against central differences)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,8 @@ from .dogleg import Dogleg as Dogleg
 from .gnc import GNC as GNC
 from .gnc import GNCParams as GNCParams
 from .gauss_newton import GaussNewton as GaussNewton
+from .jacobian_check import JacobianReport as JacobianReport
+from .jacobian_check import check_jacobians as check_jacobians
 from .linear.base import LinearSolver as LinearSolver
 from .linear.base import make_linear_solver as make_linear_solver
 from .lm import LevenbergMarquardt as LevenbergMarquardt

@@ -14,7 +14,10 @@ One module per factor type and variable pattern. It holds
 * Python wrappers ``residual(args, consts)`` / ``linearize(args, consts)`` with the
   :class:`~fgopt.factors.kernel.FactorKernel` signature (they check shapes, allocate outputs and
   make one kernel call per batch, twin or numba kernel by batch size);
-* ``META``: what the kernel computes (names, dims, op counts), read back on cache hits.
+* ``META``: what the kernel computes (names, dims, op counts), read back on cache hits;
+* for factors that call clamped functions (``sqrt``/``log``/``acos``/``asin`` of
+  :mod:`fgopt.symbolic.functions`): ``_clamp_kernel`` / ``clamp_arguments(args, consts)`` with the
+  clamped arguments, and ``META["clamps"]`` (function, bounds, the user's file:line).
 
 Section order inside a kernel (as SymForce's templates): total ops, input loads (only entries
 that are used), intermediate terms ``_tmpN``, output terms. Kernels compute the *unwhitened*
@@ -150,7 +153,7 @@ def _wrapper_source(fn_name: str, kernel: str, layouts: Sequence[ArgLayout],
 
 def module_source(name: str, signature: str, origin: str, layouts: Sequence[ArgLayout],
                   res_prog: Program, lin_prog: Program, meta: dict,
-                  hess_prog: Program | None = None) -> str:
+                  hess_prog: Program | None = None, clamp_prog: Program | None = None) -> str:
     """The full generated module (see the module docstring)."""
     from ._sym import EPSILON_VALUE
 
@@ -234,6 +237,16 @@ def module_source(name: str, signature: str, origin: str, layouts: Sequence[ArgL
         parts.append(_wrapper_source(
             "linearize_hessian", "_linearize_hessian_kernel", layouts,
             [("res", str(r)), ("jac", f"{r}, {D}"), ("hess", f"{D}, {D}"), ("rhs", str(D))]))
+    if clamp_prog is not None:
+        m = len(clamp_prog.outputs["clamp"])
+        parts.append("")
+        parts.append(_kernel_source(
+            "_clamp_kernel", clamp_prog, layouts, {"clamp": ("_clamp", lambda k: f"{k}")},
+            f"Writes _clamp (n, {m}): the arguments of the clamped functions in META['clamps'] "
+            "(checked after a solve, never in the solver's loop)."))
+        parts.append("")
+        parts.append(_wrapper_source("clamp_arguments", "_clamp_kernel", layouts,
+                                     [("clamp", str(m))]))
     return "\n".join(parts)
 
 
