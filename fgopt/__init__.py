@@ -40,7 +40,7 @@ from .solvers.result import Status as Status
 from .variables import Variables as Variables
 
 _LAZY = {"io": ".io", "plot": ".plot", "datasets": ".datasets", "symbolic": ".symbolic",
-         "solvers": ".solvers"}
+         "solvers": ".solvers", "incremental": ".incremental"}
 
 
 def __getattr__(name: str):
@@ -49,6 +49,10 @@ def __getattr__(name: str):
 
     if name in _LAZY:
         return importlib.import_module(_LAZY[name], __name__)
+    if name in ("IncrementalSmoother", "IncrementalParams", "FixedLagSmoother"):
+        from . import incremental
+
+        return getattr(incremental, name)
     if name == "factor":
         from .symbolic.factor import factor
 

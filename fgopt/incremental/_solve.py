@@ -1,0 +1,213 @@
+"""Solves on the Bayes tree (numba): back-substitution with wildfire, relinearization check,
+marginal covariances.
+
+*Back-substitution.* Each clique's conditional gives its frontal update from its separator's:
+``x_F = L11^-T (y - L21^T x_S)``. After an update the new top is solved completely (parents
+first); an orphan subtree is re-solved only where a separator variable changed by more than the
+wildfire threshold (iSAM2's ``optimizeWildfire``): by the running-intersection property, if no
+variable of a clique changed, none of its descendants' separators did.
+
+*Marginals.* The joint covariance of a clique's variables given its parent's is
+``Sigma_FF = L11^-T L11^-1 + A Sigma_SS A^T``, ``Sigma_FS = A Sigma_SS`` with
+``A = -L11^-T L21^T``; walking from the root to the clique holding a variable gives its
+marginal (the separator of each clique lies in its parent's variables).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ._dense import back_substitute
+
+
+@njit(cache=True)
+def _solve_clique(c, var_dim, delta, cvpool, cnpool, cl_voff, cl_nf, cl_ns, cl_fdim, cl_sdim,
+                  cl_poff, xs, xf):
+    """Re-solve clique ``c``'s frontal variables into ``delta``; returns max |change|."""
+    fd, sd = cl_fdim[c], cl_sdim[c]
+    m = fd + sd
+    vo = cl_voff[c]
+    nf = cl_nf[c]
+    o = 0
+    for k in range(cl_ns[c]):
+        v = cvpool[vo + nf + k]
+        for a in range(var_dim[v]):
+            xs[o + a] = delta[v, a]
+        o += var_dim[v]
+    p0 = cl_poff[c]
+    back_substitute(cnpool[p0:p0 + m * fd], cnpool[p0 + m * fd:p0 + m * fd + fd], m, fd, xs, xf)
+    o = 0
+    change = 0.0
+    for k in range(nf):
+        v = cvpool[vo + k]
+        for a in range(var_dim[v]):
+            d = abs(xf[o + a] - delta[v, a])
+            if d > change:
+                change = d
+            delta[v, a] = xf[o + a]
+        o += var_dim[v]
+    return change
+
+
+@njit(cache=True)
+def backsolve(vs, cs, cvpool, cnpool, newcl, O, wildfire, stamp):
+    """Solve the new top (``newcl``, children before parents), then wildfire into ``O``.
+
+    ``var_changed[v] == stamp`` marks variables whose update changed by more than
+    ``wildfire``. Returns the number of cliques solved.
+    """
+    var_dim, var_changed, delta = vs[0], vs[6], vs[7]
+    cl_child, cl_next, cl_voff, cl_nf, cl_ns, cl_fdim, cl_sdim, cl_poff = (
+        cs[1], cs[2], cs[4], cs[5], cs[6], cs[7], cs[8], cs[9])
+    maxw = 1
+    for c in newcl:
+        if cl_fdim[c] + cl_sdim[c] > maxw:
+            maxw = cl_fdim[c] + cl_sdim[c]
+    solved = 0
+    xs = np.empty(maxw)
+    xf = np.empty(maxw)
+    for i in range(newcl.shape[0] - 1, -1, -1):
+        c = newcl[i]
+        _mark_changes(c, var_dim, delta, var_changed, stamp, wildfire, cvpool, cnpool, cl_voff,
+                      cl_nf, cl_ns, cl_fdim, cl_sdim, cl_poff, xs, xf)
+        solved += 1
+    stack = O.copy()
+    ns = stack.shape[0]
+    while ns > 0:
+        ns -= 1
+        c = stack[ns]
+        vo = cl_voff[c]
+        nf = cl_nf[c]
+        hit = False
+        for k in range(cl_ns[c]):
+            if var_changed[cvpool[vo + nf + k]] == stamp:
+                hit = True
+                break
+        if not hit:
+            continue
+        w = cl_fdim[c] + cl_sdim[c]
+        if w > xs.shape[0]:
+            xs = np.empty(w)
+            xf = np.empty(w)
+        _mark_changes(c, var_dim, delta, var_changed, stamp, wildfire, cvpool, cnpool, cl_voff,
+                      cl_nf, cl_ns, cl_fdim, cl_sdim, cl_poff, xs, xf)
+        solved += 1
+        ch = cl_child[c]
+        while ch != -1:
+            if ns >= stack.shape[0]:
+                grown = np.empty(2 * stack.shape[0] + 16, np.int64)
+                grown[:ns] = stack[:ns]
+                stack = grown
+            stack[ns] = ch
+            ns += 1
+            ch = cl_next[ch]
+    return solved
+
+
+@njit(cache=True)
+def _mark_changes(c, var_dim, delta, var_changed, stamp, wildfire, cvpool, cnpool, cl_voff,
+                  cl_nf, cl_ns, cl_fdim, cl_sdim, cl_poff, xs, xf):
+    fd, sd = cl_fdim[c], cl_sdim[c]
+    m = fd + sd
+    vo = cl_voff[c]
+    nf = cl_nf[c]
+    o = 0
+    for k in range(cl_ns[c]):
+        v = cvpool[vo + nf + k]
+        for a in range(var_dim[v]):
+            xs[o + a] = delta[v, a]
+        o += var_dim[v]
+    p0 = cl_poff[c]
+    back_substitute(cnpool[p0:p0 + m * fd], cnpool[p0 + m * fd:p0 + m * fd + fd], m, fd, xs, xf)
+    o = 0
+    for k in range(nf):
+        v = cvpool[vo + k]
+        big = False
+        for a in range(var_dim[v]):
+            if abs(xf[o + a] - delta[v, a]) > wildfire:
+                big = True
+            delta[v, a] = xf[o + a]
+        if big:
+            var_changed[v] = stamp
+        o += var_dim[v]
+
+
+@njit(cache=True)
+def solve_all(vs, cs, cvpool, cnpool, order):
+    """Full back-substitution over cliques listed parents first (``order``)."""
+    var_dim, delta = vs[0], vs[7]
+    cl_voff, cl_nf, cl_ns, cl_fdim, cl_sdim, cl_poff = cs[4], cs[5], cs[6], cs[7], cs[8], cs[9]
+    maxw = 1
+    for c in order:
+        if cl_fdim[c] + cl_sdim[c] > maxw:
+            maxw = cl_fdim[c] + cl_sdim[c]
+    xs = np.empty(maxw)
+    xf = np.empty(maxw)
+    for c in order:
+        _solve_clique(c, var_dim, delta, cvpool, cnpool, cl_voff, cl_nf, cl_ns, cl_fdim, cl_sdim,
+                      cl_poff, xs, xf)
+
+
+@njit(cache=True)
+def relinearize_candidates(live_vars, var_dim, delta, thr):
+    """Variables with some ``|delta_i| >= thr_i`` (iSAM2's relinearization check)."""
+    out = np.empty(live_vars.shape[0], np.int64)
+    n = 0
+    for v in live_vars:
+        for a in range(var_dim[v]):
+            if abs(delta[v, a]) >= thr[v, a]:
+                out[n] = v
+                n += 1
+                break
+    return out[:n].copy()
+
+
+@njit(cache=True)
+def clique_covariance(path, var_dim, cvpool, cnpool, cl_voff, cl_nf, cl_ns, cl_fdim, cl_sdim,
+                      cl_poff, var_pos):
+    """Joint covariance of the variables of the last clique of ``path`` (root first)."""
+    prev = np.zeros((0, 0))
+    for i in range(path.shape[0]):
+        c = path[i]
+        fd, sd = cl_fdim[c], cl_sdim[c]
+        m = fd + sd
+        vo = cl_voff[c]
+        nf = cl_nf[c]
+        p0 = cl_poff[c]
+        panel = cnpool[p0:p0 + m * fd]
+        # Sigma_SS from the parent's joint covariance (positions set by the previous step)
+        Sss = np.empty((sd, sd))
+        idx = np.empty(sd, np.int64)
+        o = 0
+        for k in range(cl_ns[c]):
+            v = cvpool[vo + nf + k]
+            for a in range(var_dim[v]):
+                idx[o + a] = var_pos[v] + a
+            o += var_dim[v]
+        for a in range(sd):
+            for bb in range(sd):
+                Sss[a, bb] = prev[idx[a], idx[bb]]
+        L11 = np.zeros((fd, fd))
+        L21 = np.zeros((sd, fd))
+        for j in range(fd):
+            for r in range(j, fd):
+                L11[r, j] = panel[r + j * m]
+            for r in range(sd):
+                L21[r, j] = panel[fd + r + j * m]
+        Linv = np.linalg.inv(L11)
+        A = -(Linv.T @ (L21.T))                  # fd x sd
+        joint = np.empty((m, m))
+        Sff = Linv.T @ Linv + A @ Sss @ A.T
+        Sfs = A @ Sss
+        joint[:fd, :fd] = Sff
+        joint[:fd, fd:] = Sfs
+        joint[fd:, :fd] = Sfs.T
+        joint[fd:, fd:] = Sss
+        o = 0
+        for k in range(nf + cl_ns[c]):
+            v = cvpool[vo + k]
+            var_pos[v] = o
+            o += var_dim[v]
+        prev = joint
+    return prev
