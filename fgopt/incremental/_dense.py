@@ -30,6 +30,52 @@ from ..solvers.linear._block_kernels import (_CL, _CN, _CR, _CT, _I0, _dpotrf, _
 BLAS_MIN_WIDTH = 24
 
 
+_u = np.uint64
+
+
+@njit(cache=True)
+def _factor_narrow(W, m, fd, diag0, tol):
+    """``partial_factor`` for narrow fronts: the panel left-looking, then the trailing update
+    one column at a time (the column stays in cache while the ``fd`` panel columns are
+    subtracted from it). Unsigned indices: no wraparound checks, so LLVM vectorizes."""
+    mu = _u(m)
+    for j in range(fd):
+        ju = _u(j)
+        cj = ju * mu
+        for k in range(j):
+            ck = _u(k) * mu
+            f = W[ck + ju]
+            for i in range(ju, mu):
+                W[cj + i] -= W[ck + i] * f
+        d = W[cj + ju]
+        if not (d > tol * diag0[j]) or not (d > 0.0):
+            return j
+        d = math.sqrt(d)
+        W[cj + ju] = d
+        inv = 1.0 / d
+        for i in range(ju + _u(1), mu):
+            W[cj + i] *= inv
+    for c in range(fd, m):
+        cu = _u(c)
+        cc = cu * mu
+        j = 0
+        while j + 3 <= fd:             # three panel columns per pass over column c
+            a0 = _u(j) * mu
+            a1 = a0 + mu
+            a2 = a1 + mu
+            f0, f1, f2 = W[a0 + cu], W[a1 + cu], W[a2 + cu]
+            for i in range(cu, mu):
+                W[cc + i] -= W[a0 + i] * f0 + W[a1 + i] * f1 + W[a2 + i] * f2
+            j += 3
+        while j < fd:
+            a0 = _u(j) * mu
+            f0 = W[a0 + cu]
+            for i in range(cu, mu):
+                W[cc + i] -= W[a0 + i] * f0
+            j += 1
+    return -1
+
+
 @njit(cache=True)
 def partial_factor(W, m, fd, diag0, tol, iw, fw):
     """Eliminate the first ``fd`` columns of the ``m x m`` front ``W`` in place.
@@ -39,24 +85,7 @@ def partial_factor(W, m, fd, diag0, tol, iw, fw):
     for j in range(fd):
         diag0[j] = W[j + j * m]
     if fd <= BLAS_MIN_WIDTH:
-        for j in range(fd):
-            jj = j + j * m
-            d = W[jj]
-            if not (d > tol * diag0[j]) or not (d > 0.0):
-                return j
-            d = math.sqrt(d)
-            W[jj] = d
-            inv = 1.0 / d
-            for i in range(j + 1, m):
-                W[i + j * m] *= inv
-            for k in range(j + 1, m):
-                f = W[k + j * m]
-                if f != 0.0:
-                    kk = k * m
-                    jm = j * m
-                    for i in range(k, m):
-                        W[i + kk] -= W[i + jm] * f
-        return -1
+        return _factor_narrow(W, m, fd, diag0, tol)
     sd = m - fd
     ip = iw.ctypes.data
     fp = fw.ctypes.data

@@ -25,6 +25,7 @@ from numba import njit
 
 from ..solvers.linear._block_symbolic import etree, symbolic_columns
 from ._dense import add_cached, add_local_system, forward_rhs, partial_factor
+from ._state import unpack_cs, unpack_fs, unpack_vs
 from ._state import M_CL_HWM, M_CL_NFREE, M_CN_TOP, M_CV_TOP
 
 
@@ -62,10 +63,13 @@ def eliminate(vs, fs, cs, meta, cvpool, cnpool, hpool, T, order, group, ap, ai, 
     success or the slot of the variable whose pivot failed; ``newcl`` the new clique slots,
     children before parents; ``T_clique[i]`` the clique of ``T[i]``.
     """
-    var_dim, var_loc, var_pos = vs[0], vs[3], vs[4]
-    fac_nv, fac_vars, fac_hoff, fac_D = fs[0], fs[1], fs[2], fs[3]
+    V_ = unpack_vs(vs)
+    var_dim, var_loc, var_pos = V_[0], V_[3], V_[4]
+    F_ = unpack_fs(fs)
+    fac_nv, fac_vars, fac_hoff, fac_D = F_[0], F_[1], F_[2], F_[3]
+    C_ = unpack_cs(cs)
     cl_parent, cl_voff, cl_nf, cl_ns, cl_fdim, cl_sdim, cl_poff, cl_free = (
-        cs[0], cs[4], cs[5], cs[6], cs[7], cs[8], cs[9], cs[11])
+        C_[0], C_[4], C_[5], C_[6], C_[7], C_[8], C_[9], C_[11])
     t = T.shape[0]
     rank = np.empty(t, np.int64)
     for k in range(t):

@@ -172,8 +172,7 @@ class FactorStore:
             self.handle_of_slot = hs
         return slot, hwm, False
 
-    def _batch_for(self, kernel: Any, loss: Any) -> int:
-        R, code, k, shape = loss_parts(loss)
+    def _batch_for(self, kernel: Any, code: int, k: float, shape: float) -> int:
         key = (id(kernel), code, k, shape)
         b = self._batch_of.get(key)
         if b is None:
@@ -200,21 +199,24 @@ class FactorStore:
         tree.ensure_factors(slot + 1, nv)
         tree.fac_nv[slot] = nv
         tree.fac_vars[slot, :nv] = var_slots
-        tree.fac_D[slot] = int(tree.var_dim[var_slots].sum())
+        dims = tree.var_dim
+        tree.fac_D[slot] = sum([dims[v] for v in var_slots])
         tree.fac_alive[slot] = 0                       # becomes 1 at commit
         b, row = -1, -1
         if f.kernel is not None:
-            b = self._batch_for(f.kernel, f.loss)
+            R, code, k, shape = loss_parts(f.loss)
+            b = self._batch_for(f.kernel, code, k, shape)
             batch = self.batches[b]
             if batch.free:
                 row = batch.free.pop()
             else:
                 row = batch.hwm
                 batch.hwm += 1
-                batch.grow(batch.hwm)
+                if row >= batch.fac.shape[0]:
+                    batch.grow(batch.hwm)
             batch.var_slots[row] = var_slots
             batch.consts[row] = f.constants
-            batch.R[row] = loss_parts(f.loss)[0]
+            batch.R[row] = R
             batch.fac[row] = slot
             self.fac_row[slot] = row
         else:
@@ -276,30 +278,34 @@ class FactorStore:
         D = tree.fac_D[slots]
         size = D * D + D
         top = int(tree.meta[M_HP_TOP])
-        hoff = top + np.concatenate(([0], np.cumsum(size)[:-1]))
-        end = top + int(size.sum())
+        ends = top + np.cumsum(size)
+        hoff = ends - size
+        end = int(ends[-1])
         tree.ensure_hpool(end)
         tree.fac_hoff[slots] = hoff
         tree.meta[M_HP_TOP] = end
         fb = self.fac_batch[slots]
-        bids = np.unique(fb)
+        b0 = int(fb[0])
+        if slots.shape[0] == 1 or not np.any(fb != b0):     # the common case: one batch
+            groups = [(b0, slots)]
+        else:
+            groups = [(b, slots[fb == b]) for b in np.unique(fb).tolist()]
         theta = self.vars.theta
-        for b in bids.tolist():
-            sel = fb == b
+        for b, sel in groups:
             if b < 0:
-                for s in slots[sel].tolist():
+                for s in sel.tolist():
                     self._linearize_python(s)
                 continue
             batch = self.batches[b]
-            rows = self.fac_row[slots[sel]]
+            rows = self.fac_row[sel]
             vs = batch.var_slots[rows]
-            args = tuple(theta[kid][vs[:, j]] for j, kid in enumerate(self._kids(batch)))
+            args = tuple([theta[kid][vs[:, j]] for j, kid in enumerate(self._kids(batch))])
             res, jac = batch.kernel.linearize(args, batch.consts[rows])
             ok = _local_systems(res, jac, batch.R[rows], batch.code, batch.k, batch.shape,
-                                tree.hpool, tree.fac_hoff[slots[sel]])
+                                tree.hpool, tree.fac_hoff[sel])
             if not ok:
-                bad = slots[sel][~np.all(np.isfinite(res), axis=1) |
-                                 ~np.all(np.isfinite(jac.reshape(jac.shape[0], -1)), axis=1)]
+                bad = sel[~np.all(np.isfinite(res), axis=1) |
+                          ~np.all(np.isfinite(jac.reshape(jac.shape[0], -1)), axis=1)]
                 where = self.describe(int(bad[0])) if bad.shape[0] else batch.kernel.name
                 raise NonFiniteError(f"{where} has a non-finite residual or Jacobian at the "
                                      "linearization point: check its measurement and variables")

@@ -18,6 +18,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ._state import unpack_cs, unpack_fs, unpack_vs
+
 from ._dense import back_substitute
 
 
@@ -51,52 +53,63 @@ def _solve_clique(c, var_dim, delta, cvpool, cnpool, cl_voff, cl_nf, cl_ns, cl_f
 
 
 @njit(cache=True)
-def backsolve(vs, cs, cvpool, cnpool, newcl, O, wildfire, stamp):
-    """Solve the new top (``newcl``, children before parents), then wildfire into ``O``.
+def solve_pending(vs, cs, cvpool, cnpool, wildfire, stamp):
+    """Back-substitute what changed since the last solve (iSAM2's ``optimizeWildfire``).
 
-    ``var_changed[v] == stamp`` marks variables whose update changed by more than
-    ``wildfire``. Returns the number of cliques solved.
+    Walks down from the roots: a clique is re-solved when one of its frontal variables was
+    re-eliminated (``repl``) or one of its separator variables moved by more than
+    ``wildfire`` in this pass (``var_changed == stamp``); only then are its children visited.
+    Returns the number of cliques solved.
     """
-    var_dim, var_changed, delta = vs[0], vs[6], vs[7]
+    V_ = unpack_vs(vs)
+    var_dim, var_changed, delta, var_repl = V_[0], V_[6], V_[7], V_[10]
+    C_ = unpack_cs(cs)
     cl_child, cl_next, cl_voff, cl_nf, cl_ns, cl_fdim, cl_sdim, cl_poff = (
-        cs[1], cs[2], cs[4], cs[5], cs[6], cs[7], cs[8], cs[9])
-    maxw = 1
-    for c in newcl:
-        if cl_fdim[c] + cl_sdim[c] > maxw:
-            maxw = cl_fdim[c] + cl_sdim[c]
+        C_[1], C_[2], C_[4], C_[5], C_[6], C_[7], C_[8], C_[9])
     solved = 0
-    xs = np.empty(maxw)
-    xf = np.empty(maxw)
-    for i in range(newcl.shape[0] - 1, -1, -1):
-        c = newcl[i]
-        _mark_changes(c, var_dim, delta, var_changed, stamp, wildfire, cvpool, cnpool, cl_voff,
-                      cl_nf, cl_ns, cl_fdim, cl_sdim, cl_poff, xs, xf)
-        solved += 1
-    stack = O.copy()
-    ns = stack.shape[0]
+    xs = np.empty(64)
+    xf = np.empty(64)
+    stack = np.empty(64, np.int64)
+    ns = 0
+    ch = cl_child[0]
+    while ch != -1:
+        if ns >= stack.shape[0]:
+            grown = np.empty(2 * stack.shape[0], np.int64)
+            grown[:ns] = stack[:ns]
+            stack = grown
+        stack[ns] = ch
+        ns += 1
+        ch = cl_next[ch]
     while ns > 0:
         ns -= 1
         c = stack[ns]
         vo = cl_voff[c]
         nf = cl_nf[c]
         hit = False
-        for k in range(cl_ns[c]):
-            if var_changed[cvpool[vo + nf + k]] == stamp:
+        for k in range(nf):
+            if var_repl[cvpool[vo + k]] != 0:
                 hit = True
                 break
+        if not hit:
+            for k in range(cl_ns[c]):
+                if var_changed[cvpool[vo + nf + k]] == stamp:
+                    hit = True
+                    break
         if not hit:
             continue
         w = cl_fdim[c] + cl_sdim[c]
         if w > xs.shape[0]:
-            xs = np.empty(w)
-            xf = np.empty(w)
+            xs = np.empty(2 * w)
+            xf = np.empty(2 * w)
         _mark_changes(c, var_dim, delta, var_changed, stamp, wildfire, cvpool, cnpool, cl_voff,
                       cl_nf, cl_ns, cl_fdim, cl_sdim, cl_poff, xs, xf)
+        for k in range(nf):
+            var_repl[cvpool[vo + k]] = 0
         solved += 1
         ch = cl_child[c]
         while ch != -1:
             if ns >= stack.shape[0]:
-                grown = np.empty(2 * stack.shape[0] + 16, np.int64)
+                grown = np.empty(2 * stack.shape[0], np.int64)
                 grown[:ns] = stack[:ns]
                 stack = grown
             stack[ns] = ch
@@ -136,8 +149,10 @@ def _mark_changes(c, var_dim, delta, var_changed, stamp, wildfire, cvpool, cnpoo
 @njit(cache=True)
 def solve_all(vs, cs, cvpool, cnpool, order):
     """Full back-substitution over cliques listed parents first (``order``)."""
-    var_dim, delta = vs[0], vs[7]
-    cl_voff, cl_nf, cl_ns, cl_fdim, cl_sdim, cl_poff = cs[4], cs[5], cs[6], cs[7], cs[8], cs[9]
+    V_ = unpack_vs(vs)
+    var_dim, delta = V_[0], V_[7]
+    C_ = unpack_cs(cs)
+    cl_voff, cl_nf, cl_ns, cl_fdim, cl_sdim, cl_poff = C_[4], C_[5], C_[6], C_[7], C_[8], C_[9]
     maxw = 1
     for c in order:
         if cl_fdim[c] + cl_sdim[c] > maxw:
@@ -150,11 +165,13 @@ def solve_all(vs, cs, cvpool, cnpool, order):
 
 
 @njit(cache=True)
-def relinearize_candidates(live_vars, var_dim, delta, thr):
-    """Variables with some ``|delta_i| >= thr_i`` (iSAM2's relinearization check)."""
-    out = np.empty(live_vars.shape[0], np.int64)
+def relinearize_candidates(var_live, var_dim, delta, thr):
+    """Live variables with some ``|delta_i| >= thr_i`` (iSAM2's relinearization check)."""
+    out = np.empty(var_live.shape[0], np.int64)
     n = 0
-    for v in live_vars:
+    for v in range(var_live.shape[0]):
+        if var_live[v] == 0:
+            continue
         for a in range(var_dim[v]):
             if abs(delta[v, a]) >= thr[v, a]:
                 out[n] = v

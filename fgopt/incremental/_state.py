@@ -16,6 +16,11 @@ Everything the numba kernels touch lives in flat, growable numpy arrays indexed 
   complement the clique passes to its parent, reused when the parent is re-eliminated and the
   clique is not (iSAM2's cached factor).
 
+The integer fields of each kind of slot are the rows of one 2-D array (``VI``, ``FI``, ``CI``,
+``ADJ``), so a kernel call passes a dozen arrays, not fifty: numba's dispatch costs about
+0.2 us per array argument, which counts when an update takes tens of microseconds. Kernels
+unpack the rows with :func:`unpack_vs` / :func:`unpack_fs` / :func:`unpack_cs`.
+
 Counters the kernels update (stamps, pool tops, free stacks) sit in the ``meta`` array, so an
 update that fails can be undone by restoring a copy of ``meta`` (see ``smoother.py``).
 """
@@ -23,11 +28,55 @@ update that fails can be undone by restoring a copy of ``meta`` (see ``smoother.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 # indices into ``meta``
 M_STAMP, M_CV_TOP, M_CN_TOP, M_CL_NFREE, M_CL_HWM, M_ADJ_NFREE, M_ADJ_HWM, M_HP_TOP = range(8)
 M_CV_GARBAGE, M_CN_GARBAGE, M_HP_GARBAGE, M_NCLIQUES = 8, 9, 10, 11
 META_SIZE = 12
+
+# rows of VI, FI, CI, ADJ (and their fill values)
+_VI_ROWS = ("var_dim", "var_clique", "var_mark", "var_loc", "var_pos", "var_fhead",
+            "var_changed", "var_live", "var_repl")
+_VI_FILL = (0, -1, 0, 0, 0, -1, 0, 0, 0)
+_FI_ROWS = ("fac_nv", "fac_hoff", "fac_D", "fac_mark", "fac_alive")
+_CI_ROWS = ("cl_parent", "cl_child", "cl_next", "cl_prev", "cl_voff", "cl_nf", "cl_ns",
+            "cl_fdim", "cl_sdim", "cl_poff", "cl_mark", "cl_free")
+_CI_FILL = (-1, -1, -1, -1, 0, 0, 0, 0, 0, 0, 0, 0)
+_ADJ_ROWS = ("adj_next", "adj_fac", "adj_free")
+
+
+@njit(cache=True, inline="always")
+def unpack_vs(vs):
+    """``(dim, clique, mark, loc, pos, fhead, changed, delta, thr, live, repl)``; ``repl``
+    marks variables re-eliminated since the last back-substitution."""
+    VI, delta, thr = vs
+    return VI[0], VI[1], VI[2], VI[3], VI[4], VI[5], VI[6], delta, thr, VI[7], VI[8]
+
+
+@njit(cache=True, inline="always")
+def unpack_fs(fs):
+    """``(nv, vars, hoff, D, mark, alive, adj_next, adj_fac, adj_free)``."""
+    FI, fac_vars, ADJ = fs
+    return FI[0], fac_vars, FI[1], FI[2], FI[3], FI[4], ADJ[0], ADJ[1], ADJ[2]
+
+
+@njit(cache=True, inline="always")
+def unpack_cs(CI):
+    """``(parent, child, next, prev, voff, nf, ns, fdim, sdim, poff, mark, free)``."""
+    return (CI[0], CI[1], CI[2], CI[3], CI[4], CI[5], CI[6], CI[7], CI[8], CI[9], CI[10],
+            CI[11])
+
+
+def _grow_cols(a: np.ndarray, n: int, fill) -> np.ndarray:
+    """``a`` (rows x cap) with at least ``n`` columns (doubling), new columns = ``fill``."""
+    if a.shape[1] >= n:
+        return a
+    cap = max(n, 2 * a.shape[1], 16)
+    out = np.empty((a.shape[0], cap), a.dtype)
+    out[:, :a.shape[1]] = a
+    out[:, a.shape[1]:] = np.asarray(fill, a.dtype).reshape(-1, 1)
+    return out
 
 
 def _grow(a: np.ndarray, n: int, fill=0) -> np.ndarray:
@@ -46,42 +95,19 @@ class TreeState:
     def __init__(self) -> None:
         self.maxd = 1       # columns of delta / thr (largest tangent dim seen)
         self.kmax = 1       # columns of fac_vars (largest factor arity seen)
-        self.var_dim = np.zeros(16, np.int64)
-        self.var_clique = np.full(16, -1, np.int64)
-        self.var_mark = np.zeros(16, np.int64)
-        self.var_loc = np.zeros(16, np.int64)
-        self.var_pos = np.zeros(16, np.int64)
-        self.var_fhead = np.full(16, -1, np.int64)
-        self.var_changed = np.zeros(16, np.int64)
+        self.VI = _grow_cols(np.zeros((len(_VI_ROWS), 0), np.int64), 16, _VI_FILL)
         self.delta = np.zeros((16, 1))
         self.thr = np.zeros((16, 1))
-        self.adj_next = np.full(16, -1, np.int64)
-        self.adj_fac = np.full(16, -1, np.int64)
-        self.adj_free = np.zeros(16, np.int64)
-        self.fac_nv = np.zeros(16, np.int64)
+        self.FI = np.zeros((len(_FI_ROWS), 16), np.int64)
         self.fac_vars = np.full((16, 1), -1, np.int64)
-        self.fac_hoff = np.zeros(16, np.int64)
-        self.fac_D = np.zeros(16, np.int64)
-        self.fac_mark = np.zeros(16, np.int64)
-        self.fac_alive = np.zeros(16, np.int8)
+        self.ADJ = np.full((3, 16), -1, np.int64)
         self.hpool = np.zeros(256)
-        self.cl_parent = np.full(16, -1, np.int64)
-        self.cl_child = np.full(16, -1, np.int64)
-        self.cl_next = np.full(16, -1, np.int64)
-        self.cl_prev = np.full(16, -1, np.int64)
-        self.cl_voff = np.zeros(16, np.int64)
-        self.cl_nf = np.zeros(16, np.int64)
-        self.cl_ns = np.zeros(16, np.int64)
-        self.cl_fdim = np.zeros(16, np.int64)
-        self.cl_sdim = np.zeros(16, np.int64)
-        self.cl_poff = np.zeros(16, np.int64)
-        self.cl_mark = np.zeros(16, np.int64)
-        self.cl_free = np.zeros(16, np.int64)
+        self.CI = _grow_cols(np.zeros((len(_CI_ROWS), 0), np.int64), 16, _CI_FILL)
         self.cvpool = np.zeros(256, np.int64)
         self.cnpool = np.zeros(1024)
         self.meta = np.zeros(META_SIZE, np.int64)
         self.meta[M_CL_HWM] = 1          # clique 0: the virtual root
-        self.meta[M_NCLIQUES] = 0
+        self._tuples = None
 
     # ------------------------------------------------------------------ capacity
     def ensure_vars(self, n: int, maxd: int) -> None:
@@ -92,15 +118,11 @@ class TreeState:
                 new[:, :self.maxd] = old
                 setattr(self, name, new)
             self.maxd = maxd
-        if self.var_dim.shape[0] >= n:
+            self._tuples = None
+        if self.VI.shape[1] >= n:
             return
-        self.var_dim = _grow(self.var_dim, n)
-        self.var_clique = _grow(self.var_clique, n, -1)
-        self.var_mark = _grow(self.var_mark, n)
-        self.var_loc = _grow(self.var_loc, n)
-        self.var_pos = _grow(self.var_pos, n)
-        self.var_fhead = _grow(self.var_fhead, n, -1)
-        self.var_changed = _grow(self.var_changed, n)
+        self._tuples = None
+        self.VI = _grow_cols(self.VI, n, _VI_FILL)
         self.delta = _grow(self.delta, n)
         self.thr = _grow(self.thr, n)
 
@@ -110,14 +132,12 @@ class TreeState:
             new[:, :self.kmax] = self.fac_vars
             self.fac_vars = new
             self.kmax = kmax
-        if self.fac_nv.shape[0] >= n:
+            self._tuples = None
+        if self.FI.shape[1] >= n:
             return
-        self.fac_nv = _grow(self.fac_nv, n)
+        self._tuples = None
+        self.FI = _grow_cols(self.FI, n, 0)
         self.fac_vars = _grow(self.fac_vars, n, -1)
-        self.fac_hoff = _grow(self.fac_hoff, n)
-        self.fac_D = _grow(self.fac_D, n)
-        self.fac_mark = _grow(self.fac_mark, n)
-        self.fac_alive = _grow(self.fac_alive, n)
 
     def ensure_hpool(self, n: int) -> None:
         self.hpool = _grow(self.hpool, n)
@@ -125,43 +145,33 @@ class TreeState:
     def ensure_adjacency(self, extra: int) -> None:
         """Room for ``extra`` more adjacency entries (beyond the free stack)."""
         need = int(self.meta[M_ADJ_HWM]) + extra
-        if self.adj_next.shape[0] < need:
-            self.adj_next = _grow(self.adj_next, need, -1)
-            self.adj_fac = _grow(self.adj_fac, need, -1)
-            self.adj_free = _grow(self.adj_free, need)
+        if self.ADJ.shape[1] < need:
+            self._tuples = None
+            self.ADJ = _grow_cols(self.ADJ, need, -1)
 
     def ensure_cliques(self, n: int) -> None:
-        if self.cl_parent.shape[0] >= n:
+        if self.CI.shape[1] >= n:
             return
-        self.cl_parent = _grow(self.cl_parent, n, -1)
-        self.cl_child = _grow(self.cl_child, n, -1)
-        self.cl_next = _grow(self.cl_next, n, -1)
-        self.cl_prev = _grow(self.cl_prev, n, -1)
-        self.cl_voff = _grow(self.cl_voff, n)
-        self.cl_nf = _grow(self.cl_nf, n)
-        self.cl_ns = _grow(self.cl_ns, n)
-        self.cl_fdim = _grow(self.cl_fdim, n)
-        self.cl_sdim = _grow(self.cl_sdim, n)
-        self.cl_poff = _grow(self.cl_poff, n)
-        self.cl_mark = _grow(self.cl_mark, n)
-        self.cl_free = _grow(self.cl_free, n)
+        self._tuples = None
+        self.CI = _grow_cols(self.CI, n, _CI_FILL)
 
     # ------------------------------------------------------------------ numba argument tuples
+    def _build_tuples(self) -> tuple:
+        self._tuples = ((self.VI, self.delta, self.thr), (self.FI, self.fac_vars, self.ADJ),
+                        self.CI)
+        return self._tuples
+
     @property
     def vs(self) -> tuple:
-        return (self.var_dim, self.var_clique, self.var_mark, self.var_loc, self.var_pos,
-                self.var_fhead, self.var_changed, self.delta, self.thr)
+        return (self._tuples or self._build_tuples())[0]
 
     @property
     def fs(self) -> tuple:
-        return (self.fac_nv, self.fac_vars, self.fac_hoff, self.fac_D, self.fac_mark,
-                self.fac_alive, self.adj_next, self.adj_fac, self.adj_free)
+        return (self._tuples or self._build_tuples())[1]
 
     @property
-    def cs(self) -> tuple:
-        return (self.cl_parent, self.cl_child, self.cl_next, self.cl_prev, self.cl_voff,
-                self.cl_nf, self.cl_ns, self.cl_fdim, self.cl_sdim, self.cl_poff, self.cl_mark,
-                self.cl_free)
+    def cs(self) -> np.ndarray:
+        return (self._tuples or self._build_tuples())[2]
 
     # ------------------------------------------------------------------ statistics
     def nnz_factor(self) -> int:
@@ -169,3 +179,9 @@ class TreeState:
         from ._top import factor_entries
 
         return int(factor_entries(self.cs))
+
+
+# named views of the packed rows (``tree.var_dim`` is ``tree.VI[0]``, writable)
+for _name, _rows in (("VI", _VI_ROWS), ("FI", _FI_ROWS), ("CI", _CI_ROWS), ("ADJ", _ADJ_ROWS)):
+    for _i, _row in enumerate(_rows):
+        setattr(TreeState, _row, property(lambda self, _a=_name, _k=_i: getattr(self, _a)[_k]))

@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ._state import unpack_cs, unpack_fs, unpack_vs
 from ._state import (M_ADJ_HWM, M_ADJ_NFREE, M_CL_NFREE, M_CN_GARBAGE, M_CN_TOP,
                      M_CV_GARBAGE, M_CV_TOP, M_HP_GARBAGE, M_HP_TOP, M_NCLIQUES, M_STAMP)
 
@@ -32,7 +33,7 @@ def _push(a, n, x):
 
 
 @njit(cache=True)
-def remove_top(vs, fs, cs, cvpool, meta, marked, new_facs, skip_facs, batch_frac, live_vars):
+def remove_top(vs, fs, cs, cvpool, meta, marked, new_facs, skip_facs, batch_frac, n_live):
     """Find the top for ``marked`` variables (slots; new variables included).
 
     Returns ``(T, R, O, FL, batch, stamp)``: top variables, removed cliques, orphans, factors
@@ -40,10 +41,13 @@ def remove_top(vs, fs, cs, cvpool, meta, marked, new_facs, skip_facs, batch_frac
     past ``batch_frac`` of all variables (then everything is re-eliminated: iSAM2's batch step),
     and the stamp marking the top's variables in ``var_mark``.
     """
-    var_dim, var_clique, var_mark = vs[0], vs[1], vs[2]
-    var_fhead = vs[5]
-    fac_nv, fac_vars, fac_mark, fac_alive, adj_next, adj_fac = fs[0], fs[1], fs[4], fs[5], fs[6], fs[7]
-    cl_parent, cl_child, cl_next, cl_voff, cl_nf, cl_mark = cs[0], cs[1], cs[2], cs[4], cs[5], cs[10]
+    V_ = unpack_vs(vs)
+    var_dim, var_clique, var_mark = V_[0], V_[1], V_[2]
+    var_fhead, var_live = V_[5], V_[9]
+    F_ = unpack_fs(fs)
+    fac_nv, fac_vars, fac_mark, fac_alive, adj_next, adj_fac = F_[0], F_[1], F_[4], F_[5], F_[6], F_[7]
+    C_ = unpack_cs(cs)
+    cl_parent, cl_child, cl_next, cl_voff, cl_nf, cl_mark = C_[0], C_[1], C_[2], C_[4], C_[5], C_[10]
     meta[M_STAMP] += 1
     s = meta[M_STAMP]
     T = np.empty(max(16, marked.shape[0]), np.int64)
@@ -68,13 +72,12 @@ def remove_top(vs, fs, cs, cvpool, meta, marked, new_facs, skip_facs, batch_frac
                     T = _push(T, nt, u)
                     nt += 1
             c = cl_parent[c]
-    nl = live_vars.shape[0]
-    batch = nl > 0 and nt >= batch_frac * nl
+    batch = n_live > 0 and nt >= batch_frac * n_live
     O = np.empty(16, np.int64)
     no = 0
     if batch:
-        for v in live_vars:
-            if var_mark[v] != s:
+        for v in range(var_live.shape[0]):
+            if var_live[v] != 0 and var_mark[v] != s:
                 var_mark[v] = s
                 T = _push(T, nt, v)
                 nt += 1
@@ -136,9 +139,12 @@ def remove_top(vs, fs, cs, cvpool, meta, marked, new_facs, skip_facs, batch_frac
 def top_graph(vs, fs, cs, cvpool, T, FL, O):
     """Symmetric adjacency (CSR, local indices of ``T``) of the top's variables: pairs sharing a
     factor of ``FL`` or the separator of an orphan of ``O``. Sets ``var_loc`` for ``T``."""
-    var_loc = vs[3]
-    fac_nv, fac_vars = fs[0], fs[1]
-    cl_voff, cl_nf, cl_ns = cs[4], cs[5], cs[6]
+    V_ = unpack_vs(vs)
+    var_loc = V_[3]
+    F_ = unpack_fs(fs)
+    fac_nv, fac_vars = F_[0], F_[1]
+    C_ = unpack_cs(cs)
+    cl_voff, cl_nf, cl_ns = C_[4], C_[5], C_[6]
     t = T.shape[0]
     for i in range(t):
         var_loc[T[i]] = i
@@ -214,11 +220,14 @@ def _unlink(cl_parent, cl_child, cl_next, cl_prev, c):
 @njit(cache=True)
 def commit(vs, fs, cs, meta, R, newcl, O, orphan_parent, T, T_clique, removed_facs, new_facs):
     """Make the new top current (see the module docstring). Cannot fail."""
-    var_clique, var_fhead = vs[1], vs[5]
+    V_ = unpack_vs(vs)
+    var_clique, var_fhead = V_[1], V_[5]
+    F_ = unpack_fs(fs)
     fac_nv, fac_vars, fac_D, fac_alive, adj_next, adj_fac, adj_free = (
-        fs[0], fs[1], fs[3], fs[5], fs[6], fs[7], fs[8])
-    cl_parent, cl_child, cl_next, cl_prev = cs[0], cs[1], cs[2], cs[3]
-    cl_nf, cl_ns, cl_fdim, cl_sdim, cl_free = cs[5], cs[6], cs[7], cs[8], cs[11]
+        F_[0], F_[1], F_[3], F_[5], F_[6], F_[7], F_[8])
+    C_ = unpack_cs(cs)
+    cl_parent, cl_child, cl_next, cl_prev = C_[0], C_[1], C_[2], C_[3]
+    cl_nf, cl_ns, cl_fdim, cl_sdim, cl_free = C_[5], C_[6], C_[7], C_[8], C_[11]
     for c in R:
         if cl_parent[c] == 0:
             _unlink(cl_parent, cl_child, cl_next, cl_prev, c)
@@ -277,7 +286,8 @@ def commit(vs, fs, cs, meta, R, newcl, O, orphan_parent, T, T_clique, removed_fa
 @njit(cache=True)
 def factor_entries(cs):
     """Stored entries of all live cliques' panels (a fill measure)."""
-    cl_parent, cl_fdim, cl_sdim = cs[0], cs[7], cs[8]
+    C_ = unpack_cs(cs)
+    cl_parent, cl_fdim, cl_sdim = C_[0], C_[7], C_[8]
     total = 0
     for c in range(1, cl_parent.shape[0]):
         if cl_parent[c] >= 0:
@@ -289,7 +299,8 @@ def factor_entries(cs):
 @njit(cache=True)
 def live_cliques(cs):
     """Slots of all live cliques, parents before children."""
-    cl_child, cl_next = cs[1], cs[2]
+    C_ = unpack_cs(cs)
+    cl_child, cl_next = C_[1], C_[2]
     out = np.empty(16, np.int64)
     n = 0
     stack = np.empty(16, np.int64)
@@ -315,9 +326,11 @@ def live_cliques(cs):
 @njit(cache=True)
 def adjacent(vs, fs, meta, J, removed):
     """Live factors touching variables ``J`` (minus ``removed``), and all their variables."""
-    var_fhead = vs[5]
-    fac_nv, fac_vars, fac_mark, fac_alive, adj_next, adj_fac = fs[0], fs[1], fs[4], fs[5], fs[6], fs[7]
-    var_mark = vs[2]
+    V_ = unpack_vs(vs)
+    var_fhead = V_[5]
+    F_ = unpack_fs(fs)
+    fac_nv, fac_vars, fac_mark, fac_alive, adj_next, adj_fac = F_[0], F_[1], F_[4], F_[5], F_[6], F_[7]
+    var_mark = V_[2]
     meta[M_STAMP] += 1
     s = meta[M_STAMP]
     for f in removed:
@@ -347,7 +360,8 @@ def adjacent(vs, fs, meta, J, removed):
 @njit(cache=True)
 def factor_vars(fs, facs):
     """Distinct variables of factors ``facs``."""
-    fac_nv, fac_vars = fs[0], fs[1]
+    F_ = unpack_fs(fs)
+    fac_nv, fac_vars = F_[0], F_[1]
     n = 0
     for f in facs:
         n += fac_nv[f]
@@ -363,8 +377,10 @@ def factor_vars(fs, facs):
 @njit(cache=True)
 def remaining_factors(vs, fs, meta, vars_, removed):
     """For each of ``vars_``: live factors left once ``removed`` are gone."""
-    var_fhead = vs[5]
-    fac_mark, fac_alive, adj_next, adj_fac = fs[4], fs[5], fs[6], fs[7]
+    V_ = unpack_vs(vs)
+    var_fhead = V_[5]
+    F_ = unpack_fs(fs)
+    fac_mark, fac_alive, adj_next, adj_fac = F_[4], F_[5], F_[6], F_[7]
     meta[M_STAMP] += 1
     s = meta[M_STAMP]
     for f in removed:
@@ -383,7 +399,8 @@ def remaining_factors(vs, fs, meta, vars_, removed):
 @njit(cache=True)
 def panel_entries(cs, cliques):
     """Stored panel entries of ``cliques``."""
-    cl_fdim, cl_sdim = cs[7], cs[8]
+    C_ = unpack_cs(cs)
+    cl_fdim, cl_sdim = C_[7], C_[8]
     total = 0
     for c in cliques:
         fd = cl_fdim[c]
@@ -394,9 +411,11 @@ def panel_entries(cs, cliques):
 @njit(cache=True)
 def compact(vs, fs, cs, meta, hpool, cnpool, cvpool):
     """Copy the live parts of the three pools to new arrays, dropping garbage."""
-    fac_hoff, fac_D, fac_alive = fs[2], fs[3], fs[5]
+    F_ = unpack_fs(fs)
+    fac_hoff, fac_D, fac_alive = F_[2], F_[3], F_[5]
+    C_ = unpack_cs(cs)
     cl_parent, cl_voff, cl_nf, cl_ns, cl_fdim, cl_sdim, cl_poff = (
-        cs[0], cs[4], cs[5], cs[6], cs[7], cs[8], cs[9])
+        C_[0], C_[4], C_[5], C_[6], C_[7], C_[8], C_[9])
     hp = np.zeros(max(256, 2 * (meta[M_HP_TOP] - meta[M_HP_GARBAGE])))
     n = 0
     for f in range(fac_alive.shape[0]):

@@ -36,6 +36,7 @@ class VariableStore:
         self.free: list[int] = []
         self.hwm = 0
         self._thresholds = thresholds
+        self._thr_rows: dict = {}
         self._live: np.ndarray | None = None
         self._log: list | None = None
 
@@ -50,6 +51,7 @@ class VariableStore:
                 _, k, slot, hwm, reused = entry
                 del self.slot_of[k]
                 self.kind_of[slot] = -2
+                self.tree.var_live[slot] = 0
                 self.objects.pop(slot, None)
                 if reused:
                     self.free.append(slot)
@@ -120,8 +122,13 @@ class VariableStore:
         tree.var_dim[slot] = dim
         tree.var_clique[slot] = -1
         tree.var_fhead[slot] = -1
+        tree.var_live[slot] = 1
         tree.delta[slot] = 0.0
-        tree.thr[slot] = self._threshold_row(k, kind, dim, tree.maxd)
+        ck = (key_char(k), id(kind), dim, tree.maxd)
+        row = self._thr_rows.get(ck)
+        if row is None:
+            row = self._thr_rows[ck] = self._threshold_row(k, kind, dim, tree.maxd)
+        tree.thr[slot] = row
         self._live = None
         return slot
 
@@ -135,6 +142,7 @@ class VariableStore:
             self.objects.pop(v, None)
             tree.var_clique[v] = -1
             tree.var_fhead[v] = -1
+            tree.var_live[v] = 0
             tree.delta[v] = 0.0
             self.free.append(v)
         self._live = None

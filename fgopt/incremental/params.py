@@ -74,15 +74,14 @@ class UpdateResult:
     #: Cliques created by re-elimination, and cliques in the tree afterwards.
     cliques_reeliminated: int = 0
     cliques: int = 0
-    #: Cliques back-substituted (the new top plus the orphans wildfire reached).
-    cliques_solved: int = 0
     #: True when everything was reordered and re-eliminated (a batch step).
     batch: bool = False
     #: Keys removed because removing factors left them without any.
     removed_keys: list = field(default_factory=list)
     #: Keys relinearized (int64 array).
     relinearized_keys: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    #: Seconds: ``check``, ``linearize``, ``order``, ``eliminate``, ``solve``, ``total``.
+    #: Seconds: ``check`` (adding), ``linearize``, ``tree`` (re-elimination and
+    #: back-substitution; ``order`` for large tops ordered by CHOLMOD), ``total``.
     timing: dict = field(default_factory=dict)
 
     def __repr__(self) -> str:

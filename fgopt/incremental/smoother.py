@@ -32,7 +32,7 @@ from ..key import Key, as_key, key_str
 from ..manifolds.base import ops_for
 from ..solvers.linear._block_kernels import blas_workspace
 from ..variables import Variables
-from . import _eliminate, _ordering, _solve, _top
+from . import _ordering, _solve, _top, _update
 from ._factors import FactorStore
 from ._state import (M_CL_HWM, M_CN_GARBAGE, M_CN_TOP, M_CV_GARBAGE, M_CV_TOP, M_HP_GARBAGE,
                      M_HP_TOP, M_NCLIQUES, M_STAMP, TreeState)
@@ -60,6 +60,18 @@ class IncrementalSmoother:
         self._nnz = 0
         self._nnz_per_var_ref = 0.0
         self._force_batch = False
+        self._dirty = False
+        #: Cliques back-substituted by the last (deferred) solve.
+        self.last_solve_cliques = 0
+
+    def _solve(self) -> None:
+        """Bring ``delta`` up to date (iSAM2 defers back-substitution to the next read)."""
+        if self._dirty:
+            t = self._tree
+            t.meta[M_STAMP] += 1
+            self.last_solve_cliques = _solve.solve_pending(
+                t.vs, t.cs, t.cvpool, t.cnpool, self.params.wildfire_threshold, t.meta[M_STAMP])
+            self._dirty = False
 
     # ================================================================== public API
     def update(self, new_factors: "FactorGraph | Iterable[Factor]" = (),
@@ -95,7 +107,6 @@ class IncrementalSmoother:
             result.variables_reeliminated += extra.variables_reeliminated
             result.factors_relinearized += extra.factors_relinearized
             result.cliques_reeliminated += extra.cliques_reeliminated
-            result.cliques_solved += extra.cliques_solved
             result.cliques = extra.cliques
             result.relinearized_keys = np.union1d(result.relinearized_keys,
                                                   extra.relinearized_keys)
@@ -105,6 +116,7 @@ class IncrementalSmoother:
     def estimate(self, key: Any = None) -> Any:
         """All current estimates as :class:`~fgopt.Variables` (``theta (+) delta``), or the
         value of one ``key``."""
+        self._solve()
         if key is None:
             return self._vars.estimate()
         return self._vars.estimate_value(self._vars.slot(as_key(key)))
@@ -136,6 +148,7 @@ class IncrementalSmoother:
 
     def cost(self) -> float:
         """Total cost ``sum rho_i`` (``0.5 |r|^2`` without robust losses) at the estimate."""
+        self._solve()
         storages, objects = self._vars.estimate_storages()
         return self._facs.cost(storages, objects)
 
@@ -243,8 +256,10 @@ class IncrementalSmoother:
 
     # ================================================================== one step
     def _step(self, factors: list[Factor], values: list, removed: np.ndarray, relin: bool,
-              t0: float, groups0: np.ndarray | None = None,
-              marginalize: np.ndarray | None = None) -> UpdateResult:
+              t0: float, first: np.ndarray = _EMPTY,
+              extra_marked: np.ndarray = _EMPTY) -> UpdateResult:
+        """One iSAM2 update (module docstring); atomic. ``first``: variables to eliminate
+        before all others (group 0), ``extra_marked``: variables to re-eliminate anyway."""
         tree, vars_, facs = self._tree, self._vars, self._facs
         p = self.params
         res = UpdateResult()
@@ -253,75 +268,66 @@ class IncrementalSmoother:
         vars_.begin()
         facs.begin()
         try:
-            new_slots = np.array([vars_.add(k, x) for k, x in values], np.int64)
+            for k, x in values:
+                vars_.add(k, x)
             slot_of = vars_.slot_of
-            new_facs, handles, obs = [], [], []
-            for f in factors:
+            new_facs = np.empty(len(factors), np.int64)
+            handles = []
+            obs = []
+            for i, f in enumerate(factors):
                 vsl = [slot_of[k] for k in f.keys]
-                s, h = facs.add(f, vsl)
-                new_facs.append(s)
+                new_facs[i], h = facs.add(f, vsl)
                 handles.append(h)
-                obs.extend(vsl)
-            new_facs = np.array(new_facs, np.int64)
-            observed = np.unique(np.array(obs, np.int64))
+                obs += vsl
+            observed = np.unique(np.array(obs, np.int64)) if obs else _EMPTY
             res.new_factor_indices = handles
             t1 = time.perf_counter()
             timing["check"] = t1 - t0
             # fluid relinearization
             J = _EMPTY
             if relin:
-                J = _solve.relinearize_candidates(vars_.live_slots(), tree.var_dim, tree.delta,
+                self._solve()
+                J = _solve.relinearize_candidates(tree.var_live, tree.var_dim, tree.delta,
                                                   tree.thr)
-            relin_facs = _EMPTY
-            relin_vars = _EMPTY
+            to_lin = new_facs
+            marked = observed
             if J.shape[0]:
                 vars_.relinearize(J)
                 relin_facs, relin_vars = _top.adjacent(tree.vs, tree.fs, tree.meta, J, removed)
-            to_lin = np.concatenate((new_facs, relin_facs)) if relin_facs.shape[0] else new_facs
+                to_lin = np.concatenate((new_facs, relin_facs))
+                marked = np.concatenate((marked, J, relin_vars))
             facs.linearize(to_lin)
             t2 = time.perf_counter()
             timing["linearize"] = t2 - t1
-            # the top
-            rem_vars = _top.factor_vars(tree.fs, removed)
-            unused = self._unused(rem_vars, removed, observed)
-            marked = np.concatenate((new_slots, observed, rem_vars, J, relin_vars))
-            if marginalize is not None:
-                marked = np.concatenate((marked, marginalize))
-            if unused.shape[0]:
-                marked = np.setdiff1d(marked, unused)
-            live = vars_.live_slots()
-            frac = 0.0 if self._force_batch else p.batch_threshold
-            T, R, O, FL, batch, stamp = _top.remove_top(
-                tree.vs, tree.fs, tree.cs, tree.cvpool, tree.meta, marked, new_facs, removed,
-                frac, live if unused.shape[0] == 0 else np.setdiff1d(live, unused))
-            if unused.shape[0]:
-                T = T[~np.isin(T, unused)]
-            t = T.shape[0]
-            if groups0 is not None:
-                group = groups0(T)
-            else:
-                group = np.ones(t, np.int64)
-                if observed.shape[0] < t:
-                    group[np.isin(T, observed)] = 2
-            tree.ensure_cliques(int(tree.meta[M_CL_HWM]) + t + 1)
-            ap, ai = _top.top_graph(tree.vs, tree.fs, tree.cs, tree.cvpool, T, FL, O)
-            order = _ordering.elimination_order(t, ap, ai, group) if t else _EMPTY
-            t3 = time.perf_counter()
-            timing["order"] = t3 - t2
-            if t:
-                status, newcl, oparent, T_clique, tree.cvpool, tree.cnpool = \
-                    _eliminate.eliminate(tree.vs, tree.fs, tree.cs, tree.meta, tree.cvpool,
-                                         tree.cnpool, tree.hpool, T, order, group, ap, ai, FL, O,
-                                         p.pivot_tolerance, self._iw, self._fw)
-                if status >= 0:
-                    raise NotPositiveDefiniteError(
-                        f"update: {vars_.describe(int(status))} is not constrained by its "
-                        "factors (the system is indefinite); the update was not applied")
-            else:
-                newcl = oparent = T_clique = _EMPTY
-            t4 = time.perf_counter()
-            timing["eliminate"] = t4 - t3
+            unused = _EMPTY
+            if removed.shape[0]:
+                rem_vars = _top.factor_vars(tree.fs, removed)
+                unused = self._unused(rem_vars, removed, observed)
+                marked = np.concatenate((marked, rem_vars))
+            if extra_marked.shape[0]:
+                marked = np.concatenate((marked, extra_marked))
+            n_live = len(vars_) - unused.shape[0]
+            tree.ensure_cliques(int(tree.meta[M_CL_HWM]) + n_live + 2)
             tree.ensure_adjacency(int(tree.fac_nv[new_facs].sum()) if new_facs.shape[0] else 0)
+            frac = 0.0 if self._force_batch else p.batch_threshold
+            out = _update.tree_update(
+                tree.vs, tree.fs, tree.cs, tree.meta, tree.cvpool, tree.cnpool, tree.hpool,
+                marked, unused, new_facs, removed, observed, first, n_live, frac,
+                p.pivot_tolerance, self._iw, self._fw, _ordering.BITSET_LIMIT)
+            status, T, R, O, FL, ap, ai, group, info, tree.cvpool, tree.cnpool = out
+            if status == _update.NEED_ORDER:
+                t3 = time.perf_counter()
+                order = _ordering.amd_groups(T.shape[0], ap, ai, group)
+                timing["order"] = time.perf_counter() - t3
+                out = _update.tree_finish(
+                    tree.vs, tree.fs, tree.cs, tree.meta, tree.cvpool, tree.cnpool, tree.hpool,
+                    T, R, O, FL, ap, ai, group, order, new_facs, removed, p.pivot_tolerance,
+                    self._iw, self._fw, info)
+                status, tree.cvpool, tree.cnpool = out[0], out[9], out[10]
+            if status == _update.FAILED:
+                raise NotPositiveDefiniteError(
+                    f"update: {vars_.describe(int(info[_update.I_FAIL]))} is not constrained "
+                    "by its factors (the system is indefinite); the update was not applied")
         except BaseException:
             stamp_now = tree.meta[M_STAMP]
             tree.meta[:] = meta0
@@ -329,10 +335,7 @@ class IncrementalSmoother:
             facs.rollback()
             vars_.rollback()
             raise
-        # ---------------------------------------------------------------- commit
-        self._nnz += _top.panel_entries(tree.cs, newcl) - _top.panel_entries(tree.cs, R)
-        _top.commit(tree.vs, tree.fs, tree.cs, tree.meta, R, newcl, O, oparent, T, T_clique,
-                    removed, new_facs)
+        # committed: forget removed factors and variables
         if removed.shape[0]:
             facs.drop(removed)
         if unused.shape[0]:
@@ -340,12 +343,13 @@ class IncrementalSmoother:
             vars_.remove(unused)
         vars_.end()
         facs.end()
-        tree.meta[M_STAMP] += 1
-        res.cliques_solved = _solve.backsolve(tree.vs, tree.cs, tree.cvpool, tree.cnpool, newcl,
-                                              O, p.wildfire_threshold, tree.meta[M_STAMP])
-        timing["solve"] = time.perf_counter() - t4
+        self._dirty = True
+        timing["tree"] = time.perf_counter() - t2
+        t = int(info[_update.I_T])
+        self._nnz += int(info[_update.I_NNZ])
         n = len(vars_)
-        if batch or self._force_batch:
+        batch = bool(info[_update.I_BATCH])
+        if batch:
             self._nnz_per_var_ref = self._nnz / max(n, 1)
             self._force_batch = False
         elif n > 64 and self._nnz > p.fill_refresh * self._nnz_per_var_ref * n:
@@ -355,9 +359,9 @@ class IncrementalSmoother:
         res.relinearized_keys = vars_.key_of[J] if J.shape[0] else _EMPTY
         res.variables_reeliminated = t
         res.factors_relinearized = int(to_lin.shape[0])
-        res.cliques_reeliminated = int(newcl.shape[0])
+        res.cliques_reeliminated = int(info[_update.I_NEW])
         res.cliques = int(tree.meta[M_NCLIQUES])
-        res.batch = bool(batch)
+        res.batch = batch
         return res
 
     def _unused(self, rem_vars: np.ndarray, removed: np.ndarray,

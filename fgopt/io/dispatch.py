@@ -15,13 +15,15 @@ from ..graph import FactorGraph
 from ..variables import Variables
 from ._scan import read_bytes
 
-FORMATS = ("g2o", "bal")
+FORMATS = ("g2o", "bal", "load2d")
+#: First tags of GTSAM ``load2D`` SLAM files that the g2o reader does not read.
+_LOAD2D_TAGS = (b"ODOMETRY", b"LANDMARK", b"BR")
 _FIRST_TOKEN = re.compile(rb"^[ \t\r\f\v]*([^\s#]+)", re.MULTILINE)
 _G2O_EXT = (".g2o", ".graph")
 
 
 def detect_format(path: str | os.PathLike, data: bytes | None = None) -> str:
-    """``"g2o"`` or ``"bal"``; raises :class:`FileFormatError` when neither fits."""
+    """``"g2o"``, ``"bal"`` or ``"load2d"``; raises :class:`FileFormatError` when none fits."""
     p = os.fspath(path)
     if data is None:
         data = read_bytes(p)
@@ -32,6 +34,8 @@ def detect_format(path: str | os.PathLike, data: bytes | None = None) -> str:
     line = data[:m.start(1)].count(b"\n") + 1
     if re.fullmatch(rb"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", tok):
         return "bal"
+    if tok in _LOAD2D_TAGS:
+        return "load2d"
     if re.fullmatch(rb"[A-Za-z_][A-Za-z0-9_:]*", tok):
         return "g2o"
     raise FileFormatError(f"cannot tell the format from the first token {tok[:40]!r}: expected "
@@ -46,7 +50,8 @@ def read(path: str | os.PathLike, *, format: str | None = None, add_prior: bool 
     Args:
         path: a g2o / TORO pose graph (``.g2o``, ``.graph``, ``.txt``) or a BAL problem,
             optionally ``.gz`` / ``.bz2`` compressed.
-        format: ``"g2o"`` or ``"bal"`` to skip detection.
+        format: ``"g2o"``, ``"bal"`` or ``"load2d"`` (GTSAM's 2-D SLAM files with ``ODOMETRY``
+            / ``LANDMARK`` / ``BR`` records, :func:`fgopt.io.load2d`) to skip detection.
         add_prior, skip_unknown, repair_information: g2o options, see :func:`read_g2o`
             (BAL files have no gauge prior, unknown tags or information matrices; passing a
             non-default value for one is an error).
@@ -65,6 +70,13 @@ def read(path: str | os.PathLike, *, format: str | None = None, add_prior: bool 
     if format == "g2o":
         return read_g2o(p, add_prior=add_prior, skip_unknown=skip_unknown,
                         repair_information=repair_information, data=data)
+    if format == "load2d":
+        if add_prior or skip_unknown or repair_information is not None:
+            raise FgoptError("read: add_prior, skip_unknown and repair_information apply to g2o "
+                             f"files; {p} is a load2D file (use fgopt.io.load2d for its options)")
+        from .load2d import load2d
+
+        return load2d(p)
     if format == "bal":
         if add_prior or skip_unknown or repair_information is not None:
             raise FgoptError("read: add_prior, skip_unknown and repair_information apply to g2o "
