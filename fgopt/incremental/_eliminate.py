@@ -14,8 +14,9 @@ Given the top's variables ``T`` in elimination order, the factors inside it and 
    the cached marginals of its new children and orphans, eliminate the frontal block
    (:mod:`._dense`), store the panel, the forward-substituted rhs and the new cached marginal.
 
-New cliques take free slots; pools grow by appending, so nothing live is overwritten and a
-failed elimination (a non-positive pivot) leaves the tree intact: it returns the variable.
+New cliques take free slots and new pool blocks (:mod:`._pool`), so nothing live is
+overwritten and a failed elimination (a non-positive pivot) leaves the tree intact: it returns
+the variable.
 """
 
 from __future__ import annotations
@@ -26,16 +27,8 @@ from numba import njit
 from ..solvers.linear._block_symbolic import etree, symbolic_columns
 from ._dense import add_cached, add_local_system, forward_rhs, partial_factor
 from ._state import unpack_cs, unpack_fs, unpack_vs
-from ._state import M_CL_HWM, M_CL_NFREE, M_CN_TOP, M_CV_TOP
-
-
-@njit(cache=True)
-def _ensure(a, n):
-    if a.shape[0] >= n:
-        return a
-    b = np.zeros(max(n, 2 * a.shape[0]), a.dtype)
-    b[:a.shape[0]] = a
-    return b
+from ._pool import alloc
+from ._state import M_CL_HWM, M_CL_NFREE, M_CN_HEAD, M_CN_TOP, M_CV_HEAD, M_CV_TOP
 
 
 @njit(cache=True)
@@ -122,8 +115,6 @@ def eliminate(vs, fs, cs, meta, cvpool, cnpool, hpool, T, order, group, ap, ai, 
             cid[s] = meta[M_CL_HWM]
             meta[M_CL_HWM] += 1
     sparent = np.full(S, -1, np.int64)
-    need_v = 0
-    need_n = 0
     maxm = 1
     for s in range(S):
         last = first[s + 1] - 1
@@ -140,17 +131,13 @@ def eliminate(vs, fs, cs, meta, cvpool, cnpool, hpool, T, order, group, ap, ai, 
         cl_ns[c] = lp[last + 1] - lp[last]
         cl_fdim[c] = fd
         cl_sdim[c] = sd
-        need_v += cl_nf[c] + cl_ns[c]
-        need_n += (fd + sd) * fd + fd + sd * sd + sd
         if fd + sd > maxm:
             maxm = fd + sd
-    cvpool = _ensure(cvpool, meta[M_CV_TOP] + need_v)
-    cnpool = _ensure(cnpool, meta[M_CN_TOP] + need_n)
     for s in range(S):
         c = cid[s]
         cl_parent[c] = cid[sparent[s]] if sparent[s] >= 0 else 0
-        cl_voff[c] = meta[M_CV_TOP]
-        o = meta[M_CV_TOP]
+        o, cvpool = alloc(cvpool, meta, M_CV_TOP, M_CV_HEAD, cl_nf[c] + cl_ns[c])
+        cl_voff[c] = o
         for j in range(first[s], first[s + 1]):
             cvpool[o] = vr[j]
             o += 1
@@ -158,10 +145,9 @@ def eliminate(vs, fs, cs, meta, cvpool, cnpool, hpool, T, order, group, ap, ai, 
         for p in range(lp[last], lp[last + 1]):
             cvpool[o] = vr[li[p]]
             o += 1
-        meta[M_CV_TOP] = o
         fd, sd = cl_fdim[c], cl_sdim[c]
-        cl_poff[c] = meta[M_CN_TOP]
-        meta[M_CN_TOP] += (fd + sd) * fd + fd + sd * sd + sd
+        cl_poff[c], cnpool = alloc(cnpool, meta, M_CN_TOP, M_CN_HEAD,
+                                   (fd + sd) * fd + fd + sd * sd + sd)
     # who joins which front
     nfl = FL.shape[0]
     fsn = np.empty(nfl, np.int64)

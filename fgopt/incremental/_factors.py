@@ -24,7 +24,8 @@ from ..errors import FgoptError, NonFiniteError
 from ..factors.base import Factor
 from ..key import Key
 from ..noise import RobustLoss
-from ._state import M_HP_TOP, TreeState
+from . import _pool
+from ._state import M_HP_HEAD, M_HP_TOP, TreeState
 from ._values import VariableStore
 
 
@@ -121,6 +122,7 @@ class FactorStore:
         self.free: list[int] = []
         self.hwm = 0
         self._log: list | None = None
+        self._release: tuple | None = None
 
     # ------------------------------------------------------------------ transactions
     def begin(self) -> None:
@@ -144,12 +146,21 @@ class FactorStore:
                     self.hwm = hwm
                 self.next_handle = handle
             elif entry[0] == "hoff":
+                self._release = None
                 _, slots, hoff = entry
                 self.tree.fac_hoff[slots] = hoff
         self._log = None
 
     def end(self) -> None:
         self._log = None
+        self._release = None
+
+    def release(self) -> None:
+        """Free the blocks of the previous linearizations (after a successful update)."""
+        if self._release is not None:
+            off, size = self._release
+            _pool.free_many(self.tree.hpool, self.tree.meta, M_HP_HEAD, off, size)
+            self._release = None
 
     # ------------------------------------------------------------------ adding / removing
     def __len__(self) -> int:
@@ -268,22 +279,21 @@ class FactorStore:
         return f"{name}({keys})"
 
     # ------------------------------------------------------------------ linearization
-    def linearize(self, slots: np.ndarray) -> None:
-        """Relinearize ``slots`` at the current theta into new hpool space (logged)."""
+    def linearize(self, slots: np.ndarray, fresh: int) -> None:
+        """(Re)linearize ``slots`` at the current theta into new hpool blocks (logged). The
+        first ``fresh`` are new factors; the old blocks of the others are kept until
+        :meth:`release` (after the update succeeded)."""
         if slots.shape[0] == 0:
             return
         tree = self.tree
-        if self._log is not None:
-            self._log.append(("hoff", slots, tree.fac_hoff[slots].copy()))
         D = tree.fac_D[slots]
         size = D * D + D
-        top = int(tree.meta[M_HP_TOP])
-        ends = top + np.cumsum(size)
-        hoff = ends - size
-        end = int(ends[-1])
-        tree.ensure_hpool(end)
+        if self._log is not None:
+            self._log.append(("hoff", slots, tree.fac_hoff[slots].copy()))
+        if slots.shape[0] > fresh:
+            self._release = (tree.fac_hoff[slots[fresh:]].copy(), size[fresh:])
+        hoff, tree.hpool = _pool.alloc_many(tree.hpool, tree.meta, M_HP_TOP, M_HP_HEAD, size)
         tree.fac_hoff[slots] = hoff
-        tree.meta[M_HP_TOP] = end
         fb = self.fac_batch[slots]
         b0 = int(fb[0])
         if slots.shape[0] == 1 or not np.any(fb != b0):     # the common case: one batch

@@ -21,8 +21,9 @@ The integer fields of each kind of slot are the rows of one 2-D array (``VI``, `
 0.2 us per array argument, which counts when an update takes tens of microseconds. Kernels
 unpack the rows with :func:`unpack_vs` / :func:`unpack_fs` / :func:`unpack_cs`.
 
-Counters the kernels update (stamps, pool tops, free stacks) sit in the ``meta`` array, so an
-update that fails can be undone by restoring a copy of ``meta`` (see ``smoother.py``).
+Counters the kernels update (stamps, pool tops and free lists, free stacks) sit in the
+``meta`` array, so an update that fails can be undone by restoring a copy of ``meta`` (see
+``smoother.py``). The pools are block allocators (:mod:`._pool`).
 """
 
 from __future__ import annotations
@@ -30,10 +31,13 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-# indices into ``meta``
+from ._pool import NCLASS
+
+# indices into ``meta``: counters, then the free-list heads of the three pools (``_pool.py``)
 M_STAMP, M_CV_TOP, M_CN_TOP, M_CL_NFREE, M_CL_HWM, M_ADJ_NFREE, M_ADJ_HWM, M_HP_TOP = range(8)
-M_CV_GARBAGE, M_CN_GARBAGE, M_HP_GARBAGE, M_NCLIQUES = 8, 9, 10, 11
-META_SIZE = 12
+M_NCLIQUES = 8
+M_CV_HEAD, M_CN_HEAD, M_HP_HEAD = 9, 9 + NCLASS, 9 + 2 * NCLASS
+META_SIZE = 9 + 3 * NCLASS
 
 # rows of VI, FI, CI, ADJ (and their fill values)
 _VI_ROWS = ("var_dim", "var_clique", "var_mark", "var_loc", "var_pos", "var_fhead",
@@ -107,6 +111,7 @@ class TreeState:
         self.cnpool = np.zeros(1024)
         self.meta = np.zeros(META_SIZE, np.int64)
         self.meta[M_CL_HWM] = 1          # clique 0: the virtual root
+        self.meta[M_CV_HEAD:] = -1       # empty free lists
         self._tuples = None
 
     # ------------------------------------------------------------------ capacity

@@ -18,8 +18,9 @@ import numpy as np
 from numba import njit
 
 from ._state import unpack_cs, unpack_fs, unpack_vs
-from ._state import (M_ADJ_HWM, M_ADJ_NFREE, M_CL_NFREE, M_CN_GARBAGE, M_CN_TOP,
-                     M_CV_GARBAGE, M_CV_TOP, M_HP_GARBAGE, M_HP_TOP, M_NCLIQUES, M_STAMP)
+from ._pool import free
+from ._state import (M_ADJ_HWM, M_ADJ_NFREE, M_CL_NFREE, M_CN_HEAD, M_CV_HEAD, M_HP_HEAD,
+                     M_NCLIQUES, M_STAMP)
 
 
 @njit(cache=True)
@@ -218,22 +219,24 @@ def _unlink(cl_parent, cl_child, cl_next, cl_prev, c):
 
 
 @njit(cache=True)
-def commit(vs, fs, cs, meta, R, newcl, O, orphan_parent, T, T_clique, removed_facs, new_facs):
+def commit(vs, fs, cs, meta, cvpool, cnpool, hpool, R, newcl, O, orphan_parent, T, T_clique,
+           removed_facs, new_facs):
     """Make the new top current (see the module docstring). Cannot fail."""
     V_ = unpack_vs(vs)
     var_clique, var_fhead = V_[1], V_[5]
     F_ = unpack_fs(fs)
-    fac_nv, fac_vars, fac_D, fac_alive, adj_next, adj_fac, adj_free = (
-        F_[0], F_[1], F_[3], F_[5], F_[6], F_[7], F_[8])
+    fac_nv, fac_vars, fac_hoff, fac_D, fac_alive, adj_next, adj_fac, adj_free = (
+        F_[0], F_[1], F_[2], F_[3], F_[5], F_[6], F_[7], F_[8])
     C_ = unpack_cs(cs)
     cl_parent, cl_child, cl_next, cl_prev = C_[0], C_[1], C_[2], C_[3]
-    cl_nf, cl_ns, cl_fdim, cl_sdim, cl_free = C_[5], C_[6], C_[7], C_[8], C_[11]
+    cl_voff, cl_nf, cl_ns, cl_fdim, cl_sdim, cl_poff, cl_free = (
+        C_[4], C_[5], C_[6], C_[7], C_[8], C_[9], C_[11])
     for c in R:
         if cl_parent[c] == 0:
             _unlink(cl_parent, cl_child, cl_next, cl_prev, c)
         fd, sd = cl_fdim[c], cl_sdim[c]
-        meta[M_CV_GARBAGE] += cl_nf[c] + cl_ns[c]
-        meta[M_CN_GARBAGE] += (fd + sd) * fd + fd + sd * sd + sd
+        free(cvpool, meta, M_CV_HEAD, cl_voff[c], cl_nf[c] + cl_ns[c])
+        free(cnpool, meta, M_CN_HEAD, cl_poff[c], (fd + sd) * fd + fd + sd * sd + sd)
         cl_parent[c] = -2
         cl_child[c] = -1
         cl_free[meta[M_CL_NFREE]] = c
@@ -252,7 +255,7 @@ def commit(vs, fs, cs, meta, R, newcl, O, orphan_parent, T, T_clique, removed_fa
     for f in removed_facs:
         fac_alive[f] = 0
         D = fac_D[f]
-        meta[M_HP_GARBAGE] += D * D + D
+        free(hpool, meta, M_HP_HEAD, fac_hoff[f], D * D + D)
         for k in range(fac_nv[f]):
             v = fac_vars[f, k]
             prev = -1
@@ -406,47 +409,3 @@ def panel_entries(cs, cliques):
         fd = cl_fdim[c]
         total += (fd + cl_sdim[c]) * fd
     return total
-
-
-@njit(cache=True)
-def compact(vs, fs, cs, meta, hpool, cnpool, cvpool):
-    """Copy the live parts of the three pools to new arrays, dropping garbage."""
-    F_ = unpack_fs(fs)
-    fac_hoff, fac_D, fac_alive = F_[2], F_[3], F_[5]
-    C_ = unpack_cs(cs)
-    cl_parent, cl_voff, cl_nf, cl_ns, cl_fdim, cl_sdim, cl_poff = (
-        C_[0], C_[4], C_[5], C_[6], C_[7], C_[8], C_[9])
-    hp = np.zeros(max(256, 2 * (meta[M_HP_TOP] - meta[M_HP_GARBAGE])))
-    n = 0
-    for f in range(fac_alive.shape[0]):
-        if fac_alive[f] != 0:
-            D = fac_D[f]
-            size = D * D + D
-            h = fac_hoff[f]
-            hp[n:n + size] = hpool[h:h + size]
-            fac_hoff[f] = n
-            n += size
-    meta[M_HP_TOP] = n
-    meta[M_HP_GARBAGE] = 0
-    cn = np.zeros(max(1024, 2 * (meta[M_CN_TOP] - meta[M_CN_GARBAGE])))
-    cv = np.zeros(max(256, 2 * (meta[M_CV_TOP] - meta[M_CV_GARBAGE])), np.int64)
-    nn = 0
-    nv = 0
-    for c in range(1, cl_parent.shape[0]):
-        if cl_parent[c] >= 0:
-            fd, sd = cl_fdim[c], cl_sdim[c]
-            size = (fd + sd) * fd + fd + sd * sd + sd
-            p = cl_poff[c]
-            cn[nn:nn + size] = cnpool[p:p + size]
-            cl_poff[c] = nn
-            nn += size
-            k = cl_nf[c] + cl_ns[c]
-            o = cl_voff[c]
-            cv[nv:nv + k] = cvpool[o:o + k]
-            cl_voff[c] = nv
-            nv += k
-    meta[M_CN_TOP] = nn
-    meta[M_CN_GARBAGE] = 0
-    meta[M_CV_TOP] = nv
-    meta[M_CV_GARBAGE] = 0
-    return hp, cn, cv

@@ -84,7 +84,8 @@ def tree_finish(vs, fs, cs, meta, cvpool, cnpool, hpool, T, R, O, FL, ap, ai, gr
     """Re-eliminate the ordered top and commit it (see the module docstring)."""
     if T.shape[0] == 0:
         newcl = np.zeros(0, np.int64)
-        commit(vs, fs, cs, meta, R, newcl, O, newcl, T, newcl, removed, new_facs)
+        commit(vs, fs, cs, meta, cvpool, cnpool, hpool, R, newcl, O, newcl, T, newcl, removed,
+               new_facs)
         return OK, T, R, O, FL, ap, ai, group, info, cvpool, cnpool
     status, newcl, oparent, T_clique, cvpool, cnpool = eliminate(
         vs, fs, cs, meta, cvpool, cnpool, hpool, T, order, group, ap, ai, FL, O, tol, iw, fw)
@@ -92,7 +93,8 @@ def tree_finish(vs, fs, cs, meta, cvpool, cnpool, hpool, T, R, O, FL, ap, ai, gr
         info[I_FAIL] = status
         return FAILED, T, R, O, FL, ap, ai, group, info, cvpool, cnpool
     info[I_NNZ] = panel_entries(cs, newcl) - panel_entries(cs, R)
-    commit(vs, fs, cs, meta, R, newcl, O, oparent, T, T_clique, removed, new_facs)
+    commit(vs, fs, cs, meta, cvpool, cnpool, hpool, R, newcl, O, oparent, T, T_clique, removed,
+           new_facs)
     var_repl = unpack_vs(vs)[10]
     for v in T:
         var_repl[v] = 1
