@@ -24,35 +24,6 @@ from ._dense import back_substitute
 
 
 @njit(cache=True)
-def _solve_clique(c, var_dim, delta, cvpool, cnpool, cl_voff, cl_nf, cl_ns, cl_fdim, cl_sdim,
-                  cl_poff, xs, xf):
-    """Re-solve clique ``c``'s frontal variables into ``delta``; returns max |change|."""
-    fd, sd = cl_fdim[c], cl_sdim[c]
-    m = fd + sd
-    vo = cl_voff[c]
-    nf = cl_nf[c]
-    o = 0
-    for k in range(cl_ns[c]):
-        v = cvpool[vo + nf + k]
-        for a in range(var_dim[v]):
-            xs[o + a] = delta[v, a]
-        o += var_dim[v]
-    p0 = cl_poff[c]
-    back_substitute(cnpool[p0:p0 + m * fd], cnpool[p0 + m * fd:p0 + m * fd + fd], m, fd, xs, xf)
-    o = 0
-    change = 0.0
-    for k in range(nf):
-        v = cvpool[vo + k]
-        for a in range(var_dim[v]):
-            d = abs(xf[o + a] - delta[v, a])
-            if d > change:
-                change = d
-            delta[v, a] = xf[o + a]
-        o += var_dim[v]
-    return change
-
-
-@njit(cache=True)
 def solve_pending(vs, cs, cvpool, cnpool, wildfire, stamp):
     """Back-substitute what changed since the last solve (iSAM2's ``optimizeWildfire``).
 
@@ -147,21 +118,60 @@ def _mark_changes(c, var_dim, delta, var_changed, stamp, wildfire, cvpool, cnpoo
 
 
 @njit(cache=True)
-def solve_all(vs, cs, cvpool, cnpool, order):
-    """Full back-substitution over cliques listed parents first (``order``)."""
-    V_ = unpack_vs(vs)
-    var_dim, delta = V_[0], V_[7]
+def solve_exact(vs, cs, cvpool, cnpool, x):
+    """Exact back-substitution of the whole tree into ``x`` (``delta``'s shape), leaving the
+    smoother's ``delta`` alone: what ``estimate()`` returns (no wildfire approximation)."""
+    var_dim = unpack_vs(vs)[0]
     C_ = unpack_cs(cs)
-    cl_voff, cl_nf, cl_ns, cl_fdim, cl_sdim, cl_poff = C_[4], C_[5], C_[6], C_[7], C_[8], C_[9]
-    maxw = 1
-    for c in order:
-        if cl_fdim[c] + cl_sdim[c] > maxw:
-            maxw = cl_fdim[c] + cl_sdim[c]
-    xs = np.empty(maxw)
-    xf = np.empty(maxw)
-    for c in order:
-        _solve_clique(c, var_dim, delta, cvpool, cnpool, cl_voff, cl_nf, cl_ns, cl_fdim, cl_sdim,
-                      cl_poff, xs, xf)
+    cl_child, cl_next, cl_voff, cl_nf, cl_ns, cl_fdim, cl_sdim, cl_poff = (
+        C_[1], C_[2], C_[4], C_[5], C_[6], C_[7], C_[8], C_[9])
+    xs = np.empty(64)
+    xf = np.empty(64)
+    stack = np.empty(64, np.int64)
+    ns = 0
+    ch = cl_child[0]
+    while ch != -1:
+        if ns >= stack.shape[0]:
+            grown = np.empty(2 * stack.shape[0], np.int64)
+            grown[:ns] = stack[:ns]
+            stack = grown
+        stack[ns] = ch
+        ns += 1
+        ch = cl_next[ch]
+    while ns > 0:
+        ns -= 1
+        c = stack[ns]
+        fd, sd = cl_fdim[c], cl_sdim[c]
+        m = fd + sd
+        if m > xs.shape[0]:
+            xs = np.empty(2 * m)
+            xf = np.empty(2 * m)
+        vo = cl_voff[c]
+        nf = cl_nf[c]
+        o = 0
+        for k in range(cl_ns[c]):
+            v = cvpool[vo + nf + k]
+            for a in range(var_dim[v]):
+                xs[o + a] = x[v, a]
+            o += var_dim[v]
+        p0 = cl_poff[c]
+        back_substitute(cnpool[p0:p0 + m * fd], cnpool[p0 + m * fd:p0 + m * fd + fd], m, fd, xs,
+                        xf)
+        o = 0
+        for k in range(nf):
+            v = cvpool[vo + k]
+            for a in range(var_dim[v]):
+                x[v, a] = xf[o + a]
+            o += var_dim[v]
+        ch = cl_child[c]
+        while ch != -1:
+            if ns >= stack.shape[0]:
+                grown = np.empty(2 * stack.shape[0], np.int64)
+                grown[:ns] = stack[:ns]
+                stack = grown
+            stack[ns] = ch
+            ns += 1
+            ch = cl_next[ch]
 
 
 @njit(cache=True)

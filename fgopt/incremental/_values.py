@@ -196,7 +196,7 @@ class VariableStore:
         row = kind.retract(self.theta[kid][slot:slot + 1], self.tree.delta[slot:slot + 1, :d])
         return kind.from_storage(row[0])
 
-    def estimate_storages(self) -> tuple[list[np.ndarray], dict[int, Any]]:
+    def estimate_storages(self, delta: np.ndarray) -> tuple[list[np.ndarray], dict[int, Any]]:
         """``theta (+) delta`` of every live variable: one array per kind (indexed by slot),
         and the Python-manifold values."""
         live = self.live_slots()
@@ -207,16 +207,16 @@ class VariableStore:
             est = np.zeros_like(self.theta[kid])
             if rows.shape[0]:
                 est[rows] = kind.retract(np.ascontiguousarray(self.theta[kid][rows]),
-                                         np.ascontiguousarray(self.tree.delta[rows, :kind.dim]))
+                                         np.ascontiguousarray(delta[rows, :kind.dim]))
             out.append(est)
         objects = {}
         for v in live[kinds < 0].tolist():
             x = self.objects[v]
-            objects[v] = ops_for(x).retract(x, self.tree.delta[v, :self.tree.var_dim[v]].copy())
+            objects[v] = ops_for(x).retract(x, delta[v, :self.tree.var_dim[v]].copy())
         return out, objects
 
-    def estimate(self) -> Variables:
-        storages, objects = self.estimate_storages()
+    def estimate(self, delta: np.ndarray) -> Variables:
+        storages, objects = self.estimate_storages(delta)
         out = Variables()
         values = out._values
         live = self.live_slots()

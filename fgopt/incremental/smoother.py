@@ -115,12 +115,23 @@ class IncrementalSmoother:
         return result
 
     def estimate(self, key: Any = None) -> Any:
-        """All current estimates as :class:`~fgopt.Variables` (``theta (+) delta``), or the
-        value of one ``key``."""
-        self._solve()
+        """All current estimates as :class:`~fgopt.Variables`, or the value of one ``key``.
+
+        The estimate is ``theta (+) delta``. One key reads iSAM2's ``delta``, kept up to date by
+        wildfire back-substitution (subtrees whose separators moved less than
+        ``wildfire_threshold`` are not re-solved). All keys cost O(n) anyway, so they are
+        back-substituted exactly: the Gauss-Newton step of the current linearization.
+        """
         if key is None:
-            return self._vars.estimate()
+            return self._vars.estimate(self._exact_delta())
+        self._solve()
         return self._vars.estimate_value(self._vars.slot(as_key(key)))
+
+    def _exact_delta(self) -> np.ndarray:
+        t = self._tree
+        x = np.zeros_like(t.delta)
+        _solve.solve_exact(t.vs, t.cs, t.cvpool, t.cnpool, x)
+        return x
 
     def linearization_point(self) -> Variables:
         """The values ``theta`` the factors are currently linearized at."""
@@ -148,9 +159,8 @@ class IncrementalSmoother:
         return 0.5 * (block + block.T)
 
     def cost(self) -> float:
-        """Total cost ``sum rho_i`` (``0.5 |r|^2`` without robust losses) at the estimate."""
-        self._solve()
-        storages, objects = self._vars.estimate_storages()
+        """Total cost ``sum rho_i`` (``0.5 |r|^2`` without robust losses) at ``estimate()``."""
+        storages, objects = self._vars.estimate_storages(self._exact_delta())
         return self._facs.cost(storages, objects)
 
     def factors(self) -> FactorGraph:
