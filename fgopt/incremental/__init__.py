@@ -10,6 +10,8 @@ Layer: above the core and the solvers (uses the block Cholesky's symbolic steps 
 bindings); nothing below imports it.
 """
 
+from .fixed_lag import FixedLagSmoother as FixedLagSmoother
+from .linear_container import LinearContainerFactor as LinearContainerFactor
 from .params import IncrementalParams as IncrementalParams
 from .params import UpdateResult as UpdateResult
 from .smoother import IncrementalSmoother as IncrementalSmoother

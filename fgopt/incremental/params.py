@@ -78,6 +78,8 @@ class UpdateResult:
     batch: bool = False
     #: Keys removed because removing factors left them without any.
     removed_keys: list = field(default_factory=list)
+    #: Keys a :class:`~fgopt.incremental.FixedLagSmoother` marginalized out after the update.
+    marginalized_keys: list = field(default_factory=list)
     #: Keys relinearized (int64 array).
     relinearized_keys: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     #: Seconds: ``check`` (adding), ``linearize``, ``tree`` (re-elimination and

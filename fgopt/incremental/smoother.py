@@ -32,10 +32,11 @@ from ..key import Key, as_key, key_str
 from ..manifolds.base import ops_for
 from ..solvers.linear._block_kernels import blas_workspace
 from ..variables import Variables
-from . import _ordering, _solve, _top, _update
+from . import _marginal, _ordering, _pool, _solve, _top, _update
 from ._factors import FactorStore
-from ._state import M_CL_HWM, M_NCLIQUES, M_STAMP, TreeState
+from ._state import M_CL_HWM, M_HP_HEAD, M_HP_TOP, M_NCLIQUES, M_STAMP, TreeState
 from ._values import VariableStore
+from .linear_container import LinearContainerFactor
 from .params import IncrementalParams, UpdateResult
 
 _EMPTY = np.zeros(0, np.int64)
@@ -162,6 +163,53 @@ class IncrementalSmoother:
         """Total cost ``sum rho_i`` (``0.5 |r|^2`` without robust losses) at ``estimate()``."""
         storages, objects = self._vars.estimate_storages(self._exact_delta())
         return self._facs.cost(storages, objects)
+
+    def marginalize(self, keys: Iterable[Any]) -> list[int]:
+        """Marginalize ``keys`` out (iSAM2's ``marginalizeLeaves``); returns the handles of the
+        :class:`~fgopt.incremental.LinearContainerFactor` s put on their Markov blanket.
+
+        The variables must fill whole subtrees of the Bayes tree; when they do not, the cliques
+        around them are first re-eliminated with them ordered first. Each removed subtree's
+        cached marginal becomes a factor (no re-elimination: its parent's front already holds
+        exactly those numbers), and every factor touching ``keys`` is removed with them.
+        """
+        vars_, tree, facs = self._vars, self._tree, self._facs
+        M = np.unique(np.array([vars_.slot(as_key(k)) for k in keys], np.int64))
+        if M.shape[0] == 0:
+            return []
+        ok, sub = _marginal.subtrees(tree.vs, tree.cs, tree.cvpool, tree.meta, M)
+        if not ok:
+            self._step([], [], _EMPTY, False, _clock(), first=M, extra_marked=sub)
+        self._solve()
+        gone, _ = _top.adjacent(tree.vs, tree.fs, tree.meta, M, _EMPTY)
+        sep_ptr, sep, mat_ptr, C, vec_ptr, c = _marginal.cut(tree.vs, tree.cs, tree.cvpool,
+                                                             tree.cnpool, tree.meta, M)
+        new, handles = [], []
+        for i in range(sep_ptr.shape[0] - 1):
+            slots = sep[sep_ptr[i]:sep_ptr[i + 1]]
+            if slots.shape[0] == 0:
+                continue
+            sd = vec_ptr[i + 1] - vec_ptr[i]
+            H = C[mat_ptr[i]:mat_ptr[i + 1]].reshape(sd, sd)
+            g = -c[vec_ptr[i]:vec_ptr[i + 1]]
+            f = LinearContainerFactor([Key(int(vars_.key_of[s])) for s in slots],
+                                      [vars_.theta_value(int(s)) for s in slots], H, g)
+            slot, h = facs.add(f, slots.tolist())
+            off, tree.hpool = _pool.alloc_many(tree.hpool, tree.meta, M_HP_TOP, M_HP_HEAD,
+                                               np.array([sd * sd + sd], np.int64))
+            tree.hpool[off[0]:off[0] + sd * sd] = f.information.reshape(-1)
+            tree.hpool[off[0] + sd * sd:off[0] + sd * sd + sd] = f.gradient
+            tree.fac_hoff[slot] = off[0]
+            new.append(slot)
+            handles.append(h)
+        new = np.array(new, np.int64)
+        tree.ensure_adjacency(int(tree.fac_nv[new].sum()) if new.shape[0] else 0)
+        _top.commit(tree.vs, tree.fs, tree.cs, tree.meta, tree.cvpool, tree.cnpool, tree.hpool,
+                    _EMPTY, _EMPTY, _EMPTY, _EMPTY, _EMPTY, _EMPTY, gone, new)
+        facs.drop(gone)
+        vars_.remove(M)
+        self._nnz = int(tree.nnz_factor())
+        return handles
 
     def factors(self) -> FactorGraph:
         """The factors currently in the smoother, as a new graph (slow: materializes them)."""
