@@ -19,8 +19,8 @@ and wall time. Final cost: ``0.5 sum |r|^2`` of the whole graph at each library'
 estimate, evaluated by fgopt for both (one yardstick; GTSAM's own ``error`` is checked equal),
 against the batch optimum (fgopt LM from the last estimate to convergence).
 
-``--fixed-lag L``: fgopt's ``FixedLagSmoother`` on w20000 with a lag of ``L`` poses (timestamps
-= pose index): update time over the run (first vs last 10 %), peak memory of its arrays.
+``--fixed-lag L``: also fgopt's ``FixedLagSmoother`` on w20000 with a lag of ``L`` poses
+(``benchmarks/incremental_lag.py``): update time over the run (first vs last 10 %), memory.
 
 w20000 (``EDGE2`` lines only) is read as iSAM's square-root information (the format of the
 library the file comes from); GTSAM's ``load2D`` guesses a covariance from its zero pattern,
@@ -435,11 +435,13 @@ def main(argv=None):
         r = run_dataset(name.strip(), args.threshold, args.skip, args.warm)
         results.append(r)
         print(table([r]), flush=True)
+    text = table(results)
     if args.fixed_lag > 0:
-        from benchmarks.incremental_lag import run_fixed_lag
+        from benchmarks.incremental_lag import report, run_fixed_lag
 
-        results.append(run_fixed_lag(args.fixed_lag))
-    text = table([r for r in results if "dataset" in r])
+        lag = run_fixed_lag(args.fixed_lag)
+        results.append(lag)
+        text += "\n\n" + report(lag)
     print("\n" + text)
     if args.out:
         base = args.out[:-3] if args.out.endswith(".md") else args.out
