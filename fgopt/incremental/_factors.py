@@ -208,11 +208,10 @@ class FactorStore:
         tree = self.tree
         nv = len(var_slots)
         tree.ensure_factors(slot + 1, nv)
-        tree.fac_nv[slot] = nv
         tree.fac_vars[slot, :nv] = var_slots
-        dims = tree.var_dim
-        tree.fac_D[slot] = sum([dims[v] for v in var_slots])
-        tree.fac_alive[slot] = 0                       # becomes 1 at commit
+        dims = tree.VI[0]
+        # FI rows: nv, hoff, D, mark, alive (alive becomes 1 at commit)
+        tree.FI[:, slot] = (nv, 0, sum([dims[v] for v in var_slots]), 0, 0)
         b, row = -1, -1
         if f.kernel is not None:
             R, code, k, shape = loss_parts(f.loss)

@@ -119,10 +119,8 @@ class VariableStore:
         self.kind_of[slot] = kid
         tree = self.tree
         tree.ensure_vars(slot + 1, dim)
-        tree.var_dim[slot] = dim
-        tree.var_clique[slot] = -1
-        tree.var_fhead[slot] = -1
-        tree.var_live[slot] = 1
+        # VI rows: dim, clique, mark, loc, pos, fhead, changed, live, repl (see _state)
+        tree.VI[:, slot] = (dim, -1, 0, 0, 0, -1, 0, 1, 0)
         tree.delta[slot] = 0.0
         ck = (key_char(k), id(kind), dim, tree.maxd)
         row = self._thr_rows.get(ck)

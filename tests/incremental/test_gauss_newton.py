@@ -17,7 +17,7 @@ from fgopt.manifolds import SE2, SE3
 
 from ._streams import gauss_newton_step, max_tangent_difference, pose_stream
 
-CASES = [(SE2, 40, 1), (SE3, 25, 2)]
+CASES = [(SE2, 30, 1), (SE3, 18, 2)]
 
 
 @pytest.mark.parametrize("group,n,seed", CASES)
