@@ -191,8 +191,9 @@ class VariableStore:
             x = self.objects[slot]
             return ops_for(x).retract(x, self.tree.delta[slot, :d].copy())
         kind = self.kinds[kid]
-        row = kind.retract(self.theta[kid][slot:slot + 1], self.tree.delta[slot:slot + 1, :d])
-        return kind.from_storage(row[0])
+        row = kind.retract(self.theta[kid][slot:slot + 1], self.tree.delta[slot:slot + 1, :d])[0]
+        # retract's output is a fresh row on the manifold: wrap it without re-normalizing
+        return kind.wrap(row) if kind.wrap is not None else kind.from_storage(row)
 
     def estimate_storages(self, delta: np.ndarray) -> tuple[list[np.ndarray], dict[int, Any]]:
         """``theta (+) delta`` of every live variable: one array per kind (indexed by slot),

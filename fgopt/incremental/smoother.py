@@ -338,7 +338,7 @@ class IncrementalSmoother:
                 new_facs[i], h = facs.add(f, vsl)
                 handles.append(h)
                 obs += vsl
-            observed = np.unique(np.array(obs, np.int64)) if obs else _EMPTY
+            observed = np.array(sorted(set(obs)), np.int64) if obs else _EMPTY
             res.new_factor_indices = handles
             t1 = _clock()
             timing["check"] = t1 - t0
