@@ -19,6 +19,7 @@ and wall time. Final cost: ``0.5 sum |r|^2`` of the whole graph at each library'
 estimate, evaluated by fgopt for both (one yardstick; GTSAM's own ``error`` is checked equal),
 against the batch optimum (fgopt LM from the last estimate to convergence).
 
+``benchmarks/incremental_params.py`` measures fgopt's defaults (one field changed at a time).
 ``--fixed-lag L``: also fgopt's ``FixedLagSmoother`` on w20000 with a lag of ``L`` poses
 (``benchmarks/incremental_lag.py``): update time over the run (first vs last 10 %), memory.
 

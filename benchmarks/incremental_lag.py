@@ -96,7 +96,11 @@ def run_fixed_lag(lag: float, gtsam: bool = False, warm: int = 500) -> dict:
     out["fgopt"]["window"] = len(lib.lag)
     if gtsam:
         g = _GtsamLag(s, lag)
-        out["GTSAM"] = flatness(play(g, s))
+        try:
+            out["GTSAM"] = flatness(play(g, s))
+        except RuntimeError as e:        # its failure is a result too
+            out["GTSAM"] = {"error": str(e).strip().splitlines()[0] + " " +
+                            str(e).strip().splitlines()[1]}
     return out
 
 
@@ -107,6 +111,9 @@ def report(out: dict) -> str:
     for lib in ("fgopt", "GTSAM"):
         f = out.get(lib)
         if f is None:
+            continue
+        if "error" in f:
+            rows.append(f"| {lib} | {f['error']} | | | | |")
             continue
         mem = (f"{f['bytes_at_10pct'] / 1e6:.2f} / {f['bytes_at_end'] / 1e6:.2f} / "
                f"{f['bytes_max'] / 1e6:.2f} MB" if "bytes_at_end" in f else "-")

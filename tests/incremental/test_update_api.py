@@ -181,3 +181,32 @@ def test_bad_types_are_refused():
     with pytest.raises(FgoptError, match="Factor"):
         isam.update(["not a factor"])
     assert len(isam.factors()) == 1
+
+
+def test_relinearization_threshold_per_key_kind():
+    """Thresholds by key character / manifold kind: landmarks ('l') never relinearized with an
+    infinite threshold, poses with 0 every update; a vector threshold per tangent component."""
+    L = lambda j: key("l", j)  # noqa: E731
+    od, rb = Diagonal.sigmas([0.05, 0.05, 0.02]), Diagonal.sigmas([0.05, 0.02])
+    isam = IncrementalSmoother(IncrementalParams(
+        relinearize_skip=1, relinearize_threshold={"x": 0.0, "R2": np.inf}))
+    poses = [SE2.from_xytheta(i, 0.0, 0.1 * i) for i in range(5)]
+    lm = np.array([2.0, 2.0])
+    seen = []
+    for i, p in enumerate(poses):
+        d = p.inverse().act(lm)
+        fs = [range_bearing_factor(pose=x(i), landmark=L(0), loss=rb,
+                                   measured=np.array([np.hypot(*d), np.arctan2(d[1], d[0])]))]
+        fs.append(BetweenFactor(x(i - 1), x(i), poses[i - 1].inverse() * p, od) if i else
+                  PriorFactor(x(0), p, od))
+        vals = {x(i): p * SE2.from_xytheta(0.05, 0.0, 0.02)}
+        if i == 0:
+            vals[L(0)] = lm + 0.3
+        seen += list(isam.update(fs, vals).relinearized_keys)
+    assert L(0) not in seen and x(0) in seen
+    vec = IncrementalSmoother(IncrementalParams(relinearize_threshold={"x": [0.1, 0.2, 0.2]}))
+    vec.update([PriorFactor(x(0), SE2(), od)], {x(0): SE2()})
+    assert np.array_equal(vec._tree.thr[vec._vars.slot(x(0)), :3], [0.1, 0.2, 0.2])
+    bad = IncrementalSmoother(IncrementalParams(relinearize_threshold={"x": [0.1, 0.2]}))
+    with pytest.raises(FgoptError, match="x0"):
+        bad.update([PriorFactor(x(0), SE2(), od)], {x(0): SE2()})
