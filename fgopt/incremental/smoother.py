@@ -10,11 +10,21 @@ Each :meth:`IncrementalSmoother.update` does what iSAM2's does (Kaess et al., IJ
    them and all their ancestors (the *top*); re-order the top's variables (minimum degree,
    the new factors' variables last) and re-eliminate it from the factors inside it plus the
    cached marginals of the orphaned subtrees (:mod:`._eliminate`);
-4. back-substitute the new top, and the orphans where their separators moved (wildfire).
+4. back-substitute, deferred as in iSAM2 to the next read of the estimate (or the next
+   relinearization check): the re-eliminated cliques, and the orphans whose separators moved
+   by more than the wildfire threshold (:func:`._solve.solve_pending`).
 
 The estimate is ``theta (+) delta``. An update is atomic: bad input is refused before
 anything changes, and a failure during elimination (a variable left unconstrained) rolls the
-smoother back to its state before the call.
+smoother back to its state before the call. ``marginalize`` cuts variables out into Gaussian
+priors on their Markov blanket (the fixed-lag smoother's step).
+
+Design, measured against the alternative the issue allowed (an incremental supernodal
+Cholesky on a fixed global order, new variables appended): iSAM2's reordering of the top is
+what keeps loop closures cheap (a chronological order of a pose graph fills in badly), so the
+engine is a Bayes tree, kept as flat arrays and numba kernels: multifrontal dense cliques
+(fundamental supernodes of the top's elimination tree, reusing the block Cholesky's symbolic
+steps and BLAS bindings), each caching the Schur complement it passes to its parent.
 """
 
 from __future__ import annotations
