@@ -322,7 +322,7 @@ def run_problem(name: str, peers: list[str], rounds: int, kernel: str, configs: 
         fgopt_run(graph, values, c, "5it")
     fixed = None
     if len(bal.obs) <= FIXED_MAX_OBSERVATIONS:
-        from fgopt.symbolic.fixed import compile_fixed
+        from fgopt.solvers.fixed import compile_fixed
 
         fixed = compile_fixed(graph, values)  # generated once, then cached on disk
         fgopt_fixed_run(fixed, "5it")

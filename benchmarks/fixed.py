@@ -3,10 +3,10 @@
     .venv/bin/python -m benchmarks.fixed [--reps 2000] [--skip-cold] [--json out.json]
 
 Problem: ``benchmarks.problems.robot_localization()`` as built by the fgopt runner (SE2 poses
-from the origin, 100 bearing/range factors to known landmarks (``@fgopt.symbolic.factor``), 4
+from the origin, 100 bearing/range factors to known landmarks (``@fgopt.factor``), 4
 odometry ``BetweenFactor``\\ s).
 
-* **fixed**: :mod:`fgopt.symbolic.fixed` -- ONE generated function for the whole linearization
+* **fixed**: :mod:`fgopt.solvers.fixed` -- ONE generated function for the whole linearization
   (dense 15x15 H, g, cost; CSE across factors; constant terms hoisted), dense LM in numba.
 * **dynamic**: ``fgopt.optimize`` / ``LevenbergMarquardt`` (batched generated kernels, sparse
   assembly, linear solver "auto"), from the graph (includes compiling the ``Problem``) and on an
@@ -65,7 +65,7 @@ def _generate_child() -> None:
     """Child process: compile the fixed problem, print timings as JSON."""
     t0 = time.perf_counter()
     from benchmarks.peers.fgopt_runner import _robot_graph
-    from fgopt.symbolic import fixed as fx
+    from fgopt.solvers import fixed as fx
 
     graph, init = _robot_graph()
     t1 = time.perf_counter()
@@ -179,7 +179,7 @@ def fgopt_times(reps: int) -> dict:
     import fgopt
     from benchmarks.peers.fgopt_runner import _robot_graph
     from fgopt.solvers import LevenbergMarquardt
-    from fgopt.symbolic import fixed as fx
+    from fgopt.solvers import fixed as fx
 
     graph, init = _robot_graph()
     fp = fx.compile_fixed(graph, init)
@@ -187,7 +187,7 @@ def fgopt_times(reps: int) -> dict:
     x0 = fp.flatten(init)
     H, g = np.zeros((fp.size, fp.size)), np.zeros(fp.size)
     prm0 = np.array([0.0, 0, 0, -1.0, 0, 1e-5, 1e-12, 1e12, 1e-6, 1e32, 1e-3, 0, 0, 10.0])
-    hist = np.empty((1, 7))
+    hist = np.empty((1, 8))
     lm_fn, aux = fp.module._lm, fp._aux
 
     rf = fp.optimize(init)

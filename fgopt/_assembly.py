@@ -9,9 +9,9 @@ precomputed positions (lower triangle only) and ``w J^T r`` into g. Returns the 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from ._jit import njit, prange
 
-from .factors.robust import rho_and_weight
+from .noise.robust import rho_and_weight
 
 
 @njit(cache=True)

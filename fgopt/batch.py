@@ -9,7 +9,7 @@ holds, for ``n`` instances of ``kernel``:
 - ``sqrt_information``: ``(n, r, r)`` square-root information, or ``None`` for unit noise;
 - ``loss_code`` / ``loss_param`` / ``loss_shape``: one robust loss for the whole batch (code
   ``0`` = none; ``loss_shape`` is Barron's alpha), see
-  :mod:`fgopt.factors.robust`.
+  :mod:`fgopt.noise.robust`.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import numpy as np
 from .errors import DimensionMismatchError, NonFiniteError
 from .factors.base import KernelFactor
 from .factors.kernel import FactorKernel
-from .factors.noise import NoiseModel, Unit, base_noise, loss_code_and_param
+from .noise.models import NoiseModel, Unit, base_noise, loss_code_and_param
 from .key import Key
 
 
@@ -73,7 +73,7 @@ class FactorBatch:
         return self.keys.shape[0]
 
     def loss_of(self, i: int):
-        from .factors import noise
+        from .noise import models as noise
 
         base: NoiseModel = (Unit(self.kernel.residual_dim) if self.sqrt_information is None
                             else noise.Gaussian(self.sqrt_information[i]))

@@ -1,6 +1,6 @@
-"""The ``fgopt`` command line: ``fgopt solve FILE`` and ``fgopt info FILE``.
+"""The ``fgopt`` command line: ``fgopt solve FILE``, ``fgopt info FILE`` and ``fgopt cache``.
 
-``solve`` reads a g2o / TORO / BAL file, fixes the gauge of pose graphs with a tight prior on the
+``solve`` reads a g2o / TORO / BAL / Bundler file, fixes the gauge of pose graphs with a tight prior on the
 lowest pose (GTSAM-style; BA relies on LM damping, as Ceres' BAL example), optimizes while
 printing one row per iteration, then a summary. Costs in the summary are measured on the file's
 own edges (``0.5 * sum`` of squared whitened residuals, no prior, no robust loss), the yardstick
@@ -9,6 +9,10 @@ GTSAM's ``graph.error`` uses. Exit status: 0 converged, 1 not converged (reason 
 
 ``info`` prints variable and factor counts by type, the initial cost, connected components and
 whether the gauge is fixed.
+
+``cache info`` prints the private cache root (:mod:`fgopt._cache_root`), each generated kernel
+entry with its size and whether it verifies against its signature, and the size of numba's cache;
+``cache clear`` removes the entries and numba's cache (they are regenerated on next use).
 """
 
 from __future__ import annotations
@@ -65,7 +69,8 @@ def _positive_int(text: str) -> int:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="fgopt", description="Factor-graph optimization on "
                                 "manifolds: solve or inspect g2o / TORO / BAL files.")
-    sub = p.add_subparsers(dest="command", required=True, metavar="{solve,info}")
+    sub = p.add_subparsers(dest="command", required=True,
+                           metavar="{solve,solve-many,info,cache}")
 
     def file_options(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("file", help="g2o / TORO (.g2o, .graph, .txt) or BAL file, optionally "
@@ -94,10 +99,74 @@ def build_parser() -> argparse.ArgumentParser:
                    "only the one-line summary")
     s.set_defaults(run=cmd_solve)
 
+    m = sub.add_parser("solve-many", help="solve many files in parallel on Dask; write each "
+                       "result and a summary table")
+    m.add_argument("files", nargs="+", help="g2o / TORO / BAL files (optionally .gz / .bz2)")
+    where = m.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_positive_int, default=None,
+                       help="worker processes of the local cluster (default: one per core)")
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="a running Dask scheduler (e.g. tcp://host:8786) instead of a local "
+                       "cluster")
+    m.add_argument("--out-dir", required=True, help="folder for the optimized files and "
+                   "summary.md")
+    m.add_argument("--method", choices=["lm", "gn", "dogleg", "gnc"], default="lm")
+    m.add_argument("--max-iterations", type=_positive_int, default=100)
+    m.add_argument("--quiet", action="store_true", help="no progress bar")
+    m.set_defaults(run=cmd_solve_many)
+
     i = sub.add_parser("info", help="counts, initial cost, connectivity and gauge of a file")
     file_options(i)
     i.set_defaults(run=cmd_info)
+
+    c = sub.add_parser("cache", help="the kernel cache: where it is, what it holds; clear it")
+    c.add_argument("action", choices=["info", "clear"],
+                   help="info: root, entries, sizes, verification; clear: remove every entry "
+                   "and numba's cache")
+    c.set_defaults(run=cmd_cache)
     return p
+
+
+def _size(n: float) -> str:
+    for unit in ("B", "KB", "MB"):
+        if n < 1024:
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} GB"
+
+
+def cmd_cache(args: argparse.Namespace) -> int:
+    import os
+    import stat
+
+    from . import _cache_root
+    from .symbolic import cache
+
+    root = _cache_root.root()
+    if args.action == "clear":
+        removed = cache.clear()
+        print(f"removed {removed['entries']} kernel entries and {removed['numba_files']} numba "
+              f"cache files ({_size(removed['bytes'])}) from {root}")
+        return 0
+    st = os.stat(root)
+    print(f"root:     {root} (uid {st.st_uid}, mode {stat.S_IMODE(st.st_mode):04o}: private)")
+    key = root / _cache_root.KEY_FILE
+    print(f"key:      {key}" + (" (0600)" if key.exists() else " (not made yet)"))
+    entries = cache.entries()
+    failed = [e for e in entries if e["problem"] is not None]
+    total = sum(e["bytes"] for e in entries)
+    print(f"kernels:  {root / _cache_root.KERNELS}: {len(entries)} entries, {_size(total)}; "
+          f"{len(entries) - len(failed)} verified, {len(failed)} failed")
+    for e in entries:
+        state = "ok" if e["problem"] is None else f"FAILED: {e['problem']}"
+        print(f"  {e['name']:<60} {_size(e['bytes']):>9}  {state}")
+    numba_dir = root / _cache_root.NUMBA
+    files = [p for p in numba_dir.rglob("*") if p.is_file()] if numba_dir.is_dir() else []
+    print(f"numba:    {numba_dir}: {len(files)} files, "
+          f"{_size(sum(p.stat().st_size for p in files))}")
+    if failed:
+        print("entries that fail verification are discarded and regenerated on next use")
+    return 0
 
 
 def _load(args: argparse.Namespace) -> tuple[str, Any, Any, float]:
@@ -105,8 +174,8 @@ def _load(args: argparse.Namespace) -> tuple[str, Any, Any, float]:
 
     t0 = time.perf_counter()
     fmt = detect_format(args.file)
-    if fmt == "bal":
-        graph, values = read(args.file, format="bal")
+    if fmt in ("bal", "bundler"):
+        graph, values = read(args.file, format=fmt)
     else:
         graph, values = read(args.file, format="g2o", skip_unknown=args.skip_unknown,
                              repair_information=args.repair_information)
@@ -165,7 +234,9 @@ def cmd_solve(args: argparse.Namespace) -> int:
           f"({result.method}/{result.linear_solver})", flush=True)
     if not args.quiet and t:
         say("time: " + ", ".join(f"{k} {v:.3f} s" for k, v in t.items()))
-    if args.out is not None:
+    if args.out is not None and fmt == "bundler":
+        print("fgopt: --out: writing Bundler files is not supported", file=sys.stderr)
+    elif args.out is not None:
         (write_bal if fmt == "bal" else write_g2o)(args.out, graph, result.values)
         say(f"wrote {args.out}")
     if args.plot is not None:
@@ -177,6 +248,35 @@ def cmd_solve(args: argparse.Namespace) -> int:
         print(f"fgopt: not converged: {result.status.value} ({result.message})", file=sys.stderr)
         return 1
     return 0
+
+
+def cmd_solve_many(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from .distributed import solve_files, summary_table
+
+    client = None
+    if args.scheduler is not None:
+        try:
+            from dask.distributed import Client
+        except ImportError:
+            raise FgoptError("--scheduler needs dask.distributed: pip install "
+                             "'fgopt[distributed]'") from None
+        client = Client(args.scheduler)
+    try:
+        rows = solve_files(args.files, args.out_dir, method=args.method, client=client,
+                           workers=args.workers, progress=not args.quiet,
+                           max_iterations=args.max_iterations)
+    finally:
+        if client is not None:
+            client.close()
+    table = summary_table(rows)
+    (Path(args.out_dir) / "summary.md").write_text(table)
+    print(table, end="", flush=True)
+    failed = sum(1 for r in rows if "error" in r)
+    if failed:
+        print(f"fgopt: {failed} of {len(rows)} files failed (see summary.md)", file=sys.stderr)
+    return 1 if failed else 0
 
 
 def _short_name(path: str) -> str:

@@ -4,7 +4,8 @@ matplotlib is imported only when a function here runs. Figures are built with
 ``matplotlib.figure.Figure`` (no pyplot, so no display is needed and no backend is switched);
 pass ``ax`` to draw into your own axes instead, e.g. in a notebook.
 
-- :func:`plot_pose_graph`: 2D or 3D trajectory (poses in key order), loop closures (between
+- :func:`plot_pose_graph`: 2D or 3D trajectory (poses in key order: SE2, SE3, or a declared
+  manifold whose declaration has a ``position`` accessor, e.g. ``SE23``), loop closures (between
   factors whose keys are not consecutive) and landmarks; with ``initial`` the starting guess is
   drawn faintly underneath ("before / after").
 - :func:`plot_bundle`: BAL cameras (centres ``-R^T t``) and points.
@@ -21,6 +22,7 @@ import numpy as np
 
 from .key import key_index
 from .manifolds.base import ops_for
+from .manifolds.declared import DeclaredValue
 
 
 def _figure(figsize=(6, 5)):
@@ -34,15 +36,34 @@ def _kind_name(v: Any) -> str:
     return kind.name if kind is not None else ""
 
 
+def _position_dim(v: Any) -> int:
+    """2 or 3 for values with a position: SE2 / SE3, declared manifolds whose declaration has a
+    ``position`` accessor (e.g. ``SE23``); else 0."""
+    name = _kind_name(v)
+    if name in ("SE2", "SE3"):
+        return 2 if name == "SE2" else 3
+    return int(v.position_dim()) if isinstance(v, DeclaredValue) else 0
+
+
 def _poses(values: Any) -> tuple[list[int], np.ndarray, int]:
-    """Pose keys in key order, their positions ``(n, d)`` and ``d`` (2 or 3; 0 if no poses)."""
-    keys = sorted(int(k) for k in values.keys() if _kind_name(values.at(k)) in ("SE2", "SE3"))
-    if not keys:
+    """Pose keys in key order, their positions ``(n, d)`` and ``d`` (2 or 3; 0 if no poses).
+
+    Poses are the values of the most common positioned kind (SE2, SE3 or a declared manifold
+    with a ``position`` accessor)."""
+    found = [(int(k), _kind_name(values.at(k))) for k in values.keys()
+             if _position_dim(values.at(k)) > 0]
+    if not found:
         return [], np.zeros((0, 2)), 0
-    st = np.array([values.at(k).to_storage() for k in keys])
-    if st.shape[1] == 4:
-        return keys, st[:, 2:4], 2
-    return keys, st[:, 4:7], 3
+    names = [n for _, n in found]
+    kind = max(set(names), key=names.count)
+    keys = sorted(k for k, n in found if n == kind)
+    if kind in ("SE2", "SE3"):
+        st = np.array([values.at(k).to_storage() for k in keys])
+        if st.shape[1] == 4:
+            return keys, st[:, 2:4], 2
+        return keys, st[:, 4:7], 3
+    xyz = np.array([values.at(k).plot_position() for k in keys])
+    return keys, xyz, xyz.shape[1]
 
 
 def _points(values: Any, dim: int) -> np.ndarray:
@@ -96,7 +117,8 @@ def plot_pose_graph(graph: Any, values: Any, ax: Any = None, initial: Any = None
     """Draw the trajectory of ``values`` (and ``initial`` faintly); returns the axes."""
     keys, xyz, dim = _poses(values)
     if dim == 0:
-        raise ValueError("plot_pose_graph: the values hold no SE2 / SE3 poses")
+        raise ValueError("plot_pose_graph: the values hold no poses (SE2, SE3 or a declared "
+                         "manifold with a position accessor)")
     ax = _axes(ax, dim)
     cols = [xyz[:, i] for i in range(dim)]
     if initial is not None:

@@ -1,5 +1,5 @@
 """fgopt symbolic factors used by the benchmark (no ``from __future__ import annotations`` here:
-``@fgopt.symbolic.factor`` reads the annotations at definition time)."""
+``@fgopt.factor`` reads the annotations at definition time)."""
 
 from fgopt.symbolic import V2, Pose2, atan2, cos, factor, sin
 

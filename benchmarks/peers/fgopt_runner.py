@@ -5,7 +5,7 @@ those two if fgopt's API changes.
   ``repair_information="clip"`` for files with non-PD information, i.e. cubicle)
 * BAL: ``fgopt.io.read_bal(path)`` (no gauge prior, as the protocol says)
 * robot localization: ``BetweenFactor`` odometry plus bearing-range to a known landmark as an
-  ``@fgopt.symbolic.factor`` kernel (fallback: a Python ``Factor`` with analytic Jacobians)
+  ``@fgopt.factor`` kernel (fallback: a Python ``Factor`` with analytic Jacobians)
 * "5it": ``LevenbergMarquardt(LMParams(max_iterations=5, every tolerance 0))``; "converge":
   ``fgopt.optimize(graph, initial, method="lm")`` with its defaults.
 
@@ -68,7 +68,7 @@ def solve_fgopt(graph, initial, mode: str):
 
 
 def _bearing_range_symbolic():
-    """Bearing-range to a known landmark as an ``@fgopt.symbolic.factor`` kernel (fast path)."""
+    """Bearing-range to a known landmark as an ``@fgopt.factor`` kernel (fast path)."""
     from ._fgopt_symbolic import bearing_range_known
 
     return bearing_range_known

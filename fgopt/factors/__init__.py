@@ -1,4 +1,8 @@
-"""Factors: the ``Factor`` base (slow path), kernel factors (fast path), noise models, built-ins."""
+"""Factors: the ``Factor`` base (slow path), kernel factors (fast path), ``@factor``, built-ins.
+
+``factor`` / ``SymbolicFactorType`` (:mod:`.decorator`) load on first use: they pull in the
+symbolic layer, which ``import fgopt`` does not need.
+"""
 
 from .base import Factor as Factor
 from .base import KernelFactor as KernelFactor
@@ -8,3 +12,13 @@ from .library.prior_between import PriorFactor as PriorFactor
 from .numerical import NumericalFactor as NumericalFactor
 from .numerical import numerical_jacobian as numerical_jacobian
 from .numerical import numerical_jacobians as numerical_jacobians
+
+_DECORATOR_NAMES = ("factor", "const", "SymbolicFactor", "SymbolicFactorType")
+
+
+def __getattr__(name: str):
+    if name in _DECORATOR_NAMES:
+        from . import decorator
+
+        return getattr(decorator, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

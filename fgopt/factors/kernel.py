@@ -26,6 +26,7 @@ from typing import Callable
 
 import numpy as np
 
+from ..errors import FgoptError
 from ..manifolds.base import BatchKind
 
 ResidualFn = Callable[[tuple, np.ndarray], np.ndarray]
@@ -47,6 +48,24 @@ class FactorKernel:
     residual: ResidualFn = field(repr=False)
     linearize: LinearizeFn = field(repr=False)
     source: str = field(default="", repr=False)
+    #: Why this kernel may return NaN on purpose (e.g. a point behind a camera), appended to the
+    #: optimizer's error when the initial estimate produces one.
+    nonfinite_hint: str = field(default="", repr=False)
+    #: ``(function, args)`` that returns this kernel again in any process; how a kernel pickles
+    #: (the receiving process rebuilds or loads it; compiled code is never shipped). The function
+    #: must return one object per distinct ``args`` (kernels compare by identity).
+    recipe: tuple | None = field(default=None, repr=False)
+    #: Clamped functions in the residual (dicts: function, low, high, where, code), and
+    #: ``clamp_arguments(args, consts) -> (n, len(clamps))`` evaluating their arguments.
+    clamps: tuple = field(default=(), repr=False)
+    clamp_arguments: ResidualFn | None = field(default=None, repr=False)
+
+    def __reduce__(self):
+        if self.recipe is None:
+            raise FgoptError(f"kernel {self.name!r} cannot be pickled: it was made without a "
+                             "recipe (FactorKernel(..., recipe=(function, args)) says how "
+                             "another process gets it)")
+        return self.recipe
 
     @property
     def tangent_dim(self) -> int:

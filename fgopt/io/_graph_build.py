@@ -92,6 +92,17 @@ def _edges_of(rd, g, dim: int) -> _Edges:
         meas = se2_storage(d[:, 2:5])
         packed = d[:, 5:11][:, TORO_TO_G2O] if g.spec.toro else d[:, 5:11]
         info = im.permute(im.unpack_upper(packed, 3), im.PERM_SE2)
+        if g.spec.toro and im.not_positive_definite(info).any():
+            # GTSAM's example files w10000 / w20000 write EDGE2 entries as a *covariance* in g2o's
+            # order (cxx cxy cxt cyy cyt ctt); GTSAM's load2D recognizes them by that layout
+            # (NoiseFormatCOV). Read them the same way when every line fits it and none fits
+            # TORO's information order: the file then means what GTSAM reads.
+            cov = im.unpack_upper(d[:, 5:11], 3)
+            if not im.not_positive_definite(cov).any():
+                log.warning("%s: %s entries are covariances in g2o order (as GTSAM's load2D "
+                            "reads this layout), not TORO information; read them so",
+                            rd.path, g.tag)
+                info = im.permute(np.linalg.inv(cov), im.PERM_SE2)
     elif g.spec.what == "between":
         meas, norms = se3_storage(d[:, 2:9])
         check_quaternions(rd, g, norms)
@@ -106,7 +117,9 @@ def _edges_of(rd, g, dim: int) -> _Edges:
         vals = np.take_along_axis(d, cols, axis=1)
         meas = vals[:, :3].copy()
         info = im.unpack_upper(vals[:, 3:9], 3)
-        param = np.where(has_param, rd.ids(g, [2])[:, 0], -1)
+        param = np.full(d.shape[0], -1, dtype=np.int64)
+        with_id = np.nonzero(has_param)[0]  # column 2 is mx on the other lines
+        param[with_id] = rd.ids(g, [2], with_id)[:, 0]
     return _Edges(g, g.spec.what, ids[:, 0], ids[:, 1], meas, info, param)
 
 

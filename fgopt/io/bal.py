@@ -28,6 +28,10 @@ from ..key import key, key_str
 from ..manifolds.base import vector_kind
 from ..variables import Variables
 from ._scan import scan, write_text
+from ._sfm import FORMS as _GTSAM_FORMS
+from ._sfm import gtsam_form_graph, rotations_from_angle_axis
+
+FORMS = ("snavely",) + _GTSAM_FORMS
 
 
 def reprojection_kernel():
@@ -53,12 +57,20 @@ def _is_bal_kernel(kernel: Any) -> bool:
     return kernel is bal_kernel() or kernel is reprojection_kernel()
 
 
-def read_bal(path: str | os.PathLike, data: bytes | None = None) -> tuple[FactorGraph, Variables]:
+def read_bal(path: str | os.PathLike, data: bytes | None = None,
+             form: str = "snavely") -> tuple[FactorGraph, Variables]:
     """Read a BAL file; returns ``(graph, initial)`` (see the module docstring).
+
+    ``form="snavely"`` (default) gives R^9 cameras ``c<i>``. GTSAM's camera form, same cost
+    (see :mod:`fgopt.io._sfm`): ``"camera"`` (a PinholeCamera[Cal3Bundler] variable ``c<i>``:
+    SE(3) pose looking down +z and Cal3Bundler), ``"pose+calibration"`` (SE3 ``x<i>`` and
+    Cal3Bundler ``k<i>`` variables) or ``"pose"`` (SE3 ``x<i>``, calibrations fixed).
 
     Raises:
         FileFormatError: malformed input; the message names the file and line.
     """
+    if form not in FORMS:
+        raise FgoptError(f"read_bal: form must be one of {FORMS}, got {form!r}")
     p = os.fspath(path)
     sc = scan(p, data=data, has_tag=False, comment=None)
     nrec = sc.line.shape[0]
@@ -107,6 +119,15 @@ def read_bal(path: str | os.PathLike, data: bytes | None = None) -> tuple[Factor
     sc.check_finite(np.arange(start, start + need))
     cams = sc.values[start:start + 9 * nc].reshape(nc, 9)
     pts = sc.values[start + 9 * nc:].reshape(npt, 3)
+    if form != "snavely":
+        bad = ~(cams[:, 6] > 0.0)
+        if np.any(bad):
+            i = int(np.nonzero(bad)[0][0])
+            raise sc.error(f"camera {i}: focal length {cams[i, 6]:g} is not positive",
+                           sc.line_of_value(start + 9 * i + 6))
+        return gtsam_form_graph(rotations_from_angle_axis(cams[:, :3]), cams[:, 3:6],
+                                cams[:, 6:9], ci, pj, obs[:, 2:4], pts, form,
+                                (str(p), np.asarray(obs_lines)))
     cb, pb = int(key("c", 0)), int(key("p", 0))
     values = Variables()
     values.add_rows(range(cb, cb + nc), vector_kind(9), cams)
@@ -155,9 +176,19 @@ def write_bal(path: str | os.PathLike, graph: Any, values: Any) -> None:
         rows.append(np.array(block))
     ci = np.searchsorted(cam_keys, keys[:, 0])
     pj = np.searchsorted(pt_keys, keys[:, 1])
-    out = [f"{cam_keys.shape[0]} {pt_keys.shape[0]} {keys.shape[0]}"]
+    write_bal_arrays(path, ci, pj, meas, rows[0], rows[1])
+
+
+def write_bal_arrays(path: str | os.PathLike, camera_index: np.ndarray, point_index: np.ndarray,
+                     observations: np.ndarray, cameras: np.ndarray, points: np.ndarray) -> None:
+    """Write a BAL file from arrays: per observation its camera and point index and ``(x, y)``;
+    ``cameras (nc, 9)``, ``points (np, 3)``. Numbers round-trip exactly (``repr``)."""
+    ci = np.asarray(camera_index, dtype=np.int64)
+    pj = np.asarray(point_index, dtype=np.int64)
+    uv = np.asarray(observations, dtype=float).reshape(-1, 2)
+    out = [f"{cameras.shape[0]} {points.shape[0]} {ci.shape[0]}"]
     out += [f"{c} {q} {x!r} {y!r}" for c, q, (x, y) in zip(ci.tolist(), pj.tolist(),
-                                                           meas.tolist())]
-    out += list(map(repr, rows[0].reshape(-1).tolist()))
-    out += list(map(repr, rows[1].reshape(-1).tolist()))
+                                                           uv.tolist())]
+    out += list(map(repr, np.asarray(cameras, dtype=float).reshape(-1).tolist()))
+    out += list(map(repr, np.asarray(points, dtype=float).reshape(-1).tolist()))
     write_text(path, "\n".join(out) + "\n")

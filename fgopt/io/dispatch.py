@@ -1,7 +1,9 @@
 """``read(path)``: pick the reader from the file's content (and extension).
 
-A file whose first token is a number is BAL (its header ``cameras points observations``);
-a file whose first token is a record tag (``VERTEX_SE2``, ``EDGE2``, ...) is g2o / TORO.
+A file starting with ``# Bundle file`` is a Bundler ``.out`` file; otherwise a file whose first
+token is a number is BAL (its header ``cameras points observations``); a file whose first token
+is ``ODOMETRY`` / ``LANDMARK`` / ``BR`` is a GTSAM ``load2D`` SLAM file; any other record tag
+(``VERTEX_SE2``, ``EDGE2``, ...) is g2o / TORO.
 ``.gz`` / ``.bz2`` files are decompressed first.
 """
 
@@ -15,7 +17,7 @@ from ..graph import FactorGraph
 from ..variables import Variables
 from ._scan import read_bytes
 
-FORMATS = ("g2o", "bal", "load2d")
+FORMATS = ("g2o", "bal", "bundler", "load2d")
 #: First tags of GTSAM ``load2D`` SLAM files that the g2o reader does not read.
 _LOAD2D_TAGS = (b"ODOMETRY", b"LANDMARK", b"BR")
 _FIRST_TOKEN = re.compile(rb"^[ \t\r\f\v]*([^\s#]+)", re.MULTILINE)
@@ -23,10 +25,13 @@ _G2O_EXT = (".g2o", ".graph")
 
 
 def detect_format(path: str | os.PathLike, data: bytes | None = None) -> str:
-    """``"g2o"``, ``"bal"`` or ``"load2d"``; raises :class:`FileFormatError` when none fits."""
+    """``"g2o"``, ``"bal"``, ``"bundler"`` or ``"load2d"``; raises :class:`FileFormatError` when
+    none fits."""
     p = os.fspath(path)
     if data is None:
         data = read_bytes(p)
+    if data.lstrip()[:13] == b"# Bundle file":
+        return "bundler"
     m = _FIRST_TOKEN.search(data[:1 << 16])
     if m is None:
         raise FileFormatError("the file is empty (no records)", p)
@@ -48,15 +53,17 @@ def read(path: str | os.PathLike, *, format: str | None = None, add_prior: bool 
     """Read any supported file; returns ``(graph, initial)``.
 
     Args:
-        path: a g2o / TORO pose graph (``.g2o``, ``.graph``, ``.txt``) or a BAL problem,
-            optionally ``.gz`` / ``.bz2`` compressed.
-        format: ``"g2o"``, ``"bal"`` or ``"load2d"`` (GTSAM's 2-D SLAM files with ``ODOMETRY``
-            / ``LANDMARK`` / ``BR`` records, :func:`fgopt.io.load2d`) to skip detection.
+        path: a g2o / TORO pose graph (``.g2o``, ``.graph``, ``.txt``), a BAL problem or a
+            Bundler ``.out`` file, optionally ``.gz`` / ``.bz2`` compressed.
+        format: ``"g2o"``, ``"bal"``, ``"bundler"`` or ``"load2d"`` (GTSAM's 2-D SLAM files
+            with ``ODOMETRY`` / ``LANDMARK`` / ``BR`` records, :func:`fgopt.io.load2d`) to skip
+            detection.
         add_prior, skip_unknown, repair_information: g2o options, see :func:`read_g2o`
             (BAL files have no gauge prior, unknown tags or information matrices; passing a
             non-default value for one is an error).
     """
     from .bal import read_bal
+    from .bundler import read_bundler
     from .g2o import read_g2o
 
     p = os.fspath(path)
@@ -70,16 +77,21 @@ def read(path: str | os.PathLike, *, format: str | None = None, add_prior: bool 
     if format == "g2o":
         return read_g2o(p, add_prior=add_prior, skip_unknown=skip_unknown,
                         repair_information=repair_information, data=data)
-    if format == "load2d":
-        if add_prior or skip_unknown or repair_information is not None:
-            raise FgoptError("read: add_prior, skip_unknown and repair_information apply to g2o "
-                             f"files; {p} is a load2D file (use fgopt.io.load2d for its options)")
-        from .load2d import load2d
-
-        return load2d(p)
     if format == "bal":
         if add_prior or skip_unknown or repair_information is not None:
             raise FgoptError("read: add_prior, skip_unknown and repair_information apply to g2o "
                              f"files; {p} is a BAL file")
         return read_bal(p, data=data)
+    if format == "bundler":
+        if add_prior or skip_unknown or repair_information is not None:
+            raise FgoptError("read: add_prior, skip_unknown and repair_information apply to g2o "
+                             f"files; {p} is a Bundler file")
+        return read_bundler(p, data=data)
+    if format == "load2d":
+        if add_prior or skip_unknown or repair_information is not None:
+            raise FgoptError("read: add_prior, skip_unknown and repair_information apply to g2o "
+                             f"files; {p} is a load2D file (see fgopt.io.load2d for its options)")
+        from .load2d import load2d
+
+        return load2d(p)
     raise FgoptError(f"read: unknown format {format!r}; choose one of {', '.join(FORMATS)}")

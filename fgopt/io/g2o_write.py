@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import FgoptError
-from ..factors.noise import RobustLoss, base_noise
+from ..noise.models import RobustLoss, base_noise
 from ..key import key_index, key_str
 from ..manifolds.base import ops_for, vector_kind
 from . import _information as im

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Any, Callable, Protocol, runtime_checkable
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from ..errors import DimensionMismatchError, ManifoldError
@@ -47,6 +47,39 @@ class BatchKind:
     #: Build a value from an owned, read-only storage row already on the manifold (no checks,
     #: no normalization): the fast path for bulk construction. ``None``: use ``from_storage``.
     wrap: Callable[[np.ndarray], Any] | None = field(default=None, repr=False)
+    #: What the kernels compute, for cache keys of code generated over this kind (declared
+    #: manifolds: their declaration key; built-in kinds: empty, their name says it all).
+    key: str = field(default="", repr=False)
+
+    def __post_init__(self) -> None:
+        _KINDS.setdefault(self.name, self)
+
+    def __reduce__(self):
+        # Kinds compare by identity, so a pickled kind is the same-named kind of the receiving
+        # process (its batched functions are that process's compiled code, never shipped).
+        if _KINDS.get(self.name) is not self:
+            raise ManifoldError(f"manifold kind {self.name!r} cannot be pickled: another kind of "
+                                "that name was made first in this process")
+        return (kind_named, (self.name,))
+
+
+#: Every kind made in this process, by name (the first of a name wins).
+_KINDS: dict[str, BatchKind] = {}
+
+
+def kind_named(name: str) -> BatchKind:
+    """The kind called ``name`` in this process (how pickled kinds are restored)."""
+    kind = _KINDS.get(name)
+    if kind is None:
+        from .. import manifolds  # noqa: F401  (registers the built-in groups' kinds)
+
+        kind = _KINDS.get(name)
+    if kind is None and name.startswith("R") and name[1:].isdigit():
+        kind = vector_kind(int(name[1:]))
+    if kind is None:
+        raise ManifoldError(f"no manifold kind named {name!r} in this process: import the module "
+                            "that defines it before unpickling values or factors of that kind")
+    return kind
 
 
 @runtime_checkable
@@ -84,14 +117,14 @@ def register(cls: type, ops: ManifoldOps) -> None:
 # ----------------------------------------------------------------------------- vector spaces
 
 
-@numba.njit(cache=True)
 def _vector_retract(x, delta):
-    return x + delta
+    """``x + delta`` row-wise (NumPy: nothing to compile for vector spaces)."""
+    return np.asarray(x, dtype=np.float64) + delta
 
 
-@numba.njit(cache=True)
 def _vector_local(a, b):
-    return b - a
+    """``b - a`` row-wise."""
+    return np.asarray(b, dtype=np.float64) - a
 
 
 @lru_cache(maxsize=None)

@@ -15,8 +15,11 @@ Module map (one job each): ``matrix`` (Matrix, V1..V9, Scalar), ``lie`` (group b
 ``functions`` (epsilon-safe math), ``_sym`` (SymPy side: epsilon, sign_no_zero),
 ``ops`` (storage/tangent ops), ``jacobians`` (tangent-space Jacobians), ``singularity``
 (removable-singularity checker), ``linearize`` (residual + Jacobian programs), ``cse``,
-``printer``, ``codegen`` (kernel modules), ``cache`` (on-disk cache), ``derive``, ``factor``
-(``@fgopt.factor``), ``runtime`` (helpers of generated code).
+``printer``, ``codegen`` (kernel modules), ``cache`` (on-disk cache), ``derive`` (a factor's
+kernel source), ``runtime`` (helpers of generated code), ``declare`` (``@fgopt.manifold``:
+user-declared manifolds, ``Product``, ``check_manifold``), ``geometry`` (manifolds declared that
+way that ship with fgopt: ``Unit3``, ``OrientedPlane3``, ``SE23``; loaded on first access). ``@fgopt.factor`` itself, which makes
+factor types from these, is :mod:`fgopt.factors.decorator` (the factors layer).
 
 Importing this package does not import SymPy; ``epsilon`` and ``pi`` (SymPy objects) load it on
 first access.
@@ -26,12 +29,10 @@ from __future__ import annotations
 
 from typing import Any
 
+from . import cache as cache
 from .cameras import PinholeCamera as PinholeCamera
 from .cameras import SnavelyCamera as SnavelyCamera
 from .cameras import angle_axis_rotate as angle_axis_rotate
-from .factor import SymbolicFactor as SymbolicFactor
-from .factor import SymbolicFactorType as SymbolicFactorType
-from .factor import factor as factor
 from .functions import Abs as Abs
 from .functions import Max as Max
 from .functions import Min as Min
@@ -55,6 +56,7 @@ from .functions import sqrt as sqrt
 from .functions import symbols as symbols
 from .functions import tan as tan
 from .functions import tanh as tanh
+from .functions import where as where
 from .lie import LieGroupBase as LieGroupBase
 from .matrix import M22 as M22
 from .matrix import M33 as M33
@@ -86,7 +88,19 @@ _LAZY = {
     "check_removable_singularity": (".singularity", "check_removable_singularity"),
     "python_function": (".codegen", "python_function"),
     "total_ops": (".cse", "total_ops"),
+    "manifold": (".declare", "manifold"),
+    "Product": (".declare", "Product"),
+    "check_manifold": (".declare", "check_manifold"),
+    "DeclaredManifold": (".declare", "DeclaredManifold"),
+    "Unit3": (".geometry", "Unit3"),
+    "OrientedPlane3": (".geometry", "OrientedPlane3"),
+    "SE23": (".geometry", "SE23"),
 }
+
+
+#: ``@factor`` lives in the factors layer (it makes Factor types); these names stay reachable from
+#: ``fgopt.symbolic`` because user code and notebooks import them from here.
+_FACTOR_NAMES = ("factor", "SymbolicFactor", "SymbolicFactorType")
 
 
 def __getattr__(name: str) -> Any:
@@ -96,4 +110,10 @@ def __getattr__(name: str) -> Any:
         mod, attr = _LAZY[name]
         m = importlib.import_module(mod, __name__)
         return m.sp.pi if name == "pi" else getattr(m, attr)
+    if name in _FACTOR_NAMES:
+        # layer-exception: a compatibility alias resolved on first use, once the factors layer
+        # is importable; nothing in fgopt.symbolic itself uses these names.
+        from ..factors import decorator
+
+        return getattr(decorator, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

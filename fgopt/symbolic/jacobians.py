@@ -19,8 +19,8 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from .lie import LieGroupBase
-from .ops import storage_D_tangent_of, storage_of, symbolic_value, tangent_D_storage_of
+from .ops import (has_own_tangent, storage_D_tangent_of, storage_of, symbolic_value,
+                  tangent_D_storage_of)
 
 METHODS = ("retraction", "chain")
 
@@ -57,7 +57,7 @@ def tangent_jacobians(output: Any, args: Sequence[Any], method: str = "retractio
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     sp = _s().sp
     out = sp.Matrix(output_storage(output))
-    out_map = tangent_D_storage_of(output) if isinstance(output, LieGroupBase) else None
+    out_map = tangent_D_storage_of(output) if has_own_tangent(output) else None
     jacs = []
     for arg in args:
         s = storage_of(arg)

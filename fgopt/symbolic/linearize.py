@@ -36,8 +36,7 @@ from typing import Any
 
 from .cse import Program, count_ops, optimize, temp_symbols, total_ops
 from .jacobians import METHODS, output_storage, tangent_jacobians
-from .lie import LieGroupBase
-from .ops import storage_D_tangent_of, storage_of, tangent_D_storage_of
+from .ops import has_own_tangent, storage_D_tangent_of, storage_of, tangent_D_storage_of
 
 ENGINES = ("auto", "tree", "dag", "reverse")
 #: "auto" differentiates whole algebraic expression trees up to this many operations.
@@ -188,7 +187,7 @@ def _dag_jacobian(value: Program, output: Any, args: Sequence[Any], method: str)
     if method == "chain":
         blocks = [J[:, start:start + D.shape[0]] * D for start, D in col_blocks]
         J = sp.Matrix.hstack(*blocks) if len(blocks) > 0 else sp.zeros(len(res), 0)
-    if isinstance(output, LieGroupBase):
+    if has_own_tangent(output):
         J = tangent_D_storage_of(type(output).from_storage(res)) * J
     return stmts, res, J
 
@@ -253,6 +252,6 @@ def _reverse_jacobian(value: Program, output: Any, args: Sequence[Any], method: 
                 G[r, k] = a
         blocks.append(G * storage_D_tangent_of(arg))
     J = sp.Matrix.hstack(*blocks) if len(blocks) > 0 else sp.zeros(nres, 0)
-    if isinstance(output, LieGroupBase):
+    if has_own_tangent(output):
         J = tangent_D_storage_of(type(output).from_storage(res)) * J
     return stmts, res, J

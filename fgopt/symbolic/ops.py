@@ -1,16 +1,22 @@
 """Storage / tangent operations for every symbolic type, in one place (SymForce's *Ops* idea).
 
 Types that can be factor arguments: ``Rot2, Rot3, Pose2, Pose3`` (Lie groups), fixed-shape
-matrices and vectors (``V3``, ``Matrix.shaped(3, 3)``), and :class:`~fgopt.symbolic.Scalar`
-(``float`` / ``int`` annotations mean Scalar too).
+matrices and vectors (``V3``, ``Matrix.shaped(3, 3)``), :class:`~fgopt.symbolic.Scalar`
+(``float`` / ``int`` annotations mean Scalar too) and manifolds declared with
+``@fgopt.manifold`` (:mod:`fgopt.symbolic.declare`).
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+from ..errors import ManifoldError
+from .declare.twin import DeclaredManifold
 from .lie import LieGroupBase
 from .matrix import Matrix, Scalar
+
+#: Values with a tangent space of their own (storage_D_tangent is not the identity).
+_MANIFOLD_VALUES = (LieGroupBase, DeclaredManifold)
 
 
 def _s():
@@ -26,6 +32,8 @@ def is_symbolic_type(tp: Any) -> bool:
         return False
     if issubclass(tp, LieGroupBase):
         return True
+    if issubclass(tp, DeclaredManifold):
+        return tp._DECLARED
     return issubclass(tp, Matrix) and tp.SHAPE is not None
 
 
@@ -35,10 +43,23 @@ def normalize_type(tp: Any) -> type:
         return Scalar
     if not is_symbolic_type(tp):
         name = getattr(tp, "__name__", repr(tp))
-        raise TypeError(
+        raise ManifoldError(
             f"{name} is not a symbolic argument type: use Rot2, Rot3, Pose2, Pose3, V1..V9, "
-            "Matrix.shaped(r, c) or Scalar")
+            "Matrix.shaped(r, c), Scalar or a manifold declared with @fgopt.manifold")
     return tp
+
+
+def has_own_tangent(value: Any) -> bool:
+    """True for Lie group and declared-manifold values (their tangent is not their storage)."""
+    return isinstance(value, _MANIFOLD_VALUES)
+
+
+def type_key(tp: type) -> tuple:
+    """What identifies an argument type in kernel cache keys (declared manifolds add their
+    declaration key: editing the declaration changes the factors derived over it)."""
+    tp = normalize_type(tp)
+    return (tp.__module__, tp.__qualname__) + ((tp._KEY,) if issubclass(tp, DeclaredManifold)
+                                               else ())
 
 
 def type_storage_dim(tp: type) -> int:
@@ -68,7 +89,7 @@ def from_storage(tp: type, data: Any) -> Any:
 
 def storage_of(value: Any) -> list:
     """The storage entries of a symbolic value (SymPy expressions)."""
-    if isinstance(value, (LieGroupBase, Matrix)):
+    if isinstance(value, (LieGroupBase, DeclaredManifold, Matrix)):
         return [_s().as_expr(e) for e in value.to_storage()]
     if hasattr(value, "to_storage") and not isinstance(value, _s().sp.Basic):
         return [_s().as_expr(e) for e in value.to_storage()]
@@ -77,18 +98,18 @@ def storage_of(value: Any) -> list:
 
 def storage_D_tangent_of(value: Any):
     """``d S(value (+) v) / dv`` at 0 as a SymPy matrix (identity for vectors and scalars)."""
-    if isinstance(value, LieGroupBase):
+    if isinstance(value, _MANIFOLD_VALUES):
         return value.storage_D_tangent()
     return _s().sp.eye(len(storage_of(value)))
 
 
 def tangent_D_storage_of(value: Any):
-    if isinstance(value, LieGroupBase):
+    if isinstance(value, _MANIFOLD_VALUES):
         return value.tangent_D_storage()
     return _s().sp.eye(len(storage_of(value)))
 
 
 def tangent_dim_of(value: Any) -> int:
-    if isinstance(value, LieGroupBase):
+    if isinstance(value, _MANIFOLD_VALUES):
         return value.dim()
     return len(storage_of(value))

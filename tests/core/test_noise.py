@@ -5,7 +5,7 @@ import pytest
 
 from fgopt import noise
 from fgopt.errors import DimensionMismatchError, NonFiniteError, NotPositiveDefiniteError
-from fgopt.factors.robust import rho_and_weight
+from fgopt.noise.robust import rho_and_weight
 
 
 def test_constructors_agree():

@@ -120,3 +120,20 @@ def test_ladybug_counts_and_finite_cost(data_file):
     graph, values = read_bal(data_file("bal/problem-49-7776-pre.txt"))
     assert (len(values), len(graph)) == (49 + 7776, 31843)
     assert np.isfinite(graph.error(values))
+
+
+def test_w20000_edge2_covariances_read_as_gtsam_load2d(data_file, caplog):
+    """GTSAM's w20000.txt writes EDGE2 entries as covariances in g2o order (not TORO information:
+    read that way every matrix would be singular); fgopt reads them as GTSAM's load2D does, so
+    both libraries' costs agree at the same values, and says so in a warning."""
+    gtsam = pytest.importorskip("gtsam")
+    path = data_file("pose2d/w20000.txt")
+    with caplog.at_level(logging.WARNING, logger="fgopt.io"):
+        graph, values = read(path)
+    assert "covariances in g2o order" in caplog.text
+    g_graph, _ = gtsam.load2D(str(path))
+    g_values = gtsam.Values()
+    for k in values.keys():
+        s = values.at(k).to_storage()
+        g_values.insert(int(str(k)[1:]), gtsam.Pose2(s[2], s[3], np.arctan2(s[1], s[0])))
+    assert graph.error(values) == pytest.approx(g_graph.error(g_values), rel=1e-9)

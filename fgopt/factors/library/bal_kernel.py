@@ -24,7 +24,7 @@ import math
 from functools import lru_cache
 
 import numpy as np
-from numba import njit
+from ..._jit import njit
 
 from ...errors import DimensionMismatchError
 from ...manifolds.base import vector_kind
@@ -147,4 +147,4 @@ def bal_kernel() -> FactorKernel:
     return FactorKernel("bal_reprojection", (vector_kind(9), vector_kind(3)), 2, 2,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
-                        source=_SOURCE)
+                        source=_SOURCE, recipe=(bal_kernel, ()))

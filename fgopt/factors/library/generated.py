@@ -7,8 +7,8 @@ Residuals are GTSAM's, as in the hand-written :mod:`fgopt.factors.library.lie_ke
 
 with the full SE(n) logarithm (rotation first). :func:`generated_between_kernel` /
 :func:`generated_prior_kernel` return the :class:`~fgopt.factors.kernel.FactorKernel` for a
-batch kind (SO2, SE2, SO3, SE3, R^n for n <= 9, scalar), so they can replace the hand-written
-kernels one for one. The factor types themselves (``between_pose3(a=key, b=key, measured=SE3)``)
+batch kind (SO2, SE2, SO3, SE3, R^n for n <= 9, scalar, and declared manifolds: ``local(m, x)``,
+between only for declared groups), so they can replace the hand-written kernels one for one. The factor types themselves (``between_pose3(a=key, b=key, measured=SE3)``)
 are usable directly too.
 """
 
@@ -95,16 +95,54 @@ def vector_factor_types(n: int) -> tuple:
 
     between.__annotations__ = {"a": tp, "b": tp, "measured": tp}
     prior.__annotations__ = {"x": tp, "prior": tp}
-    return (factor(between, name=f"between_{name}"), factor(prior, name=f"prior_{name}"))
+    types = (factor(between, name=f"between_{name}"), factor(prior, name=f"prior_{name}"))
+    for i, t in enumerate(types):
+        t.recipe = (vector_factor_type, (n, i))  # made here, not importable by name
+    return types
+
+
+def vector_factor_type(n: int, which: int):
+    """``vector_factor_types(n)[which]`` (how those types pickle)."""
+    return vector_factor_types(n)[which]
 
 
 _LIE_TYPES = {"SO2": (between_rot2, prior_rot2), "SE2": (between_pose2, prior_pose2),
               "SO3": (between_rot3, prior_rot3), "SE3": (between_pose3, prior_pose3)}
 
 
+@cache
+def declared_factor_types(twin: type) -> tuple:
+    """``(between or None, prior)`` factor types of a declared manifold: ``prior(x; m) =
+    local(m, x)``; ``between(a, b; m) = local(m, a^-1 b)`` when it declares compose/inverse."""
+    tp = twin
+    ret = vector_type(tp.dim())
+    name = tp.__name__.lower()
+
+    def prior(x, prior):
+        return prior.local(x)
+
+    prior.__annotations__ = {"x": tp, "prior": tp, "return": ret}
+    between_type = None
+    if tp.is_group():
+        def between(a, b, measured):
+            return measured.local(a.between(b))
+
+        between.__annotations__ = {"a": tp, "b": tp, "measured": tp, "return": ret}
+        between_type = factor(between, name=f"between_{name}")
+    return (between_type, factor(prior, name=f"prior_{name}"))
+
+
 def _types_for(kind: BatchKind, which: str) -> tuple:
     from ... import manifolds as M
+    from ...manifolds.declared import declared_type
 
+    declared = declared_type(kind)
+    if declared is not None:
+        types = declared_factor_types(declared.symbolic_type())
+        if which == "between" and types[0] is None:
+            raise ManifoldError(f"no between factor for {kind.name}: it declares no compose() "
+                                "and inverse(); write an @fgopt.factor with its own residual")
+        return types
     for twin, types in _LIE_TYPES.items():
         if kind is getattr(M, twin).batch_kind():
             return types

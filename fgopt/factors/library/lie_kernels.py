@@ -23,7 +23,7 @@ from __future__ import annotations
 from functools import cache
 
 import numpy as np
-from numba import njit
+from ..._jit import njit
 
 from ...errors import DimensionMismatchError, ManifoldError
 from ...manifolds._kernels import (
@@ -172,7 +172,7 @@ def between_kernel(kind: BatchKind) -> FactorKernel:
     return FactorKernel(name, (kind, kind), kind.dim, kind.storage_dim,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
-                        source=_SOURCE)
+                        source=_SOURCE, recipe=(between_kernel, (kind,)))
 
 
 @cache
@@ -193,4 +193,4 @@ def prior_kernel(kind: BatchKind) -> FactorKernel:
     return FactorKernel(name, (kind,), kind.dim, kind.storage_dim,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
-                        source=_SOURCE)
+                        source=_SOURCE, recipe=(prior_kernel, (kind,)))

@@ -22,13 +22,13 @@ from functools import lru_cache
 from typing import Any
 
 import numpy as np
-from numba import njit
+from ..._jit import njit
 
 from ...errors import DimensionMismatchError
 from ...manifolds.base import vector_kind
 from ..base import KernelFactor
 from ..kernel import FactorKernel
-from ..noise import Loss
+from ...noise.models import Loss
 
 _SOURCE = "hand-written in fgopt/factors/library/pose_point.py"
 
@@ -142,7 +142,7 @@ def pose_point_kernel(dim: int) -> FactorKernel:
     return FactorKernel(name, (pose_kind, vector_kind(dim)), dim, dim,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
-                        source=_SOURCE)
+                        source=_SOURCE, recipe=(pose_point_kernel, (dim,)))
 
 
 class PosePointFactor(KernelFactor):

@@ -4,8 +4,9 @@ Residuals follow GTSAM: prior ``e = Log(m^-1 x)``, between ``e = Log(m^-1 (a^-1 
 ``e = x - m`` and ``e = (b - a) - m``. Kernels come from the symbolic pipeline
 (:mod:`fgopt.factors.library.generated`: SO2, SE2, SO3, SE3, R^1..R^9); Sim3 and longer vectors
 use the hand-written kernels of :mod:`fgopt.factors.library.lie_kernels` (same residuals, tested
-equal). Other manifolds (duck-typed classes) get a prior ``e = local(m, x)`` with numerical
-Jacobians.
+equal). Declared manifolds (``@fgopt.manifold``) get a generated prior ``e = local(m, x)`` and,
+when they declare ``compose`` / ``inverse``, a between ``e = local(m, a^-1 b)``. Other manifolds
+(duck-typed classes) get a prior ``e = local(m, x)`` with numerical Jacobians.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import numpy as np
 from ...errors import ManifoldError
 from ...manifolds.base import ops_for
 from ..base import KernelFactor
-from ..noise import Loss
+from ...noise.models import Loss
 from ..numerical import numerical_jacobians
 
 
@@ -49,6 +50,10 @@ def _builtin_kernel(kind, which: str):
             generated.generated_prior_kernel
         return make(kind)
     except ManifoldError:  # no symbolic twin (Sim3, R^n with n > 9)
+        from ...manifolds.declared import declared_type
+
+        if declared_type(kind) is not None:
+            raise
         make = lie_kernels.between_kernel if which == "between" else lie_kernels.prior_kernel
         return make(kind)
 

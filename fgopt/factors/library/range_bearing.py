@@ -19,7 +19,8 @@ robot (where range and bearing are genuinely undefined).
 
 from __future__ import annotations
 
-from ...symbolic import V1, V2, V3, Pose2, Pose3, Rot2, Scalar, factor
+from ...symbolic import V1, V2, V3, Pose2, Pose3, Rot2, Scalar
+from ..decorator import factor
 
 
 def _bearing_error(d, measured):

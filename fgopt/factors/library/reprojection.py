@@ -11,7 +11,8 @@ Residuals are unwhitened pixels (the noise model / robust loss is the instance's
 
 from __future__ import annotations
 
-from ...symbolic import V2, V3, V4, V9, PinholeCamera, Pose3, SnavelyCamera, factor
+from ...symbolic import V2, V3, V4, V9, PinholeCamera, Pose3, SnavelyCamera
+from ..decorator import factor
 
 
 @factor

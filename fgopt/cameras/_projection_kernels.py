@@ -1,0 +1,298 @@
+"""numba kernels of monocular and stereo projection, with tangent-space Jacobians.
+
+A camera pose is ``world_T_camera`` stored as SE(3) ``[qx, qy, qz, qw, tx, ty, tz]``; the camera
+looks along its +z axis (x right, y down: GTSAM's convention). A world point ``X`` is seen at
+``p = R^T (X - t)`` and projects to the intrinsic point ``(p_x / p_z, p_y / p_z)``, then through
+the calibration (:mod:`fgopt.cameras._calib_kernels`).
+
+Jacobians, for the pose's right perturbation ``world_T_camera * Exp([w, v])`` (fgopt's SE3
+retract; rotation first) and ``X + dX``: to first order ``p -> Exp(w)^T (p - v) = p + p x w - v``,
+so ``p_D_w = hat(p)``, ``p_D_v = -I``, ``p_D_X = R^T``; then
+``xy_D_p = [[1/z, 0, -x/z], [0, 1/z, -y/z]] / 1`` (with ``x, y`` already divided by ``z``) and
+``uv_D_p = uv_D_xy xy_D_p``. Calibration columns are the model's ``uv_D_k``.
+
+Cheirality: where ``p_z <= 0`` (with ``reject``) or the lens model is undefined, the status is
+non-zero and the factor kernels write NaN residuals, so a trial step that moves a point behind a
+camera is rejected by the optimizer and a bad initial estimate is reported by name. With
+``reject=False`` (the BAL convention) only ``p_z == 0`` is undefined.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from .._jit import njit
+
+from . import _calib_kernels as CK
+
+OK, BEHIND, INVALID_MODEL = 0, 1, 2
+
+
+@njit(cache=True)
+def quat_to_rotation(q, R):
+    """Rotation matrix of the unit quaternion ``q = (x, y, z, w)``."""
+    x, y, z, w = q[0], q[1], q[2], q[3]
+    R[0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    R[0, 1] = 2.0 * (x * y - z * w)
+    R[0, 2] = 2.0 * (x * z + y * w)
+    R[1, 0] = 2.0 * (x * y + z * w)
+    R[1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    R[1, 2] = 2.0 * (y * z - x * w)
+    R[2, 0] = 2.0 * (x * z - y * w)
+    R[2, 1] = 2.0 * (y * z + x * w)
+    R[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+
+
+@njit(cache=True)
+def to_camera(R, t, X, p):
+    """``p = R^T (X - t)``."""
+    d0, d1, d2 = X[0] - t[0], X[1] - t[1], X[2] - t[2]
+    for r in range(3):
+        p[r] = R[0, r] * d0 + R[1, r] * d1 + R[2, r] * d2
+
+
+@njit(cache=True)
+def _chain(A, p, R, J, col_pose, col_point, rows):
+    """``J[:, pose] = [A hat(p), -A]`` and ``J[:, point] = A R^T`` for ``A = uv_D_p`` (rows x 3)."""
+    for r in range(rows):
+        a0, a1, a2 = A[r, 0], A[r, 1], A[r, 2]
+        if col_pose >= 0:
+            J[r, col_pose + 0] = a1 * p[2] - a2 * p[1]
+            J[r, col_pose + 1] = -a0 * p[2] + a2 * p[0]
+            J[r, col_pose + 2] = a0 * p[1] - a1 * p[0]
+            J[r, col_pose + 3] = -a0
+            J[r, col_pose + 4] = -a1
+            J[r, col_pose + 5] = -a2
+        if col_point >= 0:
+            for c in range(3):
+                J[r, col_point + c] = a0 * R[c, 0] + a1 * R[c, 1] + a2 * R[c, 2]
+
+
+@njit(cache=True)
+def project_core(model, R, t, k, X, reject, with_jac, uv, p, Dk, Dp, A):
+    """Pixel ``uv`` of world point ``X``; fills ``p`` (camera frame), and with ``with_jac`` the
+    model's ``Dk``, ``Dp`` and ``A = uv_D_p`` (2 x 3). Returns a status code."""
+    to_camera(R, t, X, p)
+    z = p[2]
+    if (reject and not z > 0.0) or z == 0.0:
+        return BEHIND
+    iz = 1.0 / z
+    x, y = p[0] * iz, p[1] * iz
+    if not CK.uncalibrate(model, k, x, y, uv, Dk, Dp, with_jac):
+        return INVALID_MODEL
+    if with_jac:
+        for r in range(2):
+            A[r, 0] = Dp[r, 0] * iz
+            A[r, 1] = Dp[r, 1] * iz
+            A[r, 2] = -(Dp[r, 0] * x + Dp[r, 1] * y) * iz
+    return OK
+
+
+@njit(cache=True, nogil=True)  # threads=N runs chunks in parallel
+def projection_batch(model, pose, point, cal, m, reject, cal_var, with_jac):
+    """Reprojection errors ``uv(pose_i, point_i, cal_i) - m_i``.
+
+    ``pose (n, 7)``, ``point (n, 3)``, ``cal (n, s)``, ``m (n, 2)`` -> res ``(n, 2)`` and jac
+    ``(n, 2, 9 [+ dim])``: columns pose ``[w, v]``, point, then the calibration's tangent when
+    ``cal_var``. Undefined projections give NaN residuals (see the module docstring).
+    """
+    n = pose.shape[0]
+    d = CK.tangent_dim(model)
+    ncol = 9 + (d if cal_var else 0)
+    res = np.empty((n, 2))
+    jac = np.zeros((n if with_jac else 0, 2, ncol))
+    R = np.empty((3, 3))
+    uv = np.empty(2)
+    p = np.empty(3)
+    Dk = np.zeros((2, CK.MAX_TANGENT_DIM))
+    Dp = np.empty((2, 2))
+    A = np.empty((2, 3))
+    for i in range(n):
+        quat_to_rotation(pose[i, :4], R)
+        st = project_core(model, R, pose[i, 4:7], cal[i], point[i], reject, with_jac, uv, p, Dk,
+                          Dp, A)
+        if st != OK:
+            res[i, 0] = np.nan
+            res[i, 1] = np.nan
+            continue
+        res[i, 0] = uv[0] - m[i, 0]
+        res[i, 1] = uv[1] - m[i, 1]
+        if with_jac:
+            J = jac[i]
+            _chain(A, p, R, J, 0, 6, 2)
+            if cal_var:
+                for r in range(2):
+                    for c in range(d):
+                        J[r, 9 + c] = Dk[r, c]
+    return res, jac
+
+
+@njit(cache=True)
+def project_points(model, R, t, k, X, reject, with_jac):
+    """One camera, many points ``X (n, 3)``: ``uv (n, 2)``, ``uv_D_pose (n, 2, 6)``,
+    ``uv_D_point (n, 2, 3)``, ``uv_D_k (n, 2, dim)``, ``status (n,)``."""
+    n = X.shape[0]
+    d = CK.tangent_dim(model)
+    m = n if with_jac else 0
+    uv = np.empty((n, 2))
+    Jpose = np.zeros((m, 2, 6))
+    Jpoint = np.zeros((m, 2, 3))
+    Jk = np.zeros((m, 2, d))
+    status = np.empty(n, dtype=np.int64)
+    p = np.empty(3)
+    Dk = np.zeros((2, CK.MAX_TANGENT_DIM))
+    Dp = np.empty((2, 2))
+    A = np.empty((2, 3))
+    J = np.empty((2, 9))
+    for i in range(n):
+        st = project_core(model, R, t, k, X[i], reject, with_jac, uv[i], p, Dk, Dp, A)
+        status[i] = st
+        if st != OK:
+            uv[i, 0] = np.nan
+            uv[i, 1] = np.nan
+            continue
+        if with_jac:
+            _chain(A, p, R, J, 0, 6, 2)
+            for r in range(2):
+                for c in range(6):
+                    Jpose[i, r, c] = J[r, c]
+                for c in range(3):
+                    Jpoint[i, r, c] = J[r, 6 + c]
+                for c in range(d):
+                    Jk[i, r, c] = Dk[r, c]
+    return uv, Jpose, Jpoint, Jk, status
+
+
+@njit(cache=True)
+def stereo_core(R, t, k, X, reject, with_jac, out, p, A, Jk):
+    """``out = (uL, uR, v)`` of world point ``X`` for ``Cal3_S2Stereo`` ``k``; ``A = out_D_p``
+    (3 x 3) and ``Jk = out_D_k`` (3 x 6) with ``with_jac``. Skew is ignored, as in GTSAM's
+    ``StereoCamera``. Returns a status code."""
+    to_camera(R, t, X, p)
+    z = p[2]
+    if (reject and not z > 0.0) or z == 0.0:
+        return BEHIND
+    fx, fy, u0, v0, b = k[0], k[1], k[3], k[4], k[5]
+    iz = 1.0 / z
+    x, y = p[0], p[1]
+    out[0] = u0 + fx * x * iz
+    out[1] = u0 + fx * (x - b) * iz
+    out[2] = v0 + fy * y * iz
+    if with_jac:
+        iz2 = iz * iz
+        A[0, 0], A[0, 1], A[0, 2] = fx * iz, 0.0, -fx * x * iz2
+        A[1, 0], A[1, 1], A[1, 2] = fx * iz, 0.0, -fx * (x - b) * iz2
+        A[2, 0], A[2, 1], A[2, 2] = 0.0, fy * iz, -fy * y * iz2
+        for r in range(3):
+            for c in range(6):
+                Jk[r, c] = 0.0
+        Jk[0, 0], Jk[0, 3] = x * iz, 1.0
+        Jk[1, 0], Jk[1, 3], Jk[1, 5] = (x - b) * iz, 1.0, -fx * iz
+        Jk[2, 1], Jk[2, 4] = y * iz, 1.0
+    return OK
+
+
+@njit(cache=True, nogil=True)  # threads=N runs chunks in parallel
+def stereo_batch(pose, point, cal, m, reject, cal_var, with_jac):
+    """Stereo errors ``(uL, uR, v)(pose_i, point_i, cal_i) - m_i``: res ``(n, 3)``, jac
+    ``(n, 3, 9 [+ 6])`` (pose, point, then the calibration when ``cal_var``)."""
+    n = pose.shape[0]
+    ncol = 15 if cal_var else 9
+    res = np.empty((n, 3))
+    jac = np.zeros((n if with_jac else 0, 3, ncol))
+    R = np.empty((3, 3))
+    out = np.empty(3)
+    p = np.empty(3)
+    A = np.empty((3, 3))
+    Jk = np.empty((3, 6))
+    for i in range(n):
+        quat_to_rotation(pose[i, :4], R)
+        st = stereo_core(R, pose[i, 4:7], cal[i], point[i], reject, with_jac, out, p, A, Jk)
+        if st != OK:
+            for r in range(3):
+                res[i, r] = np.nan
+            continue
+        for r in range(3):
+            res[i, r] = out[r] - m[i, r]
+        if with_jac:
+            J = jac[i]
+            _chain(A, p, R, J, 0, 6, 3)
+            if cal_var:
+                for r in range(3):
+                    for c in range(6):
+                        J[r, 9 + c] = Jk[r, c]
+    return res, jac
+
+
+@njit(cache=True)
+def stereo_points(R, t, k, X, reject, with_jac):
+    """One stereo camera, many points: ``out (n, 3)``, ``out_D_pose (n, 3, 6)``,
+    ``out_D_point (n, 3, 3)``, ``out_D_k (n, 3, 6)``, ``status (n,)``."""
+    n = X.shape[0]
+    m = n if with_jac else 0
+    out = np.empty((n, 3))
+    Jpose = np.zeros((m, 3, 6))
+    Jpoint = np.zeros((m, 3, 3))
+    Jk6 = np.zeros((m, 3, 6))
+    status = np.empty(n, dtype=np.int64)
+    p = np.empty(3)
+    A = np.empty((3, 3))
+    Jk = np.empty((3, 6))
+    J = np.empty((3, 9))
+    for i in range(n):
+        st = stereo_core(R, t, k, X[i], reject, with_jac, out[i], p, A, Jk)
+        status[i] = st
+        if st != OK:
+            for r in range(3):
+                out[i, r] = np.nan
+            continue
+        if with_jac:
+            _chain(A, p, R, J, 0, 6, 3)
+            for r in range(3):
+                for c in range(6):
+                    Jpose[i, r, c] = J[r, c]
+                    Jk6[i, r, c] = Jk[r, c]
+                for c in range(3):
+                    Jpoint[i, r, c] = J[r, 6 + c]
+    return out, Jpose, Jpoint, Jk6, status
+
+
+@njit(cache=True)
+def rotation_of_storage(pose):
+    R = np.empty((3, 3))
+    quat_to_rotation(pose[:4], R)
+    return R
+
+
+
+@njit(cache=True, nogil=True)  # threads=N runs chunks in parallel
+def camera_projection_batch(model, cam, point, m, reject, with_jac):
+    """Reprojection errors with one camera variable per observation: ``cam (n, 7 + s)`` =
+    pose storage then calibration storage (GTSAM's ``PinholeCamera<Cal>`` manifold) -> res
+    ``(n, 2)``, jac ``(n, 2, 6 + dim + 3)``: columns pose ``[w, v]``, calibration, point."""
+    n = cam.shape[0]
+    d = CK.tangent_dim(model)
+    res = np.empty((n, 2))
+    jac = np.zeros((n if with_jac else 0, 2, 9 + d))
+    R = np.empty((3, 3))
+    uv = np.empty(2)
+    p = np.empty(3)
+    Dk = np.zeros((2, CK.MAX_TANGENT_DIM))
+    Dp = np.empty((2, 2))
+    A = np.empty((2, 3))
+    for i in range(n):
+        quat_to_rotation(cam[i, :4], R)
+        st = project_core(model, R, cam[i, 4:7], cam[i, 7:], point[i], reject, with_jac, uv, p,
+                          Dk, Dp, A)
+        if st != OK:
+            res[i, 0] = np.nan
+            res[i, 1] = np.nan
+            continue
+        res[i, 0] = uv[0] - m[i, 0]
+        res[i, 1] = uv[1] - m[i, 1]
+        if with_jac:
+            J = jac[i]
+            _chain(A, p, R, J, 0, 6 + d, 2)
+            for r in range(2):
+                for c in range(d):
+                    J[r, 6 + c] = Dk[r, c]
+    return res, jac

@@ -1,0 +1,189 @@
+"""numba kernel of the smart projection factor: triangulate, then eliminate the landmark.
+
+For a track seen by ``m`` poses, with the landmark ``X`` triangulated from the current poses
+(DLT, optionally refined), the whitened reprojection errors and Jacobians are stacked as
+``b (2m)``, ``F = blockdiag(F_i) (2m x 6m)`` (poses) and ``E (2m x 3)`` (landmark). Eliminating
+the landmark from ``|F dx + E dX + b|^2`` leaves ``|Q (F dx + b)|^2`` with the projector
+``Q = I - E (E^T E)^-1 E^T`` (the Schur complement of GTSAM's smart factors). With the
+Householder QR ``E = U [R; 0]``, ``U = [U1 (2m x 3), U2 (2m x (2m - 3))]`` orthogonal, the
+factor returns
+
+    r = U^T b,    J = U^T F with its first three rows zeroed,
+
+so ``0.5 |r|^2 = 0.5 |b|^2`` is the factor's error at the triangulated point (GTSAM's
+``totalReprojectionError``), ``J^T J = F^T Q F`` and ``J^T r = F^T Q b`` (GTSAM's Hessian
+factor). The core's Gauss-Newton / LM machinery then sees an ordinary residual and Jacobian.
+
+Degenerate tracks (DLT rank < 3, the point behind a view, ``E`` rank-deficient) give NaN (the
+step is rejected; at the initial estimate the optimizer names the factor) or, with
+``zero_on_degenerate``, a zero residual and Jacobian (GTSAM's ``ZERO_ON_DEGENERACY``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from .._jit import njit
+
+from . import _calib_kernels as CK
+from . import _projection_kernels as PK
+from . import _triangulation_kernels as TK
+
+
+@njit(cache=True)
+def unpack(pose_rows, Rs, ts):
+    for j in range(pose_rows.shape[0]):
+        PK.quat_to_rotation(pose_rows[j, :4], Rs[j])
+        ts[j, 0], ts[j, 1], ts[j, 2] = pose_rows[j, 4], pose_rows[j, 5], pose_rows[j, 6]
+
+
+@njit(cache=True)
+def triangulate_track(model, Rs, ts, ks, z, rank_tol, refine, X):
+    """DLT (+ refinement) of one track into ``X``; True when non-degenerate and in front."""
+    rank = TK.dlt(model, Rs, ts, ks, z, rank_tol, X)
+    if rank < 3 or TK.in_front(Rs, ts, X) >= 0:
+        return False
+    if refine:
+        TK.refine(model, Rs, ts, ks, z, X, 50)
+        if TK.in_front(Rs, ts, X) >= 0:
+            return False
+    return True
+
+
+@njit(cache=True)
+def _householder_eliminate(E, b, F, m, Fd):
+    """Apply ``Q^T`` of the Householder QR of ``E (2m x 3)`` to ``b`` (in place) and to the
+    block-diagonal ``F`` (rows ``2j, 2j+1`` of view ``j`` in ``F[:, :6]``), written densely into
+    ``Fd (2m x 6m)``. Rows 3.. of the results span ``E``'s left null space. Returns False when
+    ``E`` is rank-deficient (``|R_kk| <= 1e-12 |R_00|``)."""
+    r2 = 2 * m
+    for r in range(r2):
+        for col in range(6 * m):
+            Fd[r, col] = 0.0
+    for j in range(m):
+        for col in range(6):
+            Fd[2 * j, 6 * j + col] = F[2 * j, col]
+            Fd[2 * j + 1, 6 * j + col] = F[2 * j + 1, col]
+    r00 = 0.0
+    v = np.empty(r2)
+    for k in range(3):
+        norm = 0.0
+        for r in range(k, r2):
+            norm += E[r, k] * E[r, k]
+        norm = np.sqrt(norm)
+        if k == 0:
+            r00 = norm
+        if not norm > 1e-12 * r00 or norm == 0.0:
+            return False
+        alpha = -norm if E[k, k] >= 0.0 else norm
+        # v = E[k:, k] - alpha e_k, H = I - 2 v v^T / |v|^2 maps E[k:, k] to alpha e_k
+        vnorm2 = 0.0
+        for r in range(k, r2):
+            v[r] = E[r, k]
+        v[k] -= alpha
+        for r in range(k, r2):
+            vnorm2 += v[r] * v[r]
+        if vnorm2 == 0.0:
+            continue
+        scale = 2.0 / vnorm2
+        for c in range(k, 3):
+            dot = 0.0
+            for r in range(k, r2):
+                dot += v[r] * E[r, c]
+            dot *= scale
+            for r in range(k, r2):
+                E[r, c] -= dot * v[r]
+        dot = 0.0
+        for r in range(k, r2):
+            dot += v[r] * b[r]
+        dot *= scale
+        for r in range(k, r2):
+            b[r] -= dot * v[r]
+        for c in range(6 * m):
+            dot = 0.0
+            for r in range(k, r2):
+                dot += v[r] * Fd[r, c]
+            dot *= scale
+            if dot != 0.0:
+                for r in range(k, r2):
+                    Fd[r, c] -= dot * v[r]
+    return True
+
+
+@njit(cache=True, nogil=True)  # threads=N runs chunks in parallel
+def smart_batch(model, P, consts, m, s, refine, zero_on_degenerate, with_jac):
+    """``P (n, m, 7)`` pose storages, ``consts (n, 2m + s + 5)`` = pixels, calibration,
+    the 2x2 square-root information (row major), rank tolerance -> res ``(n, 2m)``,
+    jac ``(n, 2m, 6m)``."""
+    n = P.shape[0]
+    r2 = 2 * m
+    res = np.zeros((n, r2))
+    jac = np.zeros((n if with_jac else 0, r2, 6 * m))
+    Rs = np.empty((m, 3, 3))
+    ts = np.empty((m, 3))
+    ks = np.empty((m, s))
+    z = np.empty((m, 2))
+    X = np.empty(3)
+    uv = np.empty(2)
+    p = np.empty(3)
+    Dk = np.empty((2, CK.MAX_TANGENT_DIM))
+    Dp = np.empty((2, 2))
+    A = np.empty((2, 3))
+    J9 = np.empty((2, 9))
+    b = np.empty(r2)
+    E = np.empty((r2, 3))
+    F = np.empty((r2, 6))
+    Fd = np.empty((r2, 6 * m))
+    for i in range(n):
+        c = consts[i]
+        unpack(P[i], Rs, ts)
+        for j in range(m):
+            z[j, 0], z[j, 1] = c[2 * j], c[2 * j + 1]
+            for q in range(s):
+                ks[j, q] = c[r2 + q]
+        w00, w01, w10, w11 = c[r2 + s], c[r2 + s + 1], c[r2 + s + 2], c[r2 + s + 3]
+        rank_tol = c[r2 + s + 4]
+        ok = triangulate_track(model, Rs, ts, ks, z, rank_tol, refine, X)
+        if ok:
+            for j in range(m):
+                if PK.project_core(model, Rs[j], ts[j], ks[j], X, True, True, uv, p, Dk, Dp,
+                                   A) != PK.OK:
+                    ok = False
+                    break
+                PK._chain(A, p, Rs[j], J9, 0, 6, 2)
+                e0, e1 = uv[0] - z[j, 0], uv[1] - z[j, 1]
+                b[2 * j] = w00 * e0 + w01 * e1
+                b[2 * j + 1] = w10 * e0 + w11 * e1
+                for col in range(6):
+                    F[2 * j, col] = w00 * J9[0, col] + w01 * J9[1, col]
+                    F[2 * j + 1, col] = w10 * J9[0, col] + w11 * J9[1, col]
+                for col in range(3):
+                    E[2 * j, col] = w00 * J9[0, 6 + col] + w01 * J9[1, 6 + col]
+                    E[2 * j + 1, col] = w10 * J9[0, 6 + col] + w11 * J9[1, 6 + col]
+        if not ok or not _householder_eliminate(E, b, F, m, Fd):
+            if not zero_on_degenerate:
+                for r in range(r2):
+                    res[i, r] = np.nan
+            continue
+        for r in range(r2):
+            res[i, r] = b[r]
+        if with_jac:
+            Ji = jac[i]
+            for r in range(3, r2):
+                for col in range(6 * m):
+                    Ji[r, col] = Fd[r, col]
+    return res, jac
+
+
+@njit(cache=True)
+def smart_point(model, pose_rows, k, z, rank_tol, refine):
+    """The landmark of one track (``pose_rows (m, 7)``, ``z (m, 2)``): ``(X, ok)``."""
+    m = pose_rows.shape[0]
+    Rs = np.empty((m, 3, 3))
+    ts = np.empty((m, 3))
+    unpack(pose_rows, Rs, ts)
+    ks = np.empty((m, k.shape[0]))
+    for j in range(m):
+        ks[j] = k
+    X = np.empty(3)
+    ok = triangulate_track(model, Rs, ts, ks, z, rank_tol, refine, X)
+    return X, ok

@@ -1,0 +1,271 @@
+"""Projection and stereo factors, batched by hand-written numba kernels.
+
+* ``ProjectionFactor(pose, point, measured, noise, calibration)``: ``e = uv - measured`` with
+  ``uv = PinholeCamera(pose, K).project(point)`` (GTSAM's ``GenericProjectionFactor`` when the
+  calibration is a constant, ``GeneralSFMFactor2`` when it is a key: self-calibration, then
+  ``model=`` names the calibration class). Every calibration model of :mod:`.calibration`.
+* ``GeneralSFMFactor(camera, point, measured, noise, model=...)``: the same residual with one
+  :class:`~fgopt.cameras.PinholeCamera` variable holding pose and calibration (GTSAM's
+  ``GeneralSFMFactor``; the form BAL / Bundler problems are solved in).
+* ``StereoFactor(pose, point, measured, noise, calibration)``: ``e = (uL, uR, v) - measured``
+  with a ``Cal3_S2Stereo`` (GTSAM's ``GenericStereoFactor<Pose3, Point3>``).
+
+Kernels: one :class:`~fgopt.factors.kernel.FactorKernel` per (model, calibration constant or
+variable, cheirality policy), cached, so all such factors in a graph are linearized by one numba
+call (:mod:`fgopt.cameras._projection_kernels`). Jacobian columns: pose ``[w, v]`` (right
+perturbation), point, then the calibration's tangent.
+
+Cheirality policy (``cheirality=``):
+
+* ``"reject"`` (default): a point at or behind the camera (``p_z <= 0``), or outside a lens
+  model's valid region, makes the residual NaN. Inside the optimizer a trial step that does this
+  is rejected like any non-finite step (LM raises its damping and tries a shorter step); at the
+  initial estimate ``optimize`` raises :class:`~fgopt.errors.NonFiniteError` naming the factor
+  (and ``graph.error`` is NaN). Never a silent stand-in residual (GTSAM returns ``2 fx`` with
+  zero Jacobians, unless ``throwCheirality``).
+* ``"allow"``: project points behind the camera with the same formula (the BAL / Ceres
+  convention: their cost counts such observations); only ``p_z = 0`` is undefined. The BAL and
+  Bundler readers use it so the Pose3 form reaches the 9-vector form's cost.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import Any
+
+import numpy as np
+
+from ..errors import DimensionMismatchError, FgoptError, NonFiniteError
+from ..factors import FactorKernel, KernelFactor
+from ..key import as_key, key_str
+from ..manifolds import SE3
+from ..manifolds.base import vector_kind
+from . import _projection_kernels as PK
+from .calibration import Cal3_S2Stereo, Calibration
+
+CHEIRALITY = ("reject", "allow")
+_SOURCE = "hand-written in fgopt/cameras/_projection_kernels.py"
+_HINT = ("a point is at or behind its camera (cheirality) or outside the lens model's valid "
+         "region; fix the initial estimate, or use cheirality='allow'")
+
+
+def _check_cheirality(cheirality: str) -> bool:
+    if cheirality not in CHEIRALITY:
+        raise FgoptError(f"cheirality must be one of {CHEIRALITY}, got {cheirality!r}")
+    return cheirality == "reject"
+
+
+def _contiguous(name: str, arrays: tuple, consts: np.ndarray, widths: tuple) -> list:
+    if len(arrays) != len(widths) - 1:
+        raise DimensionMismatchError(f"{name}: expected {len(widths) - 1} argument arrays, "
+                                     f"got {len(arrays)}")
+    out = [np.ascontiguousarray(a, dtype=np.float64) for a in arrays]
+    out.append(np.ascontiguousarray(consts, dtype=np.float64))
+    n = out[0].shape[0] if out[0].ndim == 2 else -1
+    for a, w in zip(out, widths):
+        if a.shape != (n, w):
+            raise DimensionMismatchError(
+                f"{name}: expected arrays of widths {widths} and {n} rows, got "
+                f"{[x.shape for x in out]}")
+    return out
+
+
+@lru_cache(maxsize=None)
+def projection_kernel(model: type[Calibration], calibration_variable: bool = False,
+                      cheirality: str = "reject") -> FactorKernel:
+    """Kernel of ``uv(pose, point, K) - m``: args ``(SE3, R^3[, model])``, constants
+    ``m (2)`` then, for a constant calibration, its storage."""
+    reject = _check_cheirality(cheirality)
+    mid, s = model.MODEL, len(model.PARAMS)
+    var = bool(calibration_variable)
+    name = (f"projection_{model.__name__.lower()}{'_selfcal' if var else ''}"
+            f"{'' if reject else '_allow_behind'}")
+    kinds = (SE3.batch_kind(), vector_kind(3)) + ((model.batch_kind(),) if var else ())
+    widths = (7, 3, s, 2) if var else (7, 3, 2 + s)
+
+    def run(args, consts, with_jac):
+        arrs = _contiguous(name, args, consts, widths)
+        if var:
+            pose, point, cal, m = arrs
+        else:
+            pose, point, c = arrs
+            m, cal = np.ascontiguousarray(c[:, :2]), np.ascontiguousarray(c[:, 2:])
+        return PK.projection_batch(mid, pose, point, cal, m, reject, var, with_jac)
+
+    return FactorKernel(name, kinds, 2, 2 if var else 2 + s,
+                        residual=lambda args, consts: run(args, consts, False)[0],
+                        linearize=lambda args, consts: run(args, consts, True),
+                        source=_SOURCE, nonfinite_hint=_HINT,
+                        recipe=(projection_kernel, (model, var, cheirality)))
+
+
+@lru_cache(maxsize=None)
+def camera_projection_kernel(model: type[Calibration], cheirality: str = "reject") -> FactorKernel:
+    """Kernel of ``uv(camera, point) - m`` with a :class:`~fgopt.cameras.PinholeCamera`
+    variable (pose and calibration in one): args ``(PinholeCamera[model], R^3)``, constants
+    ``m (2)``. Jacobian columns: pose ``[w, v]``, calibration, point."""
+    from .camera import PinholeCamera
+
+    reject = _check_cheirality(cheirality)
+    mid, s = model.MODEL, len(model.PARAMS)
+    name = f"camera_projection_{model.__name__.lower()}{'' if reject else '_allow_behind'}"
+    kinds = (PinholeCamera.batch_kind_of(model), vector_kind(3))
+    widths = (7 + s, 3, 2)
+
+    def run(args, consts, with_jac):
+        cam, point, m = _contiguous(name, args, consts, widths)
+        return PK.camera_projection_batch(mid, cam, point, m, reject, with_jac)
+
+    return FactorKernel(name, kinds, 2, 2,
+                        residual=lambda args, consts: run(args, consts, False)[0],
+                        linearize=lambda args, consts: run(args, consts, True),
+                        source=_SOURCE, nonfinite_hint=_HINT,
+                        recipe=(camera_projection_kernel, (model, cheirality)))
+
+
+@lru_cache(maxsize=None)
+def stereo_kernel(calibration_variable: bool = False, cheirality: str = "reject") -> FactorKernel:
+    """Kernel of ``(uL, uR, v)(pose, point, K) - m``: args ``(SE3, R^3[, Cal3_S2Stereo])``,
+    constants ``m (3)`` then, for a constant calibration, its 6 numbers."""
+    reject = _check_cheirality(cheirality)
+    var = bool(calibration_variable)
+    name = f"stereo{'_selfcal' if var else ''}{'' if reject else '_allow_behind'}"
+    kinds = (SE3.batch_kind(), vector_kind(3)) + ((Cal3_S2Stereo.batch_kind(),) if var else ())
+    widths = (7, 3, 6, 3) if var else (7, 3, 9)
+
+    def run(args, consts, with_jac):
+        arrs = _contiguous(name, args, consts, widths)
+        if var:
+            pose, point, cal, m = arrs
+        else:
+            pose, point, c = arrs
+            m, cal = np.ascontiguousarray(c[:, :3]), np.ascontiguousarray(c[:, 3:])
+        return PK.stereo_batch(pose, point, cal, m, reject, var, with_jac)
+
+    return FactorKernel(name, kinds, 3, 3 if var else 9,
+                        residual=lambda args, consts: run(args, consts, False)[0],
+                        linearize=lambda args, consts: run(args, consts, True),
+                        source=_SOURCE, nonfinite_hint=_HINT,
+                        recipe=(stereo_kernel, (var, cheirality)))
+
+
+def _is_key(x: Any) -> bool:
+    return isinstance(x, (int, np.integer)) and not isinstance(x, bool)
+
+
+def _measurement(values: Any, n: int, what: str, where: str) -> np.ndarray:
+    m = np.asarray(values, dtype=float).reshape(-1)
+    if m.shape[0] != n:
+        raise DimensionMismatchError(f"{where}: {what} needs {n} numbers, got {m.shape[0]}")
+    if not np.all(np.isfinite(m)):
+        raise NonFiniteError(f"{where}: {what} has a NaN or inf: {m}")
+    return m
+
+
+def _calibration_args(calibration: Any, model: Any, where: str, base: type[Calibration]):
+    """``(model class, constant calibration or None, calibration key or None)``."""
+    if isinstance(calibration, Calibration):
+        if not isinstance(calibration, base):
+            raise FgoptError(f"{where}: calibration must be a {base.__name__}, got "
+                             f"{type(calibration).__name__}")
+        if model is not None and model is not type(calibration):
+            raise FgoptError(f"{where}: model={model.__name__} but the calibration is a "
+                             f"{type(calibration).__name__}")
+        return type(calibration), calibration, None
+    if _is_key(calibration):
+        if model is None:
+            if base is Cal3_S2Stereo:
+                model = Cal3_S2Stereo
+            else:
+                raise FgoptError(f"{where}: the calibration is a key "
+                                 f"({key_str(as_key(calibration))}); pass model=<its class> "
+                                 "(Cal3_S2, Cal3Bundler, ...)")
+        if not (isinstance(model, type) and issubclass(model, base)):
+            raise FgoptError(f"{where}: model must be a {base.__name__} class, got {model!r}")
+        return model, None, as_key(calibration)
+    raise FgoptError(f"{where}: calibration must be a {base.__name__} (constant) or a key "
+                     f"(variable), got {type(calibration).__name__}")
+
+
+def _where(name: str, *keys: Any) -> str:
+    try:
+        return f"{name}({', '.join(key_str(as_key(k)) for k in keys)})"
+    except FgoptError:
+        return f"{name}({', '.join(map(repr, keys))})"
+
+
+class ProjectionFactor(KernelFactor):
+    """``ProjectionFactor(pose, point, measured, noise, calibration)``: a pixel ``measured`` of
+    world point ``point`` seen by the camera at ``pose`` (``world_T_camera``, z forward).
+
+    Args:
+        pose, point: keys of an :class:`~fgopt.manifolds.SE3` and an R^3 point.
+        measured: the pixel ``(u, v)``.
+        noise: a 2-D noise model or robust loss (``None``: unit).
+        calibration: a :class:`~fgopt.cameras.Calibration` (constant) or a key (variable;
+            then ``model`` names its class).
+        cheirality: ``"reject"`` or ``"allow"`` (see the module docstring).
+    """
+
+    def __init__(self, pose: int, point: int, measured: Any, noise: Any = None,
+                 calibration: Any = None, *, model: type[Calibration] | None = None,
+                 cheirality: str = "reject"):
+        where = _where("ProjectionFactor", pose, point)
+        m = _measurement(measured, 2, "the measured pixel", where)
+        model, K, kkey = _calibration_args(calibration, model, where, Calibration)
+        self.measured = m
+        self.calibration = K if K is not None else kkey
+        if K is not None:
+            super().__init__(projection_kernel(model, False, cheirality), [pose, point],
+                             np.concatenate([m, K._data]), noise)
+        else:
+            super().__init__(projection_kernel(model, True, cheirality), [pose, point, kkey], m,
+                             noise)
+
+    def describe(self) -> str:
+        keys = ", ".join(key_str(k) for k in self.keys) if hasattr(self, "keys") else "?"
+        return f"ProjectionFactor({keys})"
+
+
+class GeneralSFMFactor(KernelFactor):
+    """``GeneralSFMFactor(camera, point, measured, noise)``: a pixel of ``point`` seen by a
+    :class:`~fgopt.cameras.PinholeCamera` *variable* (pose and calibration in one, GTSAM's
+    ``GeneralSFMFactor``; the BAL / Bundler camera form). ``model`` names the calibration class
+    of the camera variable. ``cheirality`` as ProjectionFactor's."""
+
+    def __init__(self, camera: int, point: int, measured: Any, noise: Any = None, *,
+                 model: type[Calibration], cheirality: str = "reject"):
+        where = _where("GeneralSFMFactor", camera, point)
+        m = _measurement(measured, 2, "the measured pixel", where)
+        if not (isinstance(model, type) and issubclass(model, Calibration)):
+            raise FgoptError(f"{where}: model must be a Calibration class, got {model!r}")
+        self.measured = m
+        super().__init__(camera_projection_kernel(model, cheirality), [camera, point], m, noise)
+
+    def describe(self) -> str:
+        keys = ", ".join(key_str(k) for k in self.keys) if hasattr(self, "keys") else "?"
+        return f"GeneralSFMFactor({keys})"
+
+
+class StereoFactor(KernelFactor):
+    """``StereoFactor(pose, point, measured, noise, calibration)``: a rectified stereo
+    measurement ``(uL, uR, v)`` of ``point`` from the left camera at ``pose``; ``calibration``
+    a :class:`~fgopt.cameras.Cal3_S2Stereo` or a key. ``cheirality`` as ProjectionFactor's."""
+
+    def __init__(self, pose: int, point: int, measured: Any, noise: Any = None,
+                 calibration: Any = None, *, cheirality: str = "reject"):
+        where = _where("StereoFactor", pose, point)
+        m = _measurement(measured, 3, "the measurement (uL, uR, v)", where)
+        _, K, kkey = _calibration_args(calibration, None, where, Cal3_S2Stereo)
+        self.measured = m
+        self.calibration = K if K is not None else kkey
+        if K is not None:
+            super().__init__(stereo_kernel(False, cheirality), [pose, point],
+                             np.concatenate([m, K._data]), noise)
+        else:
+            super().__init__(stereo_kernel(True, cheirality), [pose, point, kkey], m, noise)
+
+    def describe(self) -> str:
+        keys = ", ".join(key_str(k) for k in self.keys) if hasattr(self, "keys") else "?"
+        return f"StereoFactor({keys})"
+

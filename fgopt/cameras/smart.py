@@ -1,0 +1,143 @@
+"""``SmartProjectionFactor(pose_keys, measurements, calibration, noise)``: a landmark track whose
+point is eliminated inside the factor (GTSAM's ``SmartProjectionPoseFactor``).
+
+The factor's variables are only the poses (``world_T_camera``, z forward) that saw the landmark;
+the calibration is a constant shared by the track. At every evaluation the landmark is
+triangulated from the current poses (DLT with GTSAM's smart-factor rank tolerance 1.0, or
+``triangulation="nonlinear"`` to refine it) and eliminated by the Schur complement, returned as
+an ordinary residual / Jacobian pair whose ``J^T J``, ``J^T r`` and ``0.5 |r|^2`` are GTSAM's
+Hessian factor and error (see :mod:`fgopt.cameras._smart_kernels`). So a smart factor batches
+and solves like any kernel factor: one numba call per track length.
+
+Degenerate-track policy (``degenerate=``):
+
+* a track with fewer than two views, or a NaN / inf pixel, is rejected at construction
+  (:class:`~fgopt.errors.TriangulationError` / :class:`~fgopt.errors.NonFiniteError` naming the
+  factor and index);
+* ``"reject"`` (default): when the landmark cannot be triangulated at some estimate (DLT rank
+  < 3 -- parallel rays, e.g. pure rotation --, the point behind a view, or its Jacobian
+  rank-deficient), the residual is NaN: a trial step that causes it is rejected, and an initial
+  estimate that causes it makes ``optimize`` raise naming the factor;
+* ``"zero"``: the factor contributes nothing there (zero residual and Jacobian; GTSAM's
+  ``ZERO_ON_DEGENERACY``). GTSAM's default ``IGNORE_DEGENERACY`` reports error 0 but still
+  linearizes towards a point at infinity; fgopt does not mix the two.
+
+The noise model is per pixel (2-D, any Gaussian); robust losses are not supported (GTSAM's smart
+factors have none either).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import Any, Sequence
+
+import numpy as np
+
+from ..errors import DimensionMismatchError, FgoptError, NonFiniteError, TriangulationError
+from ..factors import FactorKernel, KernelFactor
+from ..noise import NoiseModel, RobustLoss, Unit
+from ..key import as_key, key_str
+from ..manifolds import SE3
+from . import _smart_kernels as SK
+from .calibration import Calibration
+
+TRIANGULATION = ("dlt", "nonlinear")
+DEGENERATE = ("reject", "zero")
+_SOURCE = "hand-written in fgopt/cameras/_smart_kernels.py"
+_HINT = ("a smart factor's landmark cannot be triangulated at this estimate (parallel rays, a "
+         "point behind a camera, or a rank-deficient track); fix the initial poses or use "
+         "degenerate='zero'")
+
+
+@lru_cache(maxsize=None)
+def smart_kernel(model: type[Calibration], num_views: int, triangulation: str = "dlt",
+                 degenerate: str = "reject") -> FactorKernel:
+    """Kernel of smart factors with ``num_views`` poses: args ``(SE3,) * m``, constants
+    ``(pixels (2m), calibration storage, sqrt information (4, row major), rank tolerance)``."""
+    if triangulation not in TRIANGULATION:
+        raise FgoptError(f"triangulation must be one of {TRIANGULATION}, got {triangulation!r}")
+    if degenerate not in DEGENERATE:
+        raise FgoptError(f"degenerate must be one of {DEGENERATE}, got {degenerate!r}")
+    m, s, mid = int(num_views), len(model.PARAMS), model.MODEL
+    nc = 2 * m + s + 5
+    refine, zero = triangulation == "nonlinear", degenerate == "zero"
+    name = f"smart_{model.__name__.lower()}_{m}views"
+
+    def run(args, consts, with_jac):
+        if len(args) != m:
+            raise DimensionMismatchError(f"{name}: expected {m} pose arrays, got {len(args)}")
+        P = np.ascontiguousarray(np.stack([np.asarray(a, dtype=np.float64) for a in args],
+                                          axis=1))
+        c = np.ascontiguousarray(consts, dtype=np.float64)
+        if P.ndim != 3 or P.shape[1:] != (m, 7) or c.shape != (P.shape[0], nc):
+            raise DimensionMismatchError(f"{name}: expected poses (n, 7) x {m} and constants "
+                                         f"(n, {nc}); got {P.shape}, {c.shape}")
+        return SK.smart_batch(mid, P, c, m, s, refine, zero, with_jac)
+
+    return FactorKernel(name, (SE3.batch_kind(),) * m, 2 * m, nc,
+                        residual=lambda args, consts: run(args, consts, False)[0],
+                        linearize=lambda args, consts: run(args, consts, True),
+                        source=_SOURCE, nonfinite_hint=_HINT,
+                        recipe=(smart_kernel, (model, m, triangulation, degenerate)))
+
+
+class SmartProjectionFactor(KernelFactor):
+    """A landmark track over camera poses, the landmark eliminated (see the module docstring).
+
+    Args:
+        pose_keys: keys of the ``m >= 2`` SE3 poses that observed the landmark.
+        measurements: ``(m, 2)`` pixels, one per pose.
+        calibration: the shared constant :class:`~fgopt.cameras.Calibration`.
+        noise: a 2-D noise model per pixel (``None``: unit).
+        triangulation: ``"dlt"`` (GTSAM's default) or ``"nonlinear"``.
+        degenerate: ``"reject"`` or ``"zero"``.
+        rank_tol: DLT rank tolerance (GTSAM's smart-factor default 1.0, in pixels).
+    """
+
+    def __init__(self, pose_keys: Sequence[int], measurements: Any, calibration: Calibration,
+                 noise: NoiseModel | None = None, *, triangulation: str = "dlt",
+                 degenerate: str = "reject", rank_tol: float = 1.0):
+        keys = [as_key(k) for k in pose_keys]
+        where = f"SmartProjectionFactor({', '.join(key_str(k) for k in keys)})"
+        m = len(keys)
+        if m < 2:
+            raise TriangulationError(f"{where}: a track needs at least two views, got {m}")
+        z = np.asarray(measurements, dtype=float)
+        if z.shape != (m, 2):
+            raise DimensionMismatchError(f"{where}: measurements must be ({m}, 2), got {z.shape}")
+        bad = ~np.all(np.isfinite(z), axis=1)
+        if np.any(bad):
+            i = int(np.nonzero(bad)[0][0])
+            raise NonFiniteError(f"{where}: measurement {i} (of {key_str(keys[i])}) has a NaN "
+                                 f"or inf: {z[i]}")
+        if not isinstance(calibration, Calibration):
+            raise FgoptError(f"{where}: calibration must be a constant Calibration, got "
+                             f"{type(calibration).__name__}")
+        if isinstance(noise, RobustLoss):
+            raise FgoptError(f"{where}: robust losses are not supported on smart factors")
+        noise = Unit(2) if noise is None else noise
+        if not isinstance(noise, NoiseModel) or noise.dim != 2:
+            raise DimensionMismatchError(f"{where}: noise must be a 2-D noise model (per pixel)")
+        if not (np.isfinite(rank_tol) and rank_tol >= 0):
+            raise FgoptError(f"{where}: rank_tol must be a finite number >= 0, got {rank_tol}")
+        self.measured = z.copy()
+        self.calibration = calibration
+        self.pixel_noise = noise
+        self.triangulation = triangulation
+        consts = np.concatenate([z.reshape(-1), calibration._data,
+                                 np.asarray(noise.sqrt_information).reshape(-1), [rank_tol]])
+        self._rank_tol = float(rank_tol)
+        super().__init__(smart_kernel(type(calibration), m, triangulation, degenerate), keys,
+                         consts, Unit(2 * m))
+
+    def point(self, values: Any) -> np.ndarray | None:
+        """The landmark triangulated from the poses in ``values``, or ``None`` if degenerate."""
+        rows = np.ascontiguousarray([values.at(k).to_storage() for k in self.keys])
+        X, ok = SK.smart_point(self.calibration.MODEL, rows, self.calibration._data,
+                               np.ascontiguousarray(self.measured), self._rank_tol,
+                               self.triangulation == "nonlinear")
+        return X if ok else None
+
+    def describe(self) -> str:
+        keys = ", ".join(key_str(k) for k in self.keys) if hasattr(self, "keys") else "?"
+        return f"SmartProjectionFactor({keys})"

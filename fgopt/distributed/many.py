@@ -1,0 +1,135 @@
+"""Many independent problems on Dask: :func:`solve_many`.
+
+Each problem is solved by one task on a Dask worker. What travels is the problem itself (graphs,
+values and factor types pickle; generated kernels are loaded or derived on the worker, once per
+worker process - see :mod:`fgopt.factors.portable`), or a zero-argument callable that builds the
+problem on the worker, so large problems are never shipped.
+
+Without ``client=`` an embedded :class:`dask.distributed.LocalCluster` is started (one
+single-threaded worker process per core) and closed afterwards, Ctrl-C included. Without
+``dask[distributed]`` installed the problems are solved serially in this process, with a note.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+import traceback
+import warnings
+from collections.abc import Callable, Iterable
+from typing import Any
+
+from ..errors import FgoptError
+
+INSTALL_HINT = "pip install 'fgopt[distributed]'"
+
+
+def _as_fgopt_error(exc: BaseException, where: str) -> FgoptError:
+    if isinstance(exc, FgoptError):
+        return exc
+    tb = "".join(traceback.format_exception_only(type(exc), exc)).strip()
+    return FgoptError(f"{where}: {tb}")
+
+
+def solve_problem(problem: Any, index: int, method: str, options: dict) -> Any:
+    """Worker task: build (when ``problem`` is callable) and solve one problem. Returns the
+    :class:`~fgopt.Result`, or the :class:`FgoptError` that stopped it (never raises)."""
+    from ..solvers import optimize
+
+    try:
+        graph, initial = problem() if callable(problem) else problem
+        return optimize(graph, initial, method=method, **options)
+    except Exception as exc:  # one problem's failure is that problem's result
+        return _as_fgopt_error(exc, f"problem {index}")
+
+
+def _progress_bar(total: int, enabled: bool, label: str):
+    if not enabled:
+        return None
+    try:
+        from tqdm.auto import tqdm  # a widget in Jupyter, a text bar in a terminal
+    except ImportError:
+        return None
+    return tqdm(total=total, desc=label, unit="problem")
+
+
+def run_tasks(task: Callable, items: list, *, client: Any = None, workers: int | None = None,
+              progress: bool = True, label: str = "fgopt", args: tuple = ()) -> list:
+    """``[task(item, i, *args) for i, item in enumerate(items)]`` on Dask, in order.
+
+    ``task`` must not raise (it returns its error); a worker that dies is retried once by Dask,
+    then its slot holds an :class:`FgoptError` saying so.
+    """
+    try:
+        from dask.distributed import Client, LocalCluster, as_completed
+    except ImportError:
+        warnings.warn(f"dask.distributed is not installed: solving {len(items)} problems serially "
+                      f"in this process ({INSTALL_HINT} runs them in parallel)", stacklevel=3)
+        bar = _progress_bar(len(items), progress, label)
+        out = []
+        for i, item in enumerate(items):
+            out.append(task(item, i, *args))
+            if bar is not None:
+                bar.update(1)
+        if bar is not None:
+            bar.close()
+        return out
+
+    own_cluster = client is None
+    cluster = None
+    if own_cluster:
+        n = workers or os.cpu_count() or 1
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                               dashboard_address=":0")
+        client = Client(cluster)
+    futures: list = []
+    try:
+        futures = [client.submit(task, item, i, *args, pure=False, retries=1,
+                                 key=f"{label}-{i}-{time.monotonic_ns()}")
+                   for i, item in enumerate(items)]
+        slot = {f.key: i for i, f in enumerate(futures)}
+        out: list = [None] * len(items)
+        bar = _progress_bar(len(items), progress, label)
+        for fut in as_completed(futures):
+            i = slot[fut.key]
+            if fut.status == "finished":
+                out[i] = fut.result()
+            else:  # the task itself never raises: a dead worker (KilledWorker) or a lost task
+                exc = fut.exception()
+                out[i] = FgoptError(f"problem {i}: its worker died and the retry failed too "
+                                    f"({type(exc).__name__}: {exc})")
+            if bar is not None:
+                bar.update(1)
+        if bar is not None:
+            bar.close()
+        return out
+    except BaseException:
+        for f in futures:  # Ctrl-C or a scheduler failure: nothing runs on, nothing partial
+            f.cancel()
+        raise
+    finally:
+        if own_cluster:
+            client.close()
+            cluster.close()
+
+
+def solve_many(problems: Iterable[Any], *, method: str = "lm", client: Any = None,
+               workers: int | None = None, progress: bool = True, **options: Any) -> list:
+    """Solve many independent problems, in parallel on Dask.
+
+    Args:
+        problems: ``(graph, initial)`` pairs, or zero-argument callables returning one (built on
+            the worker, so large problems are never shipped).
+        method: as :func:`fgopt.optimize`; ``options`` are passed to it too.
+        client: a :class:`dask.distributed.Client` (any cluster). Default: start a
+            ``LocalCluster`` with one single-threaded worker process per core (``workers=``),
+            and close it afterwards.
+        progress: a progress bar over problems (``tqdm``: a widget in Jupyter).
+
+    Returns:
+        One entry per problem, in order: its :class:`~fgopt.Result`, or the
+        :class:`~fgopt.FgoptError` that stopped it (the other problems still finish).
+    """
+    items = list(problems)
+    return run_tasks(solve_problem, items, client=client, workers=workers, progress=progress,
+                     label="solve_many", args=(method, options))

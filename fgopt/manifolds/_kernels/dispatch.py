@@ -1,0 +1,240 @@
+"""Dispatch over a group id (``lie_compose(gid, ...)``...) and the batched loops over (n, storage) arrays, with the per-group ``BatchKind`` entries.
+
+Part of :mod:`fgopt.manifolds._kernels` (conventions in its docstring).
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+from ..._jit import njit
+
+from ._common import (
+    GROUP_NAMES, MAX_STORAGE_DIM, SE2_ID, SE3_ID, SO2_ID, SO3_ID, storage_dim, tangent_dim,
+)
+from .so2 import so2_ad, so2_compose, so2_exp, so2_eye, so2_inverse, so2_log
+from .se2 import se2_ad, se2_adjoint, se2_compose, se2_exp, se2_inverse, se2_jr, se2_jrinv, se2_log
+from .so3 import so3_ad, so3_adjoint, so3_compose, so3_exp, so3_inverse, so3_jr, so3_jrinv, so3_log
+from .se3 import se3_ad, se3_adjoint, se3_compose, se3_exp, se3_inverse, se3_jr, se3_jrinv, se3_log
+from .sim3 import (
+    sim3_ad, sim3_adjoint, sim3_compose, sim3_exp, sim3_inverse, sim3_jr, sim3_jrinv,
+    sim3_log,
+)
+
+
+@njit(cache=True)
+def lie_compose(gid, a, b, out):
+    """out = a * b for group ``gid`` (out must not alias a or b)."""
+    if gid == SO2_ID:
+        so2_compose(a, b, out)
+    elif gid == SE2_ID:
+        se2_compose(a, b, out)
+    elif gid == SO3_ID:
+        so3_compose(a, b, out)
+    elif gid == SE3_ID:
+        se3_compose(a, b, out)
+    else:
+        sim3_compose(a, b, out)
+
+
+@njit(cache=True)
+def lie_inverse(gid, a, out):
+    if gid == SO2_ID:
+        so2_inverse(a, out)
+    elif gid == SE2_ID:
+        se2_inverse(a, out)
+    elif gid == SO3_ID:
+        so3_inverse(a, out)
+    elif gid == SE3_ID:
+        se3_inverse(a, out)
+    else:
+        sim3_inverse(a, out)
+
+
+@njit(cache=True)
+def lie_exp(gid, v, out):
+    if gid == SO2_ID:
+        so2_exp(v, out)
+    elif gid == SE2_ID:
+        se2_exp(v, out)
+    elif gid == SO3_ID:
+        so3_exp(v, out)
+    elif gid == SE3_ID:
+        se3_exp(v, out)
+    else:
+        sim3_exp(v, out)
+
+
+@njit(cache=True)
+def lie_log(gid, a, out):
+    if gid == SO2_ID:
+        so2_log(a, out)
+    elif gid == SE2_ID:
+        se2_log(a, out)
+    elif gid == SO3_ID:
+        so3_log(a, out)
+    elif gid == SE3_ID:
+        se3_log(a, out)
+    else:
+        sim3_log(a, out)
+
+
+@njit(cache=True)
+def lie_adjoint(gid, a, out):
+    if gid == SO2_ID:
+        so2_eye(a, out)
+    elif gid == SE2_ID:
+        se2_adjoint(a, out)
+    elif gid == SO3_ID:
+        so3_adjoint(a, out)
+    elif gid == SE3_ID:
+        se3_adjoint(a, out)
+    else:
+        sim3_adjoint(a, out)
+
+
+@njit(cache=True)
+def lie_ad(gid, v, out):
+    if gid == SO2_ID:
+        so2_ad(v, out)
+    elif gid == SE2_ID:
+        se2_ad(v, out)
+    elif gid == SO3_ID:
+        so3_ad(v, out)
+    elif gid == SE3_ID:
+        se3_ad(v, out)
+    else:
+        sim3_ad(v, out)
+
+
+@njit(cache=True)
+def lie_jr(gid, v, out):
+    if gid == SO2_ID:
+        so2_eye(v, out)
+    elif gid == SE2_ID:
+        se2_jr(v, out)
+    elif gid == SO3_ID:
+        so3_jr(v, out)
+    elif gid == SE3_ID:
+        se3_jr(v, out)
+    else:
+        sim3_jr(v, out)
+
+
+@njit(cache=True)
+def lie_jrinv(gid, v, out):
+    if gid == SO2_ID:
+        so2_eye(v, out)
+    elif gid == SE2_ID:
+        se2_jrinv(v, out)
+    elif gid == SO3_ID:
+        so3_jrinv(v, out)
+    elif gid == SE3_ID:
+        se3_jrinv(v, out)
+    else:
+        sim3_jrinv(v, out)
+
+
+@njit(cache=True)
+def lie_retract(gid, x, delta, out, tmp):
+    """out = x * Exp(delta); ``tmp`` is scratch of length >= storage dim."""
+    lie_exp(gid, delta, tmp)
+    lie_compose(gid, x, tmp, out)
+
+
+@njit(cache=True)
+def lie_local(gid, a, b, out, tmp1, tmp2):
+    """out = Log(a^-1 * b); ``tmp1``, ``tmp2`` are scratch of length >= storage dim."""
+    lie_inverse(gid, a, tmp1)
+    lie_compose(gid, tmp1, b, tmp2)
+    lie_log(gid, tmp2, out)
+
+
+@njit(cache=True)
+def batch_compose(gid, a, b):
+    """(n, s), (n, s) -> (n, s): row-wise a * b."""
+    out = np.empty((a.shape[0], storage_dim(gid)))
+    for i in range(a.shape[0]):
+        lie_compose(gid, a[i], b[i], out[i])
+    return out
+
+
+@njit(cache=True)
+def batch_inverse(gid, a):
+    out = np.empty((a.shape[0], storage_dim(gid)))
+    for i in range(a.shape[0]):
+        lie_inverse(gid, a[i], out[i])
+    return out
+
+
+@njit(cache=True)
+def batch_exp(gid, v):
+    """(n, d) -> (n, s)."""
+    out = np.empty((v.shape[0], storage_dim(gid)))
+    for i in range(v.shape[0]):
+        lie_exp(gid, v[i], out[i])
+    return out
+
+
+@njit(cache=True)
+def batch_log(gid, a):
+    """(n, s) -> (n, d)."""
+    out = np.empty((a.shape[0], tangent_dim(gid)))
+    for i in range(a.shape[0]):
+        lie_log(gid, a[i], out[i])
+    return out
+
+
+@njit(cache=True)
+def batch_retract(gid, x, delta):
+    """(n, s), (n, d) -> (n, s): row-wise x * Exp(delta)."""
+    out = np.empty((x.shape[0], storage_dim(gid)))
+    tmp = np.empty(MAX_STORAGE_DIM)
+    for i in range(x.shape[0]):
+        lie_retract(gid, x[i], delta[i], out[i], tmp)
+    return out
+
+
+@njit(cache=True)
+def batch_local(gid, a, b):
+    """(n, s), (n, s) -> (n, d): row-wise Log(a^-1 * b)."""
+    out = np.empty((a.shape[0], tangent_dim(gid)))
+    tmp1 = np.empty(MAX_STORAGE_DIM)
+    tmp2 = np.empty(MAX_STORAGE_DIM)
+    for i in range(a.shape[0]):
+        lie_local(gid, a[i], b[i], out[i], tmp1, tmp2)
+    return out
+
+
+#: Batches of at most this many rows run the loops as plain Python while numba is not in use in
+#: the process (a small problem's retract then needs no numba import or cache load).
+PYTHON_MAX_ROWS = 64
+
+
+def _entry(loop, gid: int, name: str):
+    def run(a, b):
+        a = np.ascontiguousarray(a, dtype=np.float64)
+        b = np.ascontiguousarray(b, dtype=np.float64)
+        if a.shape[0] <= PYTHON_MAX_ROWS and "numba" not in sys.modules:
+            return loop.python(gid, a, b)
+        return loop(gid, a, b)
+
+    run.__name__ = run.__qualname__ = name
+    run.__doc__ = f"Batched {name.split('_')[1]} of {GROUP_NAMES[gid]} over (n, storage) rows."
+    return run
+
+
+RETRACT_BATCH = tuple(_entry(batch_retract, g, f"{GROUP_NAMES[g].lower()}_retract_batch")
+                      for g in range(5))
+
+
+LOCAL_BATCH = tuple(_entry(batch_local, g, f"{GROUP_NAMES[g].lower()}_local_batch")
+                    for g in range(5))
+
+
+so2_retract_batch, se2_retract_batch, so3_retract_batch, se3_retract_batch, \
+    sim3_retract_batch = RETRACT_BATCH
+
+
+so2_local_batch, se2_local_batch, so3_local_batch, se3_local_batch, sim3_local_batch = LOCAL_BATCH

@@ -1,0 +1,488 @@
+"""The "fixed" formulation (SymForce paper, Sec. VIII-C): one generated function per problem.
+
+For a factor graph whose structure does not change (same factor types on the same variables,
+only measurements and noise vary), :func:`compile_fixed` derives ONE flattened numba function
+for the whole linearization -- whitened residuals, the dense ``H = J^T J``, ``g = J^T r`` and
+the cost -- with subexpressions shared across factors, and a dense Levenberg-Marquardt loop
+around it (no sparse structure, no batching, no Python per iteration)::
+
+    from fgopt.solvers.fixed import compile_fixed, optimize_fixed
+
+    result = optimize_fixed(graph, initial)             # compile (cached) + LM
+    fp = compile_fixed(graph, initial)                  # or keep the compiled problem:
+    fp.update(new_graph)                                #   new measurements, same structure
+    result = fp.optimize(initial, max_iterations=20)
+
+Supported factors: ``@fgopt.factor`` instances (:class:`~fgopt.symbolic.factor.SymbolicFactor`)
+and the built-in ``BetweenFactor`` / ``PriorFactor`` on SO2/SE2/SO3/SE3/R^n (replaced by their
+generated twins in :mod:`fgopt.factors.library.generated`, same residuals and constants), with
+Gaussian noise models. Robust losses, Python factors and raw batches raise
+:class:`~fgopt.errors.FgoptError` naming the first unsupported factor.
+
+Inputs of the generated code are numeric: variable storages, every factor's constants and the
+structurally non-zero entries of its square-root information, so one generated module serves
+every problem of the same *structure*. The structure (factor types and their code, variable
+patterns, variable kinds and order, sqrt-information sparsity) is hashed into the on-disk cache
+key (:mod:`fgopt.symbolic.cache`, ``$FGOPT_CACHE_DIR``): a second process imports the module and
+numba loads its machine code; SymPy is not imported.
+
+The LM loop reproduces :class:`fgopt.solvers.lm.LevenbergMarquardt` step for step (``(H + lam D)
+delta = -g`` with ``D = I`` or ``clip(diag H)``, lambda by a factor or Nielsen's rule, resolved
+from ``LMParams.damping`` / ``lambda_policy`` the same way; the same stopping tests), with a
+dense Cholesky instead of the sparse solvers. Per-iteration records carry no wall time (the
+loop runs compiled): ``IterationRecord.time`` is NaN.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ...errors import FgoptError, NonFiniteError
+from ...key import Key, key_str
+from ..params import LMParams
+from ..diagnostics import fixed_clamp_hits, warn_clamps, warn_unused
+from ..result import IterationRecord, Result, Status, stall_status
+from ...variables import Variables
+from ...symbolic import cache as _cache
+from ._codegen import FIXED_CODEGEN_VERSION, FactorSpec, VarSpec
+
+_GIDS = {"SO2": 0, "SE2": 1, "SO3": 2, "SE3": 3, "Sim3": 4}
+#: In-process memo: structure key -> generated module.
+_MODULES: dict = {}
+_FINGERPRINTS: dict = {}
+#: Counters (tests / benchmarks): modules ``derived`` (SymPy ran) or ``loaded`` from disk.
+STATS = {"derived": 0, "loaded": 0, "memo": 0}
+
+
+# ------------------------------------------------------------------------------------ collect
+def _resolve(f: Any) -> tuple:
+    """(SymbolicFactorType, variable pattern) of a factor, or raise FgoptError."""
+    from ...factors.library.prior_between import BetweenFactor, PriorFactor
+    from ...factors.decorator import KERNEL_ORIGINS, SymbolicFactor
+
+    if isinstance(f, SymbolicFactor) and not isinstance(f, (BetweenFactor, PriorFactor)):
+        ft = f.factor_type
+        for pattern, k in ft._kernels.items():
+            if k is f.kernel:
+                return ft, pattern
+        raise FgoptError(f"fixed formulation: {f.describe()}: kernel not found on its type")
+    origin = KERNEL_ORIGINS.get(id(f.kernel)) if f.kernel is not None else None
+    if origin is not None and not isinstance(f, (BetweenFactor, PriorFactor)):
+        return origin[1], origin[2]  # e.g. a BAL reader row: the generated bal_reprojection
+    if isinstance(f, (BetweenFactor, PriorFactor)) and f.kernel is not None:
+        # built-ins: the hand-written kernel or the generated twin, same residual and constants
+        from ...factors.library import generated as gen
+        from ...factors.library import lie_kernels
+
+        kind = f.kernel.arg_kinds[0]
+        between = isinstance(f, BetweenFactor)
+        try:
+            types = gen._types_for(kind, "between" if between else "prior")
+        except Exception:  # noqa: BLE001 - no symbolic twin (e.g. Sim3)
+            types = None
+        if types is not None:
+            ft = types[0] if between else types[1]
+            pattern = (True, True, False) if between else (True, False)
+            hand = lie_kernels.between_kernel if between else lie_kernels.prior_kernel
+            try:
+                is_hand = f.kernel is hand(kind)
+            except Exception:  # noqa: BLE001
+                is_hand = False
+            if is_hand or any(k is f.kernel for k in ft._kernels.values()):
+                return ft, pattern
+    raise FgoptError(
+        f"fixed formulation: {f.describe()} is not supported: every factor must be an "
+        "@fgopt.factor (symbolic) factor or a built-in BetweenFactor/PriorFactor")
+
+
+def _fingerprint(ft: Any) -> str:
+    fp = _FINGERPRINTS.get(id(ft))
+    if fp is None or fp[0] is not ft:
+        from ...symbolic.ops import type_key
+
+        h = hashlib.sha256(ft.fingerprint.encode())
+        h.update(repr((ft.name, tuple((n,) + type_key(tp) for n, tp in ft.params),
+                       ft.method, ft.engine)).encode())
+        fp = _FINGERPRINTS[id(ft)] = (ft, h.hexdigest())
+    return fp[1]
+
+
+@dataclass
+class _Collected:
+    keys: list
+    kinds: list
+    variables: list
+    factors: list
+    consts: np.ndarray
+    wvals: np.ndarray
+    key: str
+    sources: list  # the factors, in ``factors`` order
+
+
+def _collect(graph: Any, values: Variables) -> _Collected:
+    from ...noise.models import LOSS_NONE, loss_code_and_param
+    from ...manifolds.base import ops_for
+    from ...factors.decorator import batch_kind_of
+
+    # batch rows (file readers use graph.add_batch) are materialized as factor instances: the
+    # fixed formulation is for small problems, where that costs microseconds
+    factors = list(graph)
+    if len(factors) == 0:
+        raise FgoptError("fixed formulation: the factor graph is empty")
+    var_of: dict = {}
+    keys: list = []
+    kinds: list = []
+    specs: list = []
+    consts: list = []
+    wvals: list = []
+    parts: list = []
+    per_kernel: dict = {}  # id(kernel) -> (ft, pattern, variable types' kinds, fingerprint, r)
+    per_noise: dict = {}   # id(noise model) -> (mask tuple, nonzero values, count)
+    coff = woff = 0
+    for f in factors:
+        kern = f.kernel
+        info = per_kernel.get(id(kern))
+        if info is None:
+            ft, pattern = _resolve(f)
+            var_kinds = [batch_kind_of(tp) for (_, tp), v in zip(ft.params, pattern) if v]
+            info = per_kernel[id(kern)] = (ft, pattern, var_kinds, _fingerprint(ft),
+                                           kern.residual_dim, kern)
+        ft, pattern, var_kinds, fpr, r, _ = info
+        if loss_code_and_param(f.loss)[0] != LOSS_NONE:
+            raise FgoptError(f"fixed formulation: {f.describe()} has a robust loss; only "
+                             "Gaussian noise models are supported")
+        idx = []
+        for k, want in zip(f.keys, var_kinds):
+            v = var_of.get(k)
+            if v is None:
+                if k not in values:
+                    raise FgoptError(f"fixed formulation: {f.describe()} uses {key_str(k)}, "
+                                     "which is not in the initial values")
+                x = values.at(k)
+                kind = ops_for(x).batch_kind(x)
+                if kind is None:
+                    raise FgoptError(f"fixed formulation: {key_str(k)} is a "
+                                     f"{type(x).__name__} (no batch kind)")
+                v = var_of[k] = len(keys)
+                keys.append(Key(k))
+                kinds.append(kind)
+            if want is not kinds[v]:
+                raise FgoptError(f"fixed formulation: {f.describe()}: {key_str(k)} is a "
+                                 f"{kinds[v].name}, the factor expects {want.name}")
+            idx.append(v)
+        c = f.constants
+        noise = f.noise
+        w = per_noise.get(id(noise))
+        if w is None:
+            R = np.asarray(noise.sqrt_information, dtype=float)
+            if R.shape != (r, r):
+                R = R * np.eye(r) if R.size == 1 else R.reshape(r, r)
+            mask = R != 0.0
+            w = per_noise[id(noise)] = (tuple(mask.ravel().tolist()), R[mask], int(mask.sum()),
+                                        noise)
+        mask_t, wv, nw = w[0], w[1], w[2]
+        idx_t = tuple(idx)
+        specs.append(FactorSpec(ft, pattern, idx_t, coff, c.shape[0], r, mask_t, woff))
+        consts.append(c)
+        wvals.append(wv)
+        coff += c.shape[0]
+        woff += nw
+        parts.append((fpr, pattern, idx_t, c.shape[0], r, mask_t))
+    h = hashlib.sha256(repr(parts).encode())
+    from ...manifolds.base import is_vector_kind
+    from ...manifolds.declared import declared_type
+
+    variables, so, to = [], 0, 0
+    for kind in kinds:
+        gid = _GIDS.get(kind.name, -1)
+        declared = declared_type(kind)
+        code = None
+        if declared is not None:
+            gid, code = -2, declared._spec.retract_code
+        elif gid < 0 and not is_vector_kind(kind):
+            raise FgoptError(f"fixed formulation: variables of kind {kind.name} are not supported")
+        variables.append(VarSpec(gid, kind.storage_dim, kind.dim, so, to, code))
+        so += kind.storage_dim
+        to += kind.dim
+    h.update(repr([(k.name, k.dim, k.storage_dim, k.key) for k in kinds]).encode())
+    h.update(_cache.package_fingerprint().encode())
+    h.update(FIXED_CODEGEN_VERSION.encode())
+    return _Collected(keys, kinds, variables, specs,
+                      np.concatenate(consts) if consts else np.zeros(0),
+                      np.concatenate(wvals) if wvals else np.zeros(0), h.hexdigest()[:20],
+                      factors)
+
+
+# ------------------------------------------------------------------------------------ module
+#: What FixedProblem uses of a generated module (a cached entry without them is regenerated).
+_REQUIRED = ("N", "S", "NUM_AUX", "META", "_precompute", "_lm")
+
+
+def _module(col: _Collected, use_cache: bool, info: dict) -> Any:
+    m = _MODULES.get(col.key)
+    if m is not None:
+        STATS["memo"] += 1
+        info["source"] = "memo"
+        return m
+    name = f"fixed_{len(col.variables)}v_{len(col.factors)}f"
+    m = _cache.load(name, col.key, required=_REQUIRED) if use_cache else None
+    if m is not None:
+        STATS["loaded"] += 1
+        info["source"] = "disk"
+    else:
+        from ._codegen import build_program, module_source
+
+        t0 = time.perf_counter()
+        prog, const_syms = build_program(col.variables, col.factors, info)
+        types = sorted({f.ftype.name for f in col.factors})
+        summary = (f"{len(col.variables)} variables, {len(col.factors)} factors "
+                   f"({', '.join(types)})")
+        clamp_types = sorted(_fingerprint(ft) for ft in info.pop("clamp_ftypes", []))
+        source, _ = module_source(col.variables, prog, const_syms,
+                                  {"summary": summary, "clamp_types": clamp_types})
+        info["derive_total"] = time.perf_counter() - t0
+        key = col.key if use_cache else "nocache_" + hashlib.sha256(source.encode()).hexdigest()[:16]
+        m = _cache.store(name, key, source)
+        STATS["derived"] += 1
+        info["source"] = "derived"
+    _MODULES[col.key] = m
+    return m
+
+
+# ------------------------------------------------------------------------------------ problem
+class FixedProblem:
+    """A graph compiled into one generated linearization + dense LM (see the module docstring).
+
+    Attributes: ``keys`` (variable order = tangent order), ``kinds``, ``size`` (tangent dim N),
+    ``module`` (generated module), ``source``, ``ops`` (op counts), ``generation`` (timings: how
+    the module was obtained, derivation / compile seconds).
+    """
+
+    def __init__(self, col: _Collected, values: Variables, module: Any, generation: dict):
+        self._col = col
+        self.keys = col.keys
+        self._key_set = set(col.keys)
+        self.kinds = col.kinds
+        self.module = module
+        self.size = int(module.N)
+        self.storage_size = int(module.S)
+        self.generation = generation
+        self._values = values
+        self._x0 = self.flatten(values)
+        self._aux = np.zeros(module.NUM_AUX)
+        self._set_inputs(col.consts, col.wvals)
+
+    @property
+    def structure_key(self) -> str:
+        return self._col.key
+
+    @property
+    def source(self) -> str:
+        return self.module.__fgopt_source__  # the text that was verified and run
+
+    @property
+    def ops(self) -> dict:
+        m = self.module.META
+        return {"linearize": m["ops_linearize"], "precompute": m["ops_precompute"],
+                "statements": m["num_statements"],
+                "instructions": m["instructions_linearize"]}
+
+    def _set_inputs(self, consts: np.ndarray, wvals: np.ndarray) -> None:
+        self._consts = np.ascontiguousarray(consts, dtype=float)
+        self._wvals = np.ascontiguousarray(wvals, dtype=float)
+        self.module._precompute(self._consts, self._wvals, self._aux)
+
+    def update(self, graph: Any, values: Variables | None = None) -> FixedProblem:
+        """Take new measurements / noise from ``graph`` (same structure); returns self."""
+        col = _collect(graph, values if values is not None else self._values)
+        if col.key != self._col.key:
+            raise FgoptError("fixed formulation: the graph's structure differs from the "
+                             "compiled one; call compile_fixed again")
+        self._col = col
+        if values is not None:
+            self._values = values
+            self._x0 = self.flatten(values)
+        self._set_inputs(col.consts, col.wvals)
+        return self
+
+    # -- storage <-> Variables
+    def flatten(self, values: Variables) -> np.ndarray:
+        """Storage of every variable, concatenated in variable order."""
+        x = np.empty(self.storage_size)
+        for k, kind, var in zip(self.keys, self.kinds, self._col.variables):
+            x[var.storage_off:var.storage_off + var.storage_dim] = kind.to_storage(values.at(k))
+        return x
+
+    def values(self, x: np.ndarray) -> Variables:
+        """A new ``Variables``: the initial values with every variable replaced from ``x``."""
+        out = self._values.copy()
+        for k, kind, var in zip(self.keys, self.kinds, self._col.variables):
+            out._values[k] = kind.from_storage(
+                np.array(x[var.storage_off:var.storage_off + var.storage_dim]))
+        return out
+
+    def linearize(self, values: Variables | np.ndarray | None = None) -> tuple:
+        """``(cost, H (N, N), g (N,))`` at ``values`` (dense, tangent order = ``keys``)."""
+        x = self._x0 if values is None else (
+            np.ascontiguousarray(values, dtype=float) if isinstance(values, np.ndarray)
+            else self.flatten(values))
+        H = np.zeros((self.size, self.size))
+        g = np.zeros(self.size)
+        prm = np.array([0.0, 0, 0, -1.0, 0, 1e-5, 1e-12, 1e12, 1e-6, 1e32, 1e-3, 0, 0, 10.0])
+        _, status, _, _, _, cost, _ = self.module._lm(x, self._aux, prm, np.empty((1, 8)), H, g)
+        if status == -1:
+            H[:], g[:] = np.nan, np.nan
+        return float(cost), H, g
+
+    # -- optimization
+    def optimize(self, values: Variables | None = None, params: LMParams | None = None,
+                 **options: Any) -> Result:
+        """Dense LM from ``values`` (default: the compile-time values); ``options`` replace
+        :class:`~fgopt.solvers.params.LMParams` fields (``max_iterations``, tolerances, damping).
+        """
+        t0 = time.perf_counter()
+        p = _params(params, options)
+        x0 = self._x0 if values is None else self.flatten(values)
+        given = self._values if values is None else values
+        unused = [k for k in given.keys() if k not in self._key_set] if len(given) > len(
+            self.keys) else []
+        warn_unused(unused)
+        identity, by_factor = self._damping(p)
+        rel_tol = p.relative_tolerance if p.relative_tolerance is not None else (
+            1e-5 if identity else 1e-6)  # as LevenbergMarquardt resolves the defaults
+        lam0 = p.initial_lambda if p.initial_lambda is not None else (1e-5 if identity else 1e-4)
+        prm = np.array([p.max_iterations, rel_tol, p.absolute_tolerance,
+                        p.gradient_tolerance, p.step_tolerance, lam0, p.min_lambda,
+                        p.max_lambda, p.min_diagonal, p.max_diagonal, p.min_relative_decrease,
+                        float(identity), float(by_factor), getattr(p, "lambda_factor", 10.0)])
+        hist = np.empty((max(p.max_iterations, 1), 8))
+        self.H = np.zeros((self.size, self.size))
+        self.g = np.zeros(self.size)
+        t1 = time.perf_counter()
+        x, status, msg, val, its, cost, init = self.module._lm(x0, self._aux, prm, hist, self.H,
+                                                               self.g)
+        t2 = time.perf_counter()
+        if status == -1:
+            raise NonFiniteError("fixed formulation: " + self._locate_nonfinite(x0))
+        records = [IterationRecord(i + 1, float(hist[i, 0]), float(hist[i, 1]),
+                                   float(hist[i, 2]), float(hist[i, 3]), float(hist[i, 4]),
+                                   float(hist[i, 5]), bool(hist[i, 6] > 0.5), float("nan"))
+                   for i in range(its)]
+        costs = [float(init)] + [r.cost for r in records if r.accepted]
+        st = {0: Status.CONVERGED, 1: Status.MAX_ITERATIONS, 2: Status.FAILED}[int(status)]
+        since, gain = None, 0.0  # the trailing run of rejected steps, as Run tracks it
+        for i in range(its - 1, -1, -1):
+            if hist[i, 6] > 0.5:
+                break
+            since = i + 1
+            g = float(hist[i, 7]) if math.isfinite(hist[i, 1]) else math.inf
+            gain = max(gain, g if g == g else math.inf)
+        st, message = stall_status(st, _message(int(msg), float(val), p), float(cost), since,
+                                   gain)
+        timing = {"setup": t1 - t0, "lm": t2 - t1, "total": time.perf_counter() - t0}
+        clamps, num_clamped = fixed_clamp_hits(self, x)
+        warn_clamps(clamps, num_clamped)
+        if p.verbose:
+            print(IterationRecord.HEADER)
+            for r in records:
+                print(r.row())
+        return Result(None, status=st, message=message,
+                      iterations=len(records), initial_cost=float(init), final_cost=float(cost),
+                      cost_history=costs, iteration_records=records, timing=timing,
+                      method="lm (fixed)", linear_solver="dense cholesky", problem=self,
+                      state=x, unused_keys=tuple(unused), clamps=tuple(clamps),
+                      num_clamped=num_clamped)
+
+    def _locate_nonfinite(self, x: np.ndarray) -> str:
+        """Name the first factor whose residual or Jacobian is not finite at storage ``x``."""
+        values = self.values(x)
+        hits, total = fixed_clamp_hits(self, x)
+        clamped = (f"; at the initial values {total} clamped call(s) are outside their domain, "
+                   f"e.g. {hits[0]}" if total > 0 else "")
+        for f in self._col.sources:
+            try:
+                f.checked_error(values)
+                f.checked_jacobians(values)
+            except NonFiniteError as e:
+                return str(e) + clamped
+        return "the cost, gradient or H at the initial values is not finite" + clamped
+
+    def _damping(self, p: LMParams) -> tuple:
+        """(identity damping, lambda by factor) as LevenbergMarquardt resolves them."""
+        from ...manifolds.base import is_vector_kind
+
+        damping = getattr(p, "damping", "diagonal")
+        policy = getattr(p, "lambda_policy", "nielsen")
+        identity = damping == "identity" or (
+            damping == "auto" and not any(is_vector_kind(k) for k in self.kinds))
+        by_factor = policy == "factor" or (policy == "auto" and identity)
+        return identity, by_factor
+
+    def __repr__(self) -> str:
+        o = self.ops
+        return (f"FixedProblem({len(self.keys)} variables, {len(self._col.factors)} factors, "
+                f"tangent dim {self.size}; linearize {o['linearize']} ops, "
+                f"precompute {o['precompute']} ops)")
+
+
+def _params(params: LMParams | None, options: dict) -> LMParams:
+    p = params or LMParams()
+    if not options:
+        return p
+    fields = {f.name for f in dataclasses.fields(p)}
+    unknown = set(options) - fields
+    if unknown:
+        raise FgoptError(f"unknown option(s) {sorted(unknown)}; valid: {sorted(fields)}")
+    return dataclasses.replace(p, **options) if options else p
+
+
+def _message(code: int, v: float, p: LMParams) -> str:
+    return {
+        1: lambda: f"gradient norm {v:.3g} <= {p.gradient_tolerance:g}",
+        2: lambda: f"absolute cost decrease {v:.3g} < {p.absolute_tolerance:g}",
+        3: lambda: f"relative cost decrease {v:.3g} below the relative tolerance",
+        4: lambda: f"step norm {v:.3g} below step_tolerance",
+        5: lambda: ("damping exceeded max_lambda: the linear system stays singular (is a "
+                    "variable unconstrained?)"),
+        6: lambda: "no step decreases the cost (damping exceeded max_lambda)",
+        7: lambda: f"reached max_iterations={p.max_iterations}",
+    }.get(code, lambda: "")()
+
+
+# ------------------------------------------------------------------------------------ API
+def compile_fixed(graph: Any, values: Variables, cache: bool = True) -> FixedProblem:
+    """Compile ``graph`` (at ``values``) into a :class:`FixedProblem` (see the module docstring).
+
+    The generated module is reused from this process, else from the on-disk cache, else derived
+    (SymPy) and compiled (numba); ``problem.generation`` tells which and how long it took.
+    """
+    if not isinstance(values, Variables):
+        raise FgoptError(f"values must be fgopt.Variables, got {type(values).__name__}")
+    t0 = time.perf_counter()
+    col = _collect(graph, values)
+    info: dict = {}
+    module = _module(col, cache, info)
+    t1 = time.perf_counter()
+    fp = FixedProblem(col, values, module, info)
+    if not getattr(module, "_fgopt_warm", False):  # first call compiles / loads machine code
+        fp.linearize()
+        module._fgopt_warm = True
+    info["total"] = time.perf_counter() - t0
+    info["collect+module"] = t1 - t0
+    return fp
+
+
+def optimize_fixed(graph: Any, initial: Variables, params: LMParams | None = None,
+                   cache: bool = True, **lm_options: Any) -> Result:
+    """``compile_fixed(graph, initial).optimize(**lm_options)``: LM on the fixed formulation.
+
+    Same :class:`~fgopt.solvers.result.Result` as ``fgopt.optimize(graph, initial, "lm")``.
+    """
+    return compile_fixed(graph, initial, cache=cache).optimize(params=params, **lm_options)
