@@ -22,7 +22,7 @@ the variable.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .._jit import njit
 
 from ..solvers.linear._block_symbolic import etree, symbolic_columns
 from ._dense import add_cached, add_local_system, forward_rhs, partial_factor

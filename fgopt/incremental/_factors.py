@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numba import njit
+from .._jit import njit
 
 from .. import _assembly as asm
 from ..errors import FgoptError, NonFiniteError

@@ -19,7 +19,7 @@ Two implementations, chosen by size:
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .._jit import njit
 
 from ..structure import fill_reducing_order
 

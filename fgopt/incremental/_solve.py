@@ -16,7 +16,7 @@ marginal (the separator of each clique lies in its parent's variables).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .._jit import njit
 
 from ._state import unpack_cs, unpack_fs, unpack_vs
 

@@ -29,7 +29,7 @@ Counters the kernels update (stamps, pool tops and free lists, free stacks) sit 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .._jit import njit
 
 from ._pool import NCLASS
 

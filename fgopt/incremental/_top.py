@@ -15,7 +15,7 @@ Array tuples ``vs``, ``fs``, ``cs`` are :class:`~fgopt.incremental._state.TreeSt
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .._jit import njit
 
 from ._state import unpack_cs, unpack_fs, unpack_vs
 from ._pool import free

@@ -15,7 +15,7 @@ Back-substitution is deferred to the next read of the estimate, as in iSAM2
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .._jit import njit
 
 from ._eliminate import eliminate
 from ._ordering import min_degree
