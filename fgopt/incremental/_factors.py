@@ -37,6 +37,39 @@ def loss_parts(loss: Any) -> tuple[np.ndarray, int, float, float]:
     return np.asarray(loss.sqrt_information), 0, 0.0, 0.0
 
 
+def compiled_linearize(kernel: Any) -> Any:
+    """``kernel.linearize``, run through its numba kernel whatever the batch size.
+
+    Generated kernel modules run a NumPy twin of the kernel up to ``NUMPY_MAX_BATCH`` instances
+    (no numba start-up for small problems); an online update linearizes one to a few factors
+    per call, where the twin costs ~150 us and the compiled kernel ~3 us (M3500: 0.22 vs
+    0.11 ms per update). The module's ``_linearize_kernel(*args, consts, res, jac)`` is used
+    when it exists and agrees with ``kernel.linearize`` on a first call; otherwise (hand-written
+    kernels) ``kernel.linearize`` itself.
+    """
+    raw = getattr(kernel.linearize, "__globals__", {}).get("_linearize_kernel")
+    if raw is None:
+        return kernel.linearize
+    raw = getattr(raw, "dispatcher", raw)
+    r, D = kernel.residual_dim, kernel.tangent_dim
+    checked = []
+
+    def linearize(args: tuple, consts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        n = consts.shape[0]
+        res = np.empty((n, r))
+        jac = np.empty((n, r, D))
+        raw(*args, consts, res, jac)
+        if not checked:
+            ref = kernel.linearize(args, consts)
+            if not (np.allclose(ref[0], res, equal_nan=True)
+                    and np.allclose(ref[1], jac, equal_nan=True)):
+                return ref
+            checked.append(True)
+        return res, jac
+
+    return linearize
+
+
 @dataclass(eq=False)
 class _Batch:
     kernel: Any
@@ -50,6 +83,7 @@ class _Batch:
     fac: np.ndarray = field(default=None)         # (cap,) factor slot, -1 free
     free: list = field(default_factory=list)
     hwm: int = 0
+    linearize: Any = None                         # compiled_linearize(kernel)
 
     def grow(self, n: int) -> None:
         cap = self.fac.shape[0]
@@ -195,7 +229,7 @@ class FactorStore:
             batch = _Batch(kernel, code, k, shape, tuple(kids),
                            np.zeros((16, len(kernel.arg_kinds)), np.int64),
                            np.zeros((16, kernel.num_constants)), np.zeros((16, r, r)),
-                           np.full(16, -1, np.int64))
+                           np.full(16, -1, np.int64), linearize=compiled_linearize(kernel))
             b = self._batch_of[key] = len(self.batches)
             self.batches.append(batch)
         return b
@@ -309,7 +343,7 @@ class FactorStore:
             rows = self.fac_row[sel]
             vs = batch.var_slots[rows]
             args = tuple([theta[kid][vs[:, j]] for j, kid in enumerate(self._kids(batch))])
-            res, jac = batch.kernel.linearize(args, batch.consts[rows])
+            res, jac = batch.linearize(args, batch.consts[rows])
             ok = _local_systems(res, jac, batch.R[rows], batch.code, batch.k, batch.shape,
                                 tree.hpool, tree.fac_hoff[sel])
             if not ok:
