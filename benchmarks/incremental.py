@@ -230,7 +230,8 @@ class GtsamAdapter:
         return m.inverse()
 
     def landmark(self, pose, bearing, range_):
-        return pose.transformFrom(np.array([range_ * math.cos(bearing), range_ * math.sin(bearing)]))
+        local = np.array([range_ * math.cos(bearing), range_ * math.sin(bearing)])
+        return pose.transformFrom(local)
 
     def update(self, ids, values):
         g = self.g

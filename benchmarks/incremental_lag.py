@@ -79,7 +79,8 @@ def flatness(r: dict) -> dict:
     n = len(u) // 10
     return {"first10_median_ms": 1e3 * float(np.median(u[:n])),
             "last10_median_ms": 1e3 * float(np.median(u[-n:])),
-            "first10_mean_ms": 1e3 * float(u[:n].mean()), "last10_mean_ms": 1e3 * float(u[-n:].mean()),
+            "first10_mean_ms": 1e3 * float(u[:n].mean()),
+            "last10_mean_ms": 1e3 * float(u[-n:].mean()),
             "p99_ms": 1e3 * float(np.percentile(u, 99)), "total_cpu": r["total_cpu"]}
 
 
@@ -118,7 +119,8 @@ def report(out: dict) -> str:
         mem = (f"{f['bytes_at_10pct'] / 1e6:.2f} / {f['bytes_at_50pct'] / 1e6:.2f} / "
                f"{f['bytes_at_end'] / 1e6:.2f} MB" if "bytes_at_end" in f else "-")
         rows.append(f"| {lib} | {f['first10_median_ms']:.3f} / {f['first10_mean_ms']:.3f} | "
-                    f"{f['last10_median_ms']:.3f} / {f['last10_mean_ms']:.3f} | {f['p99_ms']:.2f} | "
+                    f"{f['last10_median_ms']:.3f} / {f['last10_mean_ms']:.3f} | "
+                    f"{f['p99_ms']:.2f} | "
                     f"{f['total_cpu']:.2f} | {mem} |")
     return "\n".join(rows)
 

@@ -21,8 +21,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from .._jit import njit
 
+from .._jit import njit
 from ..solvers.linear._block_kernels import (_CL, _CN, _CR, _CT, _I0, _dpotrf, _dsyrk,
                                              _dtrsm)
 

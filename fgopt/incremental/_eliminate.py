@@ -22,13 +22,13 @@ the variable.
 from __future__ import annotations
 
 import numpy as np
-from .._jit import njit
 
+from .._jit import njit
 from ..solvers.linear._block_symbolic import etree, symbolic_columns
 from ._dense import add_cached, add_local_system, forward_rhs, partial_factor
-from ._state import unpack_cs, unpack_fs, unpack_vs
 from ._pool import alloc
-from ._state import M_CL_HWM, M_CL_NFREE, M_CN_HEAD, M_CN_TOP, M_CV_HEAD, M_CV_TOP
+from ._state import (M_CL_HWM, M_CL_NFREE, M_CN_HEAD, M_CN_TOP, M_CV_HEAD, M_CV_TOP, unpack_cs,
+                     unpack_fs, unpack_vs)
 
 
 @njit(cache=True)

@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from .._jit import njit
 
+from .._jit import njit
 from .. import _assembly as asm
 from ..errors import FgoptError, NonFiniteError
 from ..factors.base import Factor

@@ -12,8 +12,8 @@ lists the subtrees' variables, which the caller re-eliminates with ``M`` first w
 from __future__ import annotations
 
 import numpy as np
-from .._jit import njit
 
+from .._jit import njit
 from ._pool import free
 from ._state import M_CN_HEAD, M_CV_HEAD, M_CL_NFREE, M_NCLIQUES, M_STAMP, unpack_cs, unpack_vs
 from ._top import _push, _unlink

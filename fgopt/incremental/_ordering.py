@@ -19,8 +19,8 @@ Two implementations, chosen by size:
 from __future__ import annotations
 
 import numpy as np
-from .._jit import njit
 
+from .._jit import njit
 from ..structure import fill_reducing_order
 
 #: Tops up to this many variables are ordered by the bitset minimum degree.

@@ -16,6 +16,7 @@ failed update. Blocks are freed only after an update has succeeded.
 from __future__ import annotations
 
 import numpy as np
+
 from .._jit import njit
 
 #: Size classes per pool (blocks up to 2^47 entries).

@@ -16,11 +16,10 @@ marginal (the separator of each clique lies in its parent's variables).
 from __future__ import annotations
 
 import numpy as np
+
 from .._jit import njit
-
-from ._state import unpack_cs, unpack_fs, unpack_vs
-
 from ._dense import back_substitute
+from ._state import unpack_cs, unpack_vs
 
 
 @njit(cache=True)

@@ -29,8 +29,8 @@ Counters the kernels update (stamps, pool tops and free lists, free stacks) sit 
 from __future__ import annotations
 
 import numpy as np
-from .._jit import njit
 
+from .._jit import njit
 from ._pool import NCLASS
 
 # indices into ``meta``: counters, then the free-list heads of the three pools (``_pool.py``)

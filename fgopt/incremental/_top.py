@@ -15,12 +15,11 @@ Array tuples ``vs``, ``fs``, ``cs`` are :class:`~fgopt.incremental._state.TreeSt
 from __future__ import annotations
 
 import numpy as np
-from .._jit import njit
 
-from ._state import unpack_cs, unpack_fs, unpack_vs
+from .._jit import njit
 from ._pool import free
 from ._state import (M_ADJ_HWM, M_ADJ_NFREE, M_CL_NFREE, M_CN_HEAD, M_CV_HEAD, M_HP_HEAD,
-                     M_NCLIQUES, M_STAMP)
+                     M_NCLIQUES, M_STAMP, unpack_cs, unpack_fs, unpack_vs)
 
 
 @njit(cache=True)
@@ -43,12 +42,14 @@ def remove_top(vs, fs, cs, cvpool, meta, marked, new_facs, skip_facs, batch_frac
     and the stamp marking the top's variables in ``var_mark``.
     """
     V_ = unpack_vs(vs)
-    var_dim, var_clique, var_mark = V_[0], V_[1], V_[2]
+    var_clique, var_mark = V_[1], V_[2]
     var_fhead, var_live = V_[5], V_[9]
     F_ = unpack_fs(fs)
-    fac_nv, fac_vars, fac_mark, fac_alive, adj_next, adj_fac = F_[0], F_[1], F_[4], F_[5], F_[6], F_[7]
+    fac_nv, fac_vars, fac_mark, fac_alive = F_[0], F_[1], F_[4], F_[5]
+    adj_next, adj_fac = F_[6], F_[7]
     C_ = unpack_cs(cs)
-    cl_parent, cl_child, cl_next, cl_voff, cl_nf, cl_mark = C_[0], C_[1], C_[2], C_[4], C_[5], C_[10]
+    cl_parent, cl_child, cl_next = C_[0], C_[1], C_[2]
+    cl_voff, cl_nf, cl_mark = C_[4], C_[5], C_[10]
     meta[M_STAMP] += 1
     s = meta[M_STAMP]
     T = np.empty(max(16, marked.shape[0]), np.int64)
@@ -332,7 +333,8 @@ def adjacent(vs, fs, meta, J, removed):
     V_ = unpack_vs(vs)
     var_fhead = V_[5]
     F_ = unpack_fs(fs)
-    fac_nv, fac_vars, fac_mark, fac_alive, adj_next, adj_fac = F_[0], F_[1], F_[4], F_[5], F_[6], F_[7]
+    fac_nv, fac_vars, fac_mark, fac_alive = F_[0], F_[1], F_[4], F_[5]
+    adj_next, adj_fac = F_[6], F_[7]
     var_mark = V_[2]
     meta[M_STAMP] += 1
     s = meta[M_STAMP]

@@ -3,9 +3,9 @@ most updates of an online problem re-eliminate a handful of variables).
 
 ``tree_update`` removes the top for the marked variables, assigns ordering groups, builds the
 top's graph and, when the top is small enough for the bitset minimum degree, orders it and
-calls ``tree_finish`` (re-eliminate, commit, mark the top for back-substitution) itself. A larger top returns
-``NEED_ORDER`` with its graph; the caller orders it (CHOLMOD AMD) and calls ``tree_finish``.
-A non-positive pivot returns ``FAILED`` before anything is committed.
+calls ``tree_finish`` (re-eliminate, commit, mark the top for back-substitution) itself. A
+larger top returns ``NEED_ORDER`` with its graph; the caller orders it (CHOLMOD AMD) and calls
+``tree_finish``. A non-positive pivot returns ``FAILED`` before anything is committed.
 
 ``info`` (int64): ``[t, nnz change, new cliques, (unused), batch, failed variable]``.
 Back-substitution is deferred to the next read of the estimate, as in iSAM2
@@ -15,15 +15,15 @@ Back-substitution is deferred to the next read of the estimate, as in iSAM2
 from __future__ import annotations
 
 import numpy as np
-from .._jit import njit
 
+from .._jit import njit
 from ._eliminate import eliminate
 from ._ordering import min_degree
 from ._state import M_STAMP, unpack_vs
 from ._top import commit, panel_entries, remove_top, top_graph
 
 OK, NEED_ORDER, FAILED = 0, 1, 2
-I_T, I_NNZ, I_NEW, I_SOLVED, I_BATCH, I_FAIL = range(6)
+I_T, I_NNZ, I_NEW, _, I_BATCH, I_FAIL = range(6)
 
 
 @njit(cache=True)

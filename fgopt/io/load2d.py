@@ -13,9 +13,9 @@ Records (one per line, tags as GTSAM's ``dataset.cpp`` reads them)::
 covariance in those orders, ``"sqrt_information"`` iSAM's upper-triangular square-root
 information (``xx xy xt yy yt tt``; Kaess's ``Loader.cpp``), or ``"auto"``: GTSAM's guess per
 edge from the zero pattern, ``"graph"`` when exactly ``v1, v3, v4`` are non-zero and ``"cov"``
-when exactly ``v1, v4, v6`` are (any other pattern is an error). A ``LANDMARK`` becomes a bearing-range measurement, ``bearing = atan2(ly, lx)``,
-``range = |l|``, with GTSAM's sigmas: ``sqrt(v1 / 10)`` and ``sqrt(v1)`` when ``v1 == v3``
-(within 1e-4), else 1 and 1.
+when exactly ``v1, v4, v6`` are (any other pattern is an error). A ``LANDMARK`` becomes a
+bearing-range measurement, ``bearing = atan2(ly, lx)``, ``range = |l|``, with GTSAM's sigmas:
+``sqrt(v1 / 10)`` and ``sqrt(v1)`` when ``v1 == v3`` (within 1e-4), else 1 and 1.
 
 Poses get keys ``key('x', id)``, landmarks ``key('l', id)``. Edges become ``BetweenFactor``
 (SE2) factors, landmark measurements ``range_bearing_factor`` (measured ``[range, bearing]``).

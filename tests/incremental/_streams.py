@@ -7,7 +7,7 @@ import numpy as np
 
 import fgopt
 from fgopt import BetweenFactor, FactorGraph, PriorFactor, key
-from fgopt.manifolds import SE2, SE3
+from fgopt.manifolds import SE3
 from fgopt.noise import Diagonal
 from fgopt.problem import Problem
 

@@ -55,8 +55,8 @@ def _landmark_problem():
         for j in range(3):
             if (i + j) % 2 == 0:
                 d = poses[i].inverse().act(lms[j])
-                fs.append(range_bearing_factor(pose=x(i), landmark=L(j), loss=rb,
-                                               measured=np.array([np.hypot(*d), np.arctan2(d[1], d[0])])))
+                m = np.array([np.hypot(*d), np.arctan2(d[1], d[0])])
+                fs.append(range_bearing_factor(pose=x(i), landmark=L(j), loss=rb, measured=m))
                 if all(L(j) not in v for _, v in steps) and L(j) not in vals:
                     vals[L(j)] = lms[j] + rng.normal(0, 0.1, 2)
         steps.append((fs, vals))

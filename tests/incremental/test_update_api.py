@@ -13,7 +13,7 @@ from fgopt.factors.library.range_bearing import range_bearing_factor, range_fact
 from fgopt.manifolds import SE2
 from fgopt.noise import Diagonal, Huber
 
-from ._streams import gauss_newton_step, max_tangent_difference, pose_stream, x
+from ._streams import max_tangent_difference, pose_stream, x
 
 EXACT = dict(relinearize_threshold=0.0, relinearize_skip=1, wildfire_threshold=0.0,
              extra_steps=8)
