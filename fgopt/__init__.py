@@ -77,6 +77,10 @@ _ATTRS = {
     "manifold": (".symbolic.declare", "manifold"),
     "Product": (".symbolic.declare", "Product"),
     "check_manifold": (".symbolic.declare", "check_manifold"),
+    "incremental": (".incremental", None),
+    "IncrementalSmoother": (".incremental", "IncrementalSmoother"),
+    "IncrementalParams": (".incremental", "IncrementalParams"),
+    "FixedLagSmoother": (".incremental", "FixedLagSmoother"),
 }
 #: Numeric value types of the manifolds shipped as declarations (their symbolic twins are
 #: ``fgopt.symbolic.Unit3`` ...).
