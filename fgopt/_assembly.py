@@ -9,7 +9,7 @@ precomputed positions (lower triangle only) and ``w J^T r`` into g. Returns the 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from ._jit import njit, prange
 
 from .noise.robust import rho_and_weight
 

@@ -29,7 +29,7 @@ import os
 import zlib
 from dataclasses import dataclass
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from ..errors import FileFormatError
@@ -39,7 +39,7 @@ _FNV_PRIME = np.uint64(0x100000001B3)
 _MAX_MANTISSA = 1 << 53
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _is_space(c):
     return c == 32 or c == 9 or c == 13 or c == 11 or c == 12
 
@@ -63,7 +63,7 @@ _EXP_RANGE = 250
 _P10_HI, _P10_LO = _pow10_table()
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _two_prod(a, b):
     """Exact ``a * b = p + e`` (Dekker / Veltkamp splitting; no FMA needed)."""
     p = a * b
@@ -77,7 +77,7 @@ def _two_prod(a, b):
     return p, e
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _scale_exact(m, exp10, p10_hi, p10_lo):
     """Correctly rounded ``m * 10**exp10`` (``0 < m < 10**18``); ``ok`` False when unsure."""
     if exp10 == 0 and m <= _MAX_MANTISSA:
@@ -109,7 +109,7 @@ def _scale_exact(m, exp10, p10_hi, p10_lo):
     return h, True
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _parse_number(buf, s, e, p10_hi, p10_lo):
     """Parse ``buf[s:e]``; returns ``(value, ok)``. ``ok`` False: let Python decide."""
     j = s
@@ -175,7 +175,7 @@ def _parse_number(buf, s, e, p10_hi, p10_lo):
     return (-v if neg else v), ok
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _scan(buf, has_tag, comment, p10_hi, p10_lo):
     n = buf.shape[0]
     num_lines = 1
@@ -251,7 +251,7 @@ def _scan(buf, has_tag, comment, p10_hi, p10_lo):
             rec_count[:nr], tag_hash[:nr], tag_start[:nr], tag_end[:nr])
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _gather_tokens(buf, start, end, width):
     out = np.zeros((start.shape[0], width), dtype=np.uint8)
     for i in range(start.shape[0]):

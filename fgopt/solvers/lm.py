@@ -152,7 +152,7 @@ class LevenbergMarquardt:
                 if done is not None:
                     return run.finish(Status.CONVERGED, done)
             else:
-                stop = run.record(it, new_cost, lam, step_norm, False, old)
+                stop = run.record(it, new_cost, lam, step_norm, False, old, predicted)
                 if by_factor:
                     lam *= p.lambda_factor
                 else:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from ..errors import ManifoldError
 from .declare.twin import DeclaredManifold
 from .lie import LieGroupBase
 from .matrix import Matrix, Scalar
@@ -53,7 +54,7 @@ def normalize_type(tp: Any) -> type:
         return Scalar
     if not is_symbolic_type(tp):
         name = getattr(tp, "__name__", repr(tp))
-        raise TypeError(
+        raise ManifoldError(
             f"{name} is not a symbolic argument type: use Rot2, Rot3, Pose2, Pose3, NavState, "
             "V1..V9, Matrix.shaped(r, c), Scalar or a manifold declared with @fgopt.manifold")
     return tp
