@@ -63,6 +63,16 @@ _ATTRS = {
     "solvers": (".solvers", None),
     "distributed": (".distributed", None),
     "cameras": (".cameras", None),
+    "navigation": (".navigation", None),
+    # fgopt.navigation costs ~0.1 s to import: its classes load with it, on first use
+    "NavState": (".navigation", "NavState"),
+    "ImuBias": (".navigation", "ImuBias"),
+    "PreintegrationParams": (".navigation", "PreintegrationParams"),
+    "PreintegratedImu": (".navigation", "PreintegratedImu"),
+    "PreintegratedCombinedImu": (".navigation", "PreintegratedCombinedImu"),
+    "ImuFactor": (".navigation", "ImuFactor"),
+    "CombinedImuFactor": (".navigation", "CombinedImuFactor"),
+    "GpsFactor": (".navigation", "GpsFactor"),
     "solve_many": (".distributed", "solve_many"),
     "manifold": (".symbolic.declare", "manifold"),
     "Product": (".symbolic.declare", "Product"),
@@ -76,6 +86,10 @@ _ATTRS = {
     "ImuFactor": (".navigation", "ImuFactor"),
     "CombinedImuFactor": (".navigation", "CombinedImuFactor"),
     "GpsFactor": (".navigation", "GpsFactor"),
+    "incremental": (".incremental", None),
+    "IncrementalSmoother": (".incremental", "IncrementalSmoother"),
+    "IncrementalParams": (".incremental", "IncrementalParams"),
+    "FixedLagSmoother": (".incremental", "FixedLagSmoother"),
 }
 #: Numeric value types of the manifolds shipped as declarations (their symbolic twins are
 #: ``fgopt.symbolic.Unit3`` ...).

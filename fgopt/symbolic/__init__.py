@@ -16,10 +16,12 @@ Module map (one job each): ``matrix`` (Matrix, V1..V9, Scalar), ``lie`` (group b
 ``ops`` (storage/tangent ops), ``jacobians`` (tangent-space Jacobians), ``singularity``
 (removable-singularity checker), ``linearize`` (residual + Jacobian programs), ``cse``,
 ``printer``, ``codegen`` (kernel modules), ``cache`` (on-disk cache), ``derive`` (a factor's
-kernel source), ``runtime`` (helpers of generated code), ``declare`` (``@fgopt.manifold``:
-user-declared manifolds, ``Product``, ``check_manifold``), ``geometry`` (manifolds declared that
-way that ship with fgopt: ``Unit3``, ``OrientedPlane3``, ``SE23``; loaded on first access). ``@fgopt.factor`` itself, which makes
-factor types from these, is :mod:`fgopt.factors.decorator` (the factors layer).
+kernel source), ``runtime`` (helpers of generated code), ``generated`` (:func:`generate`:
+functions with tangent Jacobians as numba functions; derived in ``_generate_source``), ``declare``
+(``@fgopt.manifold``: user-declared manifolds, ``Product``, ``check_manifold``), ``geometry``
+(manifolds declared that way that ship with fgopt: ``Unit3``, ``OrientedPlane3``, ``SE23``;
+loaded on first access). ``@fgopt.factor`` itself, which makes factor types from these, is
+:mod:`fgopt.factors.decorator` (the factors layer).
 
 Importing this package does not import SymPy; ``epsilon`` and ``pi`` (SymPy objects) load it on
 first access.
@@ -89,6 +91,8 @@ _LAZY = {
     "check_removable_singularity": (".singularity", "check_removable_singularity"),
     "python_function": (".codegen", "python_function"),
     "total_ops": (".cse", "total_ops"),
+    "generate": (".generated", "generate"),
+    "GeneratedFunction": (".generated", "GeneratedFunction"),
     "manifold": (".declare", "manifold"),
     "Product": (".declare", "Product"),
     "check_manifold": (".declare", "check_manifold"),
