@@ -63,6 +63,22 @@ class HessianPattern:
 BANDED = 8
 
 
+def _densely_banded(num_vars: int, pairs_i: np.ndarray, pairs_j: np.ndarray) -> bool:
+    """Every coupling within ``BANDED`` positions, and at least half the band's block pairs
+    coupled: eliminating in the given order then only fills what is mostly filled already (a
+    chain of navigation states), unlike a thin 2-D grid's sparse band, where AMD does better."""
+    if pairs_i.shape[0] == 0:
+        return False
+    a = np.asarray(pairs_i, dtype=np.int64)
+    b = np.asarray(pairs_j, dtype=np.int64)
+    width = int(np.max(np.abs(a - b)))
+    if width == 0 or width > BANDED:
+        return False
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    coupled = np.unique(lo[lo != hi] * num_vars + hi[lo != hi]).shape[0]
+    return coupled >= 0.5 * num_vars * width
+
+
 def fill_reducing_order(num_vars: int, pairs_i: np.ndarray, pairs_j: np.ndarray,
                         method: str = "amd") -> np.ndarray:
     """A permutation of the variables (block graph) that reduces Cholesky fill.
@@ -71,9 +87,9 @@ def fill_reducing_order(num_vars: int, pairs_i: np.ndarray, pairs_j: np.ndarray,
     AMD when the ``fgopt[cholmod]`` extra is installed, else ``"mmd"``: the multiple minimum
     degree ordering of SuperLU (in scipy's wheels) on the block graph, which measured the same
     fill as AMD on M3500 and less on sphere2500 (``benchmarks/startup.py``, ordering table).
-    Tiny problems, and (for ``"amd"``/``"mmd"``) graphs already banded in the given order
-    (every coupling within ``BANDED`` variables, e.g. a navigation chain of states in time
-    order), keep the given order: fill stays inside the band, and skipping the ordering measured 1.4 ms faster per
+    Tiny problems, and (for ``"amd"`` / ``"mmd"``) graphs densely banded in the given order
+    (:func:`_densely_banded`, e.g. a navigation chain of states in time order), keep the given
+    order: fill stays inside the band, and skipping the ordering measured 1.4 ms faster per
     solve of GTSAM's ImuFactorsExample (101 states; 2.9 -> 2.1 ms to compile).
     """
     from .errors import FgoptError, have_extra, missing_extra
@@ -85,9 +101,7 @@ def fill_reducing_order(num_vars: int, pairs_i: np.ndarray, pairs_j: np.ndarray,
         raise missing_extra("sksparse", f"ordering={method!r}")
     if method == "natural" or num_vars <= 16:  # tiny problems: ordering costs more than fill
         return np.arange(num_vars)
-    if method in ("amd", "mmd") and pairs_i.shape[0] > 0 and int(np.max(np.abs(np.asarray(pairs_i, dtype=np.int64)
-                                                  - np.asarray(pairs_j, dtype=np.int64)))) \
-            <= BANDED:
+    if method in ("amd", "mmd") and _densely_banded(num_vars, pairs_i, pairs_j):
         return np.arange(num_vars)
     import scipy.sparse as sp
 

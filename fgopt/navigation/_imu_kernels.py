@@ -46,7 +46,7 @@ logmap flag``. ``GpsFactor``: ``e = t + R arm - m``, constants ``[m, arm]``.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .._jit import njit
 
 from ..manifolds._kernels import rotation_block
 from ._preint_kernels import JPA, JPW, JRW, JVA, JVW, P_, R_, T_, V_, coriolis_terms

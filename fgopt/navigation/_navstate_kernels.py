@@ -24,7 +24,7 @@ division by ``sin`` near pi) are those of :mod:`fgopt.manifolds._kernels`.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .._jit import njit
 
 from ..manifolds._kernels import (
     quat_mul,

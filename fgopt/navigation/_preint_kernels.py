@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .._jit import njit
 
 from ..manifolds._kernels import skew_poly3
 from ._so3_matrix import exp_matrix, jr_matrix, mm3, mv3

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
+from .._jit import njit
 
 from ..manifolds._kernels import quat_from_matrix, skew_poly3, so3_coeffs, so3_log
 
