@@ -135,14 +135,16 @@ class Problem:
 
     # ----------------------------------------------------------------- compile: variables
     def _collect_variables(self, graph: Any, values: Variables) -> None:
-        used: dict[int, None] = {}
-        for f in graph.factors:
-            for k in f.keys:
-                if k not in values:
-                    raise KeyNotFoundError(
-                        f"{f.describe()} uses {key_str(k)}, which is not in the initial values: "
-                        f"add it with Variables.add({key_str(k)}, value)")
-                used.setdefault(k, None)
+        # keys in order of first use (one dict build, no Python call per key)
+        used: dict[int, None] = dict.fromkeys(k for f in graph.factors for k in f.keys)
+        have = values._values
+        if not all(k in have for k in used):
+            for f in graph.factors:
+                for k in f.keys:
+                    if k not in have:
+                        raise KeyNotFoundError(
+                            f"{f.describe()} uses {key_str(k)}, which is not in the initial "
+                            f"values: add it with Variables.add({key_str(k)}, value)")
         if graph.batches:
             batch_keys = np.unique(np.concatenate([b.keys.reshape(-1) for b in graph.batches]))
             for k in batch_keys.tolist():

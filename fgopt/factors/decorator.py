@@ -382,6 +382,14 @@ def batch_kind_of(tp: type):
         return M.vector_kind(tp.storage_dim())
     if issubclass(tp, DeclaredManifold):
         return tp.Value.batch_kind()
+    from ..symbolic.ops import NUMERIC_TWINS
+
+    registered = NUMERIC_TWINS.get(tp)
+    if registered is not None:
+        return registered.batch_kind()
+    if tp.__name__ == "NavState":
+        raise FgoptError("symbolic NavState variables hold fgopt.navigation.NavState values: "
+                         "import fgopt.navigation first")
     twin = _NUMERIC_TWIN.get(tp.__name__)
     if twin is None or not hasattr(M, twin):
         raise FgoptError(f"no numeric manifold for symbolic type {tp.__name__}")

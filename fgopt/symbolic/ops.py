@@ -25,6 +25,17 @@ def _s():
     return _sym
 
 
+#: Symbolic type -> numeric value class (with ``batch_kind()``) for types whose numeric twin
+#: lives above the symbolic layer (``fgopt.navigation.NavState``); the twin's package registers
+#: itself on import (:func:`register_numeric_twin`).
+NUMERIC_TWINS: dict = {}
+
+
+def register_numeric_twin(symbolic_type: type, numeric_cls: type) -> None:
+    """Variables of ``symbolic_type`` in ``@fgopt.factor`` hold ``numeric_cls`` values."""
+    NUMERIC_TWINS[symbolic_type] = numeric_cls
+
+
 def is_symbolic_type(tp: Any) -> bool:
     if tp in (float, int, Scalar):
         return True
@@ -44,8 +55,8 @@ def normalize_type(tp: Any) -> type:
     if not is_symbolic_type(tp):
         name = getattr(tp, "__name__", repr(tp))
         raise ManifoldError(
-            f"{name} is not a symbolic argument type: use Rot2, Rot3, Pose2, Pose3, V1..V9, "
-            "Matrix.shaped(r, c), Scalar or a manifold declared with @fgopt.manifold")
+            f"{name} is not a symbolic argument type: use Rot2, Rot3, Pose2, Pose3, NavState, "
+            "V1..V9, Matrix.shaped(r, c), Scalar or a manifold declared with @fgopt.manifold")
     return tp
 
 

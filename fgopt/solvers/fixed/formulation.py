@@ -416,14 +416,28 @@ class FixedProblem:
 
     def _damping(self, p: LMParams) -> tuple:
         """(identity damping, lambda by factor) as LevenbergMarquardt resolves them."""
-        from ...manifolds.base import is_vector_kind
+        from ..lm import auto_policy, problem_class_for
 
-        damping = getattr(p, "damping", "diagonal")
-        policy = getattr(p, "lambda_policy", "nielsen")
-        identity = damping == "identity" or (
-            damping == "auto" and not any(is_vector_kind(k) for k in self.kinds))
-        by_factor = policy == "factor" or (policy == "auto" and identity)
-        return identity, by_factor
+        return auto_policy(problem_class_for(self.kinds, False, self._pattern), p)
+
+    def _pattern(self):
+        """The block pattern of H (natural order; only its variable kinds and couplings matter
+        for the damping choice)."""
+        from ...structure import build_pattern
+
+        pi, pj = [], []
+        for f in self._col.factors:
+            vs = list(f.var_idx)
+            for a in range(len(vs)):
+                for b in range(a + 1, len(vs)):
+                    pi.append(vs[a])
+                    pj.append(vs[b])
+        dims = np.array([k.dim for k in self.kinds], dtype=np.int64)
+        pattern, _ = build_pattern(dims, np.arange(len(self.keys)),
+                                   np.array(pi, dtype=np.int64), np.array(pj, dtype=np.int64))
+        ids = {id(k): i for i, k in enumerate(dict.fromkeys(self.kinds))}
+        pattern.var_kind = np.array([ids[id(k)] for k in self.kinds], dtype=np.int64)
+        return pattern
 
     def __repr__(self) -> str:
         o = self.ops
