@@ -459,8 +459,12 @@ def main(argv=None):
 def _jsonable(r):
     if isinstance(r, dict):
         return {k: _jsonable(v) for k, v in r.items()}
-    if isinstance(r, np.ndarray):
-        return [round(float(x), 7) for x in r]
+    if isinstance(r, np.ndarray):        # per-step times: a summary (the full lists are MBs)
+        n = r.shape[0] // 10
+        return {"n": int(r.shape[0]), "sum": float(r.sum()), "median": float(np.median(r)),
+                "p90": float(np.percentile(r, 90)), "p99": float(np.percentile(r, 99)),
+                "max": float(r.max()), "first10pct_mean": float(r[:n].mean()),
+                "last10pct_mean": float(r[-n:].mean())}
     if isinstance(r, (np.floating, np.integer)):
         return r.item()
     return r
