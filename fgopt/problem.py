@@ -33,19 +33,21 @@ from .noise.models import base_noise, loss_code_and_param
 from .key import Key, key_str
 from .manifolds.base import SCALAR_KIND, BatchKind, is_vector_kind, ops_for
 from .structure import HessianPattern, build_pattern, fill_reducing_order, scatter_positions
+from ._jit import charge_numpy, numpy_budget_left
 from ._threads import PARALLEL_MIN_BATCH, linearize_batch_threaded
 from .variables import Variables
 
 
 
-#: Batches up to this size are assembled by the NumPy twins (no numba import or cache load);
-#: the same threshold as generated kernels' NumPy twins.
+#: Batches up to this size are assembled by the NumPy twins (no numba import or cache load)
+#: while the process's twin budget lasts; the same rule as generated kernels' NumPy twins.
 NUMPY_MAX_BATCH = 1000
 
 
 def _asm(n: int):
-    """The assembly kernels for a batch of ``n`` instances: NumPy when small, else numba."""
-    return asm_np if n <= NUMPY_MAX_BATCH else asm
+    """The assembly kernels for a batch of ``n`` instances: NumPy when small and the process's
+    twin budget lasts (``fgopt._jit.numpy_budget_left``), else numba."""
+    return asm_np if n <= NUMPY_MAX_BATCH and numpy_budget_left() else asm
 
 @dataclass(eq=False)
 class State:
@@ -374,8 +376,12 @@ class Problem:
         total = 0.0
         for b in self.batches:
             res = b.kernel.residual(b.gather(state), b.source.constants)
-            total += _asm(len(b.source)).batch_cost(res, b.sqrt_info, b.unit, b.source.loss_code,
-                                                    b.source.loss_param, b.source.loss_shape)
+            kernels = _asm(len(b.source))
+            t1 = time.perf_counter()
+            total += kernels.batch_cost(res, b.sqrt_info, b.unit, b.source.loss_code,
+                                        b.source.loss_param, b.source.loss_shape)
+            if kernels is asm_np:
+                charge_numpy(time.perf_counter() - t1)
         if self._slow:
             view = _StateView(self, state)
             for s in self._slow:
@@ -439,11 +445,15 @@ class Problem:
                 continue
             res, jac = b.kernel.linearize(b.gather(state), b.source.constants)
             t1 = time.perf_counter()
-            total += _asm(len(b.source)).scatter_batch(
+            kernels = _asm(len(b.source))
+            total += kernels.scatter_batch(
                 res, jac, b.sqrt_info, b.unit, b.source.loss_code, b.source.loss_param,
                 b.source.loss_shape, b.arg_dims, b.arg_local_off, b.toff, b.pos, H, g, b.weights)
+            t2 = time.perf_counter()
+            if kernels is asm_np:
+                charge_numpy(t2 - t1)
             t_lin += t1 - t0
-            t_asm += time.perf_counter() - t1
+            t_asm += t2 - t1
         if self._slow:
             t0 = time.perf_counter()
             view = _StateView(self, state)

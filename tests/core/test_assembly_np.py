@@ -112,3 +112,34 @@ def test_small_solve_imports_no_numba():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          cwd=REPO, check=True)
     assert out.stdout.split() == ["True", "False"], out.stdout + out.stderr
+
+
+def test_small_batches_switch_to_numba_once_the_twin_budget_is_spent(monkeypatch):
+    """Rent or buy: while the process's NumPy budget lasts a small problem runs the twins (the
+    generated kernel stays uncompiled); once the twins have used it up, the same solve runs the
+    numba kernels, with the same iterates."""
+    from fgopt import _jit
+    from fgopt.factors.library import generated
+
+    def solve():
+        g, v = fgopt.FactorGraph(), fgopt.Variables()
+        n = fgopt.noise.Diagonal.sigmas([0.1, 0.5, 0.5])
+        g.add(fgopt.PriorFactor(fgopt.key("x", 0), fgopt.SE2(), n))
+        for i in range(20):
+            g.add(fgopt.BetweenFactor(fgopt.key("x", i), fgopt.key("x", i + 1),
+                                      fgopt.SE2.from_xytheta(1.0, 0.0, 0.1), n))
+            v.add(fgopt.key("x", i), fgopt.SE2.from_xytheta(i * 1.1, 0.2, 0.1 * i + 0.05))
+        v.add(fgopt.key("x", 20), fgopt.SE2.from_xytheta(22.0, 0.3, 2.1))
+        return fgopt.optimize(g, v)
+
+    monkeypatch.setattr(_jit, "NUMPY_BUDGET_SECONDS", 1e9)
+    twin = solve()
+    assert _jit._numpy_seconds[0] > 0.0
+    monkeypatch.setattr(_jit, "NUMPY_BUDGET_SECONDS", _jit._numpy_seconds[0])
+    assert not _jit.numpy_budget_left()
+    spent = _jit._numpy_seconds[0]
+    compiled = solve()
+    assert _jit._numpy_seconds[0] == spent  # nothing ran on the twins
+    assert generated.between_pose2.generated_module(("a", "b"))._linearize_kernel.compiled
+    assert compiled.iterations == twin.iterations
+    assert abs(compiled.final_cost - twin.final_cost) <= 1e-12 * max(1.0, twin.final_cost)
