@@ -28,6 +28,7 @@ factors) measured 22-26 ms per ``optimize`` on the twins and 6.1 ms on numba.
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
 from collections.abc import Callable
@@ -50,9 +51,27 @@ def python_mode():
         _mode.python = previous
 
 
+def _budget_from_environment(default: float = 0.5) -> float:
+    """``FGOPT_NUMPY_BUDGET`` (seconds; ``0``: always numba, ``inf``: small batches always NumPy)."""
+    text = os.environ.get("FGOPT_NUMPY_BUDGET", "").strip()
+    if not text:
+        return default
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not value >= 0.0:
+        from .errors import FgoptError
+
+        raise FgoptError(f"FGOPT_NUMPY_BUDGET={text!r}: give seconds >= 0 (0: always numba, "
+                         "inf: small batches always on their NumPy twins)")
+    return value
+
+
 #: Seconds a process spends in NumPy twins of small batches before they switch to numba
 #: (about numba's import, initialization and a few cache loads; see the module docstring).
-NUMPY_BUDGET_SECONDS = 0.5
+#: ``FGOPT_NUMPY_BUDGET`` overrides it (benchmarks of warm processes set 0).
+NUMPY_BUDGET_SECONDS = _budget_from_environment()
 _numpy_seconds = [0.0]
 
 
