@@ -2,6 +2,7 @@
 weights of real batches (every robust loss, unit and full noise), batched retracts of each group,
 per-value group operations, and a small solve that never imports numba."""
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -96,22 +97,38 @@ def test_value_operations_in_python_mode_equal_numba():
             assert np.allclose(r, g, rtol=1e-12, atol=1e-14)
 
 
+#: The README's 2-pose example as a script; prints whether it solved and whether numba loaded.
+TWO_POSE_SCRIPT = ("import sys, fgopt\n"
+                   "from fgopt import key, SE2, PriorFactor, BetweenFactor\n"
+                   "from fgopt.noise import Diagonal\n"
+                   "g, v = fgopt.FactorGraph(), fgopt.Variables()\n"
+                   "n = Diagonal.sigmas([0.1, 0.5, 0.5])\n"
+                   "g.add(PriorFactor(key('x', 1), SE2.from_xytheta(0, 0, 0), n))\n"
+                   "g.add(BetweenFactor(key('x', 1), key('x', 2), SE2.from_xytheta(5, 0, 0), n))\n"
+                   "v.add(key('x', 1), SE2.from_xytheta(0.2, -0.3, 0.2))\n"
+                   "v.add(key('x', 2), SE2.from_xytheta(5.1, 0.3, -0.1))\n"
+                   "r = fgopt.optimize(g, v)\n"
+                   "print(r.final_cost < 1e-12, 'numba' in sys.modules)\n")
+
+
+def _run_two_pose(**env: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", TWO_POSE_SCRIPT], capture_output=True,
+                          text=True, cwd=REPO, env={**os.environ, **env})
+
+
 def test_small_solve_imports_no_numba():
     """The README's 2-pose example, in a new process, solves without importing numba."""
-    code = ("import sys, fgopt\n"
-            "from fgopt import key, SE2, PriorFactor, BetweenFactor\n"
-            "from fgopt.noise import Diagonal\n"
-            "g, v = fgopt.FactorGraph(), fgopt.Variables()\n"
-            "n = Diagonal.sigmas([0.1, 0.5, 0.5])\n"
-            "g.add(PriorFactor(key('x', 1), SE2.from_xytheta(0, 0, 0), n))\n"
-            "g.add(BetweenFactor(key('x', 1), key('x', 2), SE2.from_xytheta(5, 0, 0), n))\n"
-            "v.add(key('x', 1), SE2.from_xytheta(0.2, -0.3, 0.2))\n"
-            "v.add(key('x', 2), SE2.from_xytheta(5.1, 0.3, -0.1))\n"
-            "r = fgopt.optimize(g, v)\n"
-            "print(r.final_cost < 1e-12, 'numba' in sys.modules)\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         cwd=REPO, check=True)
+    out = _run_two_pose()
     assert out.stdout.split() == ["True", "False"], out.stdout + out.stderr
+
+
+def test_numpy_budget_environment_variable():
+    """``FGOPT_NUMPY_BUDGET=0`` runs even the 2-pose solve on numba (what warm-process
+    benchmarks set); a value that is not seconds >= 0 is an FgoptError naming the variable."""
+    out = _run_two_pose(FGOPT_NUMPY_BUDGET="0")
+    assert out.stdout.split() == ["True", "True"], out.stdout + out.stderr
+    out = _run_two_pose(FGOPT_NUMPY_BUDGET="-1")
+    assert out.returncode != 0 and "FgoptError: FGOPT_NUMPY_BUDGET='-1'" in out.stderr
 
 
 def test_small_batches_switch_to_numba_once_the_twin_budget_is_spent(monkeypatch):
