@@ -42,6 +42,24 @@ def python_mode():
         _mode.python = previous
 
 
+@contextmanager
+def numpy_mode():
+    """Inside, fgopt's kernels that have a NumPy form use it for every batch size (generated
+    factor kernels' NumPy twins, the NumPy assembly, vectorized retracts, the NumPy reader):
+    a solve that needs no numba import, compilation or cache load (see ``Problem(backend=)``)."""
+    previous = getattr(_mode, "numpy", False)
+    _mode.numpy = True
+    try:
+        yield
+    finally:
+        _mode.numpy = previous
+
+
+def numpy_only() -> bool:
+    """Whether this thread is inside :func:`numpy_mode`."""
+    return getattr(_mode, "numpy", False)
+
+
 def _numba_prange(*args: int) -> range:
     """Plain ``range`` until numba compiles the kernel (see the module docstring)."""
     return range(*args)

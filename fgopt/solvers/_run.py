@@ -18,6 +18,15 @@ from .result import IterationRecord, Result, Status, stall_status
 Callback = Callable[[IterationRecord], "bool | None"]
 
 
+def _needs_numba(pattern: Any) -> bool:
+    """BA-shaped problems (many small point blocks): their solver is the numba Schur complement."""
+    if pattern.size <= 300:
+        return False
+    from .linear.schur import is_ba_shaped
+
+    return is_ba_shaped(pattern)
+
+
 class Run:
     """One optimization: the compiled problem, linear solver, current iterate and history."""
 
@@ -39,13 +48,17 @@ class Run:
             if not isinstance(initial, Variables):
                 raise FgoptError(
                     f"initial values must be fgopt.Variables, got {type(initial).__name__}")
+            backend = getattr(params, "backend", "auto")
             problem = Problem(graph, initial, ordering=params.ordering,
-                              threads=getattr(params, "threads", 1))
+                              threads=getattr(params, "threads", 1), backend=backend)
             warn_unused(problem.unused_keys)
+            if backend == "auto" and problem.backend == "numpy" and _needs_numba(problem.pattern):
+                problem.backend = "numba"  # BA-shaped: the Schur complement solver is numba's
         self.problem = problem
         if solver is None:
             choice = linear_solver if linear_solver is not None else params.linear_solver
-            solver = make_linear_solver(choice, pattern=problem.pattern)
+            solver = make_linear_solver(choice, pattern=problem.pattern,
+                                        backend=problem.backend)
             solver.analyze(problem.pattern)
         self.solver = solver
         self.t_setup = time.perf_counter() - self.t0

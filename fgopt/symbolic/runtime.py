@@ -7,12 +7,19 @@ from typing import Any
 
 import numpy as np
 
+from .._jit import numpy_only
 from ..errors import DimensionMismatchError
 
 #: Batches up to this size run a generated kernel's NumPy twin (same program on whole columns):
 #: no numba compilation or cache load for small problems and new custom factors; larger batches
 #: run the numba kernel (compiled once, then loaded from numba's cache).
 NUMPY_MAX_BATCH = 1000
+
+
+def use_numpy(n: int) -> bool:
+    """Whether a batch of ``n`` instances runs the NumPy twin: small batches, and every batch
+    inside :func:`fgopt._jit.numpy_mode` (a problem on the NumPy backend)."""
+    return n <= NUMPY_MAX_BATCH or numpy_only()
 
 
 def _as_kernel_array(a: Any) -> np.ndarray:
