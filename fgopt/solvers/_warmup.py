@@ -80,7 +80,7 @@ def mark_warm(problem: Any) -> None:
     """Record that ``problem``'s kernels are in numba's cache (after a numba-backend solve)."""
     try:
         marker(problem).touch()
-    except Exception:  # noqa: BLE001 - best effort
+    except Exception:  # noqa: BLE001, S110 - best effort
         pass
 
 

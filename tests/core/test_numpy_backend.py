@@ -40,9 +40,9 @@ def _numba_scan(buf: np.ndarray, has_tag: bool):
     return (values, bad) + tuple(out[2:])
 
 
-ODD_TEXT = [b"VERTEX_SE2 0 1 2 3\n# a comment line\n  EDGE 1 2 1_0 x\xc3\xa9 nan inf -1e400 1e-400 "
+ODD_TEXT = [(b"VERTEX_SE2 0 1 2 3\n# a comment line\n  EDGE 1 2 1_0 x\xc3\xa9 nan inf -1e400 1e-400 "
             b"0.1000000000000000055511151231257827 # tail\nTAG\nX 1\r\n\n\n"
-            b"12345678901234567890123 .5 +.5e3 -0 1e22 1e23 4.9e-324", b"", b"\n\n", b"A",
+            b"12345678901234567890123 .5 +.5e3 -0 1e22 1e23 4.9e-324"), b"", b"\n\n", b"A",
             b"A 1 2#x\nB 3", b"\t  \t\nV 1.5\tW\x0b2\x0c3"]
 
 
