@@ -18,12 +18,14 @@ accepted iterate stay intact.
 from __future__ import annotations
 
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from . import _assembly as asm
+from . import _jit
 from . import _assembly_np as asm_np
 from .batch import FactorBatch, batch_from_factors
 from .errors import (DimensionMismatchError, EmptyProblemError, FgoptError, KeyNotFoundError,
@@ -45,9 +47,27 @@ NUMPY_MAX_BATCH = 1000
 
 
 def _asm(n: int):
-    """The assembly kernels for a batch of ``n`` instances: NumPy when small and the process's
-    twin budget lasts (``fgopt._jit.numpy_budget_left``), else numba."""
-    return asm_np if n <= NUMPY_MAX_BATCH and numpy_budget_left() else asm
+    """The assembly kernels for a batch of ``n`` instances: NumPy on the NumPy backend
+    (:func:`fgopt._jit.numpy_mode`) and for small batches while the process's twin budget lasts
+    (:func:`fgopt._jit.numpy_budget_left`), else numba."""
+    return asm_np if _jit.numpy_only() or (n <= NUMPY_MAX_BATCH and numpy_budget_left()) \
+        else asm
+
+
+BACKENDS = ("auto", "numba", "numpy")
+
+#: ``backend="auto"`` runs a problem of at most this tangent dimension on the NumPy backend when
+#: numba is not in use in the process yet (and every kernel and manifold has a NumPy form): in a
+#: new process, numba's import, initialization and cache loads (0.7-1 s warm; 20-60 s of
+#: compilation with an empty cache) cost more than the NumPy path's slower iterations
+#: (measured: README, start-up section).
+NUMPY_BACKEND_MAX_SIZE = 30000
+
+
+def numpy_backend_supported(kernels, kinds) -> bool:
+    """Whether every kernel has NumPy twins and every manifold kind a NumPy retract."""
+    return (all(getattr(k, "numpy_twin", False) for k in kernels)
+            and all(getattr(kd.retract, "numpy", False) for kd in kinds))
 
 @dataclass(eq=False)
 class State:
@@ -73,6 +93,7 @@ class _Batch:
     weights: np.ndarray = field(default=None)
     sqrt_info0: np.ndarray = field(default=None)  # the factors' own noise (before GNC weights)
     unit0: bool = True
+    plan: tuple | None = field(default=None)     # NumPy assembly's scatter plan (made on use)
 
     def gather(self, state: State) -> tuple:
         return tuple(state.storages[kid][rows] for kid, rows in zip(self.kind_ids, self.rows))
@@ -123,17 +144,50 @@ class Problem:
     """A graph compiled against initial values; see the module docstring."""
 
     def __init__(self, graph: Any, values: Variables, ordering: str | None = "amd",
-                 build_structure: bool = True, threads: int = 1):
+                 build_structure: bool = True, threads: int = 1, backend: str = "auto"):
         if len(graph) == 0:
             raise EmptyProblemError("the factor graph is empty: add factors before optimizing")
+        if backend not in BACKENDS:
+            raise FgoptError(f"unknown backend {backend!r}: choose 'auto', 'numba' or 'numpy'")
         self.timing = {"linearize": 0.0, "assemble": 0.0, "retract": 0.0, "cost": 0.0}
         #: Threads for linearization (1 = serial). See :mod:`fgopt._threads`.
         self.threads = max(1, int(threads))
         self._collect_variables(graph, values)
         self._collect_factors(graph)
+        #: ``"numpy"``: kernels' NumPy twins, NumPy assembly and retracts for every batch size
+        #: (no numba in the solve); ``"numba"``: numba kernels for batches above
+        #: ``NUMPY_MAX_BATCH``. See :meth:`choose_backend`.
+        self.backend = self.choose_backend(backend)
         self.pattern: HessianPattern | None = None
         if build_structure:
-            self._build_structure(ordering or "natural")
+            with self.kernel_mode():
+                self._build_structure(ordering or "natural")
+
+    def choose_backend(self, backend: str = "auto") -> str:
+        """``backend`` resolved: ``"auto"`` is ``"numpy"`` when numba is not loaded in the
+        process yet, its twin budget is not spent (``fgopt._jit``), the problem's tangent
+        dimension is at most ``NUMPY_BACKEND_MAX_SIZE``, linearization is serial and every
+        kernel / manifold has a NumPy form; else ``"numba"``.
+        ``"numpy"`` where some kernel has no NumPy form raises."""
+        ok = numpy_backend_supported([b.kernel for b in self.batches], self.kinds)
+        if backend == "numpy":
+            if not ok:
+                bad = [b.kernel.name for b in self.batches if not b.kernel.numpy_twin]
+                raise FgoptError("backend='numpy': not every kernel or manifold of this problem "
+                                 f"has a NumPy form ({', '.join(bad) or 'a manifold retract'}); "
+                                 "use backend='numba'")
+            return "numpy"
+        if backend == "numba":
+            return "numba"
+        if (ok and self.threads == 1 and not _jit.is_numba_loaded() and numpy_budget_left()
+                and int(self.var_dim.sum()) <= NUMPY_BACKEND_MAX_SIZE):
+            return "numpy"
+        return "numba"
+
+    def kernel_mode(self):
+        """Context in which this problem's kernels run (:func:`fgopt._jit.numpy_mode` on the
+        NumPy backend)."""
+        return _jit.numpy_mode() if self.backend == "numpy" else nullcontext()
 
     # ----------------------------------------------------------------- compile: variables
     def _collect_variables(self, graph: Any, values: Variables) -> None:
@@ -316,6 +370,7 @@ class Problem:
         for b in self.batches:
             b.toff = np.ascontiguousarray(off[b.var_idx])
             b.pos = scatter_positions(lookup, rank, b.var_idx, b.arg_dims)
+            b.plan = None
         for s in self._slow:
             s.toff = off[s.var_idx][None]
             s.pos = scatter_positions(lookup, rank, s.var_idx[None], s.arg_dims)
@@ -372,6 +427,10 @@ class Problem:
         (also when a value of ``state`` is not finite)."""
         if not self.state_is_finite(state):
             return float("nan")
+        with self.kernel_mode():
+            return self._cost(state)
+
+    def _cost(self, state: State) -> float:
         t0 = time.perf_counter()
         total = 0.0
         for b in self.batches:
@@ -433,25 +492,38 @@ class Problem:
         self.H_data, self.g = H, g
 
     def _linearize_into(self, state: State, H: np.ndarray, g: np.ndarray) -> float:
+        with self.kernel_mode():
+            return self._linearize_batches(state, H, g)
+
+    def _linearize_batches(self, state: State, H: np.ndarray, g: np.ndarray) -> float:
         H[:] = 0.0
         g[:] = 0.0
         total = 0.0
         t_lin = t_asm = 0.0
         for b in self.batches:
             t0 = time.perf_counter()
-            if self.threads > 1 and len(b.source) >= PARALLEL_MIN_BATCH:
+            if (self.threads > 1 and len(b.source) >= PARALLEL_MIN_BATCH
+                    and self.backend == "numba"):
                 total += linearize_batch_threaded(self, b, state, H, g)
                 t_lin += time.perf_counter() - t0
                 continue
             res, jac = b.kernel.linearize(b.gather(state), b.source.constants)
             t1 = time.perf_counter()
-            kernels = _asm(len(b.source))
-            total += kernels.scatter_batch(
-                res, jac, b.sqrt_info, b.unit, b.source.loss_code, b.source.loss_param,
-                b.source.loss_shape, b.arg_dims, b.arg_local_off, b.toff, b.pos, H, g, b.weights)
+            if _asm(len(b.source)) is asm_np:
+                if b.plan is None:
+                    b.plan = asm_np.scatter_plan(b.arg_dims, b.arg_local_off, b.toff, b.pos,
+                                                 H.shape[0])
+                total += asm_np.scatter_batch(
+                    res, jac, b.sqrt_info, b.unit, b.source.loss_code, b.source.loss_param,
+                    b.source.loss_shape, b.arg_dims, b.arg_local_off, b.toff, b.pos, H, g,
+                    b.weights, b.plan)
+                charge_numpy(time.perf_counter() - t1)
+            else:
+                total += asm.scatter_batch(
+                    res, jac, b.sqrt_info, b.unit, b.source.loss_code, b.source.loss_param,
+                    b.source.loss_shape, b.arg_dims, b.arg_local_off, b.toff, b.pos, H, g,
+                    b.weights)
             t2 = time.perf_counter()
-            if kernels is asm_np:
-                charge_numpy(t2 - t1)
             t_lin += t1 - t0
             t_asm += t2 - t1
         if self._slow:
@@ -474,9 +546,10 @@ class Problem:
         """A new state ``x (+) delta`` (delta in the problem's tangent order)."""
         t0 = time.perf_counter()
         storages = []
-        for kid, kind in enumerate(self.kinds):
-            d = np.ascontiguousarray(delta[self._kind_tangent[kid]])
-            storages.append(kind.retract(state.storages[kid], d))
+        with self.kernel_mode():
+            for kid, kind in enumerate(self.kinds):
+                d = np.ascontiguousarray(delta[self._kind_tangent[kid]])
+                storages.append(kind.retract(state.storages[kid], d))
         objects = {}
         off = self.pattern.var_offset
         for v, x in state.objects.items():
@@ -498,9 +571,11 @@ class Problem:
     def locate_nonfinite(self, state: State) -> str:
         """Name the first factor whose residual or Jacobian is not finite."""
         for b in self.batches:
-            res, jac = b.kernel.linearize(b.gather(state), b.source.constants)
+            with self.kernel_mode():
+                res, jac = b.kernel.linearize(b.gather(state), b.source.constants)
             for arr, what in ((res, "residual"), (jac, "Jacobian")):
-                row = asm.first_nonfinite_row(arr)
+                bad = ~np.isfinite(arr.reshape(arr.shape[0], -1)).all(axis=1)
+                row = int(np.argmax(bad)) if bad.any() else -1
                 if row >= 0:
                     keys = ", ".join(key_str(Key(int(k))) for k in b.source.keys[row])
                     hint = b.kernel.nonfinite_hint or "check its measurement and variables"
@@ -523,8 +598,12 @@ class Problem:
         """
         out = []
         for b in self.batches:
-            res = b.kernel.residual(b.gather(state), b.source.constants)
-            out.append(asm.row_squared_norms(res, b.sqrt_info0, b.unit0))
+            with self.kernel_mode():
+                res = b.kernel.residual(b.gather(state), b.source.constants)
+            if self.backend == "numpy":
+                out.append(asm_np.row_squared_norms(res, b.sqrt_info0, b.unit0))
+            else:
+                out.append(asm.row_squared_norms(res, b.sqrt_info0, b.unit0))
         view = _StateView(self, state)
         slow = [float(np.sum(s.factor.whitened_error(view) ** 2)) for s in self._slow]
         out.append(np.array(slow))

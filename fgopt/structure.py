@@ -14,7 +14,6 @@ columns; the assembly kernel adds the factor's dense ``D x D`` Hessian block the
 from __future__ import annotations
 
 from dataclasses import dataclass
-import time
 
 import numpy as np
 
@@ -201,13 +200,11 @@ def _expand_blocks(V, N, var_dim, var_offset, rank, blk_col, blk_row):
     block_start = np.zeros(nb + 1, dtype=np.int64)
     np.cumsum(dc, out=block_start[1:])
     col_base = np.empty(int(block_start[-1]), dtype=np.int64)
-    if indices.shape[0] <= 20000 and numpy_budget_left():
-        # small, in a process still renting (fgopt._jit): plain Python beats numba's import
-        # and cache load; its time counts towards the switch to numba
-        t0 = time.perf_counter()
-        _fill_indices.python(blk_col, blk_row, var_dim, var_offset, indptr, indices, block_start,
-                             col_base)
-        charge_numpy(time.perf_counter() - t0)
+    if numpy_only() or indices.shape[0] <= 20000:
+        # NumPy backend, or small: vectorized (no numba import or cache load; as fast as the
+        # kernel at this size)
+        _fill_indices_np(blk_col, blk_row, var_dim, var_offset, indptr, indices, block_start,
+                         col_base)
     else:
         _fill_indices(blk_col, blk_row, var_dim, var_offset, indptr, indices, block_start,
                       col_base)
@@ -224,8 +221,57 @@ def ranges(lengths: np.ndarray) -> np.ndarray:
     return np.arange(total, dtype=np.int64) - starts
 
 
-from ._jit import (charge_numpy, is_numba_loaded, njit,  # noqa: E402  (numba kernels below)
-                   numpy_budget_left)
+from ._jit import is_numba_loaded, njit, numpy_only  # noqa: E402  (numba kernels below)
+
+
+def _fill_indices_np(blk_col, blk_row, var_dim, var_offset, indptr, indices, block_start,
+                     col_base):
+    """:func:`_fill_indices` vectorized: one entry per (block, column of the block)."""
+    dc = var_dim[blk_col]
+    nb = blk_col.shape[0]
+    b = np.repeat(np.arange(nb, dtype=np.int64), dc)        # block of each (block, column)
+    cb = ranges(dc)                                          # column within the block
+    col = var_offset[blk_col][b] + cb
+    diag = (blk_col == blk_row)[b]
+    length = var_dim[blk_row][b] - np.where(diag, cb, 0)
+    # blocks arrive in CSC order, so within one scalar column they follow block order
+    order = np.argsort(col, kind="stable")
+    csum = np.cumsum(length[order])
+    first = np.empty_like(csum)
+    first[0:1] = 0
+    first[1:] = csum[:-1]
+    col_sorted = col[order]
+    group_start = np.searchsorted(col_sorted, col_sorted, side="left")
+    within = first - first[group_start]
+    base = np.empty_like(col)
+    base[order] = indptr[col_sorted] + within
+    col_base[block_start[b] + cb] = base
+    start_row = var_offset[blk_row][b] + np.where(diag, cb, 0)
+    dest = np.repeat(base, length) + ranges(length)
+    indices[dest] = np.repeat(start_row, length) + ranges(length)
+
+
+def _scatter_positions_np(codes, block, block_start, col_base, V, var_rank, var_idx, arg_dims,
+                          maxd):
+    """:func:`_scatter_positions` vectorized over instances (one pass per argument pair)."""
+    n, k = var_idx.shape
+    pos = np.full((n, k, k, maxd), -1, dtype=np.int64)
+    rank = var_rank[var_idx]
+    for p in range(k):
+        vp = var_idx[:, p]
+        for q in range(k):
+            vq = var_idx[:, q]
+            ok = rank[:, p] >= rank[:, q]
+            if p != q:
+                ok &= vp != vq
+            rows = np.nonzero(ok)[0]
+            if rows.shape[0] == 0:
+                continue
+            at = np.searchsorted(codes, vq[rows] * V + vp[rows])
+            start = block_start[block[at]]
+            d = int(arg_dims[q])
+            pos[rows, p, q, :d] = col_base[start[:, None] + np.arange(d)[None, :]]
+    return pos
 
 
 @njit(cache=True)
@@ -272,8 +318,9 @@ def scatter_positions(lookup: dict, var_rank: np.ndarray, var_idx: np.ndarray,
     """
     n, k = var_idx.shape
     maxd = int(arg_dims.max()) if k else 1
-    # small problems before numba is in use: the same loop as plain Python (no numba import)
-    run = _scatter_positions.python if n * k * k <= 20000 and not is_numba_loaded() \
+    # NumPy backend, or small problems before numba is in use: vectorized (no numba import)
+    run = _scatter_positions_np if numpy_only() or (n * k * k <= 20000
+                                                     and not is_numba_loaded()) \
         else _scatter_positions
     return run(np.ascontiguousarray(lookup["codes"], dtype=np.int64),
                np.ascontiguousarray(lookup["block"], dtype=np.int64),

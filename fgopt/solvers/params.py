@@ -51,6 +51,11 @@ class LMParams(TerminationParams):
     """Fill-reducing order of the variable graph: amd | metis | nesdis | colamd | natural."""
     threads: int = 1
     """Threads for linearization (numba prange + nogil kernels); 1 = serial (the default)."""
+    backend: str = "auto"
+    """``"numba"``: numba kernels for batches above 1000 factors; ``"numpy"``: NumPy twins,
+    NumPy assembly and retracts and a no-numba linear solver (CHOLMOD / qdldl) for every batch;
+    ``"auto"``: NumPy in a process that has not loaded numba yet, for problems of tangent
+    dimension <= ``fgopt.problem.NUMPY_BACKEND_MAX_SIZE`` (``Problem.choose_backend``)."""
     verbose: bool = False
 
 
@@ -59,6 +64,11 @@ class GaussNewtonParams(TerminationParams):
     linear_solver: str = "auto"
     ordering: str = "amd"
     threads: int = 1
+    backend: str = "auto"
+    """``"numba"``: numba kernels for batches above 1000 factors; ``"numpy"``: NumPy twins,
+    NumPy assembly and retracts and a no-numba linear solver (CHOLMOD / qdldl) for every batch;
+    ``"auto"``: NumPy in a process that has not loaded numba yet, for problems of tangent
+    dimension <= ``fgopt.problem.NUMPY_BACKEND_MAX_SIZE`` (``Problem.choose_backend``)."""
     verbose: bool = False
 
 
@@ -72,4 +82,9 @@ class DoglegParams(TerminationParams):
     linear_solver: str = "auto"
     ordering: str = "amd"
     threads: int = 1
+    backend: str = "auto"
+    """``"numba"``: numba kernels for batches above 1000 factors; ``"numpy"``: NumPy twins,
+    NumPy assembly and retracts and a no-numba linear solver (CHOLMOD / qdldl) for every batch;
+    ``"auto"``: NumPy in a process that has not loaded numba yet, for problems of tangent
+    dimension <= ``fgopt.problem.NUMPY_BACKEND_MAX_SIZE`` (``Problem.choose_backend``)."""
     verbose: bool = False
