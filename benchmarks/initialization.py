@@ -8,8 +8,9 @@ folder when present): fgopt to convergence with its defaults (``initialization="
 behaviour) and from the chordal relaxation only (``"chordal"``); GTSAM's LM with its defaults
 from the file's guess; C++ Ceres (``benchmarks/ceres_cpp/ceres_bench``, its defaults for pose
 graphs: 200 iterations) from the file's guess. One cost yardstick: 0.5 * sum of squared whitened
-residuals of the file's edges with GTSAM's residuals (fgopt's ``graph.error`` on the file's
-edges, GTSAM's ``graph.error``, :mod:`benchmarks.yardstick` for Ceres' estimate), no gauge prior.
+residuals of the file's edges with GTSAM's residuals: every library's estimate is evaluated by
+fgopt's ``graph.error`` over the file's edges as ``fgopt.io.read`` reads them (equal to GTSAM's
+``graph.error`` where GTSAM reads the file alike), no gauge prior.
 Files without an initial guess get the reader's odometry-chained guess in fgopt (GTSAM and
 Ceres need vertices). Times are CPU seconds of this process (fgopt, GTSAM) or of the Ceres
 program's solve (wall, single thread); a shared machine inflates them.
@@ -50,7 +51,7 @@ def extra_files() -> list[str]:
     return [str(extra_dir() / f.name) for f in EXTRA if (extra_dir() / f.name).exists()]
 
 
-def fgopt_runs(path: Path) -> dict:
+def fgopt_runs(path: Path) -> tuple[dict, object, object]:
     import fgopt
 
     graph, initial = fgopt.io.read(str(path), repair_information="clip")
@@ -65,10 +66,28 @@ def fgopt_runs(path: Path) -> dict:
                      "iterations_all": r.info.get("iterations_all_starts", r.iterations),
                      "status": r.status.value, "seconds": time.process_time() - t0,
                      "start": r.info.get("initialization")}
+    return out, graph, initial
+
+
+def _values_from_rows(initial, rows: np.ndarray, ids: np.ndarray, is3d: bool):
+    """A peer's estimate (rows x y theta / x y z qx qy qz qw by vertex id) as fgopt values."""
+    from fgopt import SE2, SE3, key
+
+    out = initial.copy()
+    for i, row in zip(ids.tolist(), rows):
+        k = key("x", i)
+        if is3d:
+            q = row[3:7] / np.linalg.norm(row[3:7])
+            out.update(k, SE3.from_storage(np.concatenate([q, row[:3]])))
+        else:
+            out.update(k, SE2.from_xytheta(*row[:3]))
     return out
 
 
-def gtsam_run(path: Path, is3d: bool) -> dict:
+def gtsam_run(path: Path, is3d: bool, graph_f, initial_f) -> dict:
+    """GTSAM's LM with defaults; cost of its estimate on fgopt's reading of the file (equal to
+    GTSAM's own ``graph.error`` where both read the file alike; cubicle's non-PD information
+    and GTSAM's guesses at TORO noise layouts differ, so one yardstick for all)."""
     try:
         import gtsam
     except ImportError:
@@ -82,7 +101,6 @@ def gtsam_run(path: Path, is3d: bool) -> dict:
         return {"error": f"reader: {str(exc)[:60]}"}
     if initial.size() == 0:
         return {"error": "no initial guess in the file"}
-    cost_graph = gtsam.NonlinearFactorGraph(graph)
     first = min(initial.keys())
     if is3d:
         graph.add(gtsam.PriorFactorPose3(first, initial.atPose3(first),
@@ -94,13 +112,25 @@ def gtsam_run(path: Path, is3d: bool) -> dict:
     t0 = time.process_time()
     opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
     res = opt.optimize()
-    return {"cost": cost_graph.error(res), "iterations": opt.iterations(),
-            "seconds": time.process_time() - t0}
+    seconds = time.process_time() - t0
+    ids = np.array(sorted(res.keys()), dtype=np.int64)
+    if is3d:
+        rows = np.array([np.concatenate([p.translation(), _xyzw(p.rotation())])
+                         for p in (res.atPose3(int(i)) for i in ids)])
+    else:
+        rows = np.array([[p.x(), p.y(), p.theta()] for p in (res.atPose2(int(i)) for i in ids)])
+    values = _values_from_rows(initial_f, rows, ids, is3d)
+    return {"cost": graph_f.error(values), "iterations": opt.iterations(), "seconds": seconds}
 
 
-def ceres_run(path: Path, is3d: bool) -> dict:
+def _xyzw(rot) -> np.ndarray:
+    q = rot.toQuaternion()
+    return np.array([q.x(), q.y(), q.z(), q.w()])
+
+
+def ceres_run(path: Path, is3d: bool, graph_f, initial_f) -> dict:
+    from . import problems
     from .peers.ceres_cpp_runner import BINARY
-    from . import problems, yardstick
 
     if not BINARY.exists():
         return {"error": "ceres_bench not built"}
@@ -117,9 +147,8 @@ def ceres_run(path: Path, is3d: bool) -> dict:
             return {"error": proc.stderr.strip()[-60:]}
         rec = json.loads(proc.stdout.strip().splitlines()[-1])
         rows = np.loadtxt(est, ndmin=2)
-    if is3d:
-        rows[:, 3:7] /= np.linalg.norm(rows[:, 3:7], axis=1, keepdims=True)
-    return {"cost": yardstick.cost(data, {"poses": rows}), "iterations": rec["iterations"],
+    values = _values_from_rows(initial_f, rows, data.ids, is3d)
+    return {"cost": graph_f.error(values), "iterations": rec["iterations"],
             "seconds": rec.get("solve_cpu_s", rec["solve_s"]), "status": rec["termination"]}
 
 
@@ -148,11 +177,11 @@ def main() -> None:
         path = data_dir() / rel
         if not path.is_file():
             continue
-        f = fgopt_runs(path)
+        f, graph_f, initial_f = fgopt_runs(path)
         g = c = {"error": "--no-peers"}
         if not args.no_peers:
-            g = gtsam_run(path, f["is3d"])
-            c = ceres_run(path, f["is3d"])
+            g = gtsam_run(path, f["is3d"], graph_f, initial_f)
+            c = ceres_run(path, f["is3d"], graph_f, initial_f)
         records.append({"file": rel, "fgopt": f, "gtsam": g, "ceres_cpp": c})
 
         def cell(r, start=False):
