@@ -16,6 +16,8 @@ per factor examined.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -23,7 +25,8 @@ from ..problem import Problem, State
 
 
 def leave_one_out_sq_norms(problem: Problem, state: State, masks: list[np.ndarray],
-                           chunk: int = 4000, cost_decrease: bool = False) -> list[np.ndarray]:
+                           chunk: int = 4000, cost_decrease: bool = False,
+                           both: bool = False) -> Any:
     """``|r_loo|^2`` (whitened by each factor's own noise) of the factors selected by ``masks``
     (one boolean array per batch, as :meth:`Problem.set_weights` takes; Python factors are not
     examined); 0 elsewhere.
@@ -33,6 +36,8 @@ def leave_one_out_sq_norms(problem: Problem, state: State, masks: list[np.ndarra
     linear problems; first order otherwise). Rejecting a factor lowers a truncated-least-squares
     objective ``0.5 sum min(r_i^2, c_i^2)`` when this exceeds ``c^2 / 2``.
 
+    ``both=True`` returns ``(|r_loo|^2 arrays, cost-decrease arrays)`` from one factorization.
+
     Linearizes at ``state`` with the problem's current weights (a factor with weight ``w_e``
     enters H as ``w_e J^T J``, so its leverage uses ``sqrt(w_e) J``) and factorizes H once
     (CHOLMOD, ``P H P^T = L L^T``). The leverage ``h_e = Z_e^T Z_e`` with
@@ -40,53 +45,26 @@ def leave_one_out_sq_norms(problem: Problem, state: State, masks: list[np.ndarra
     ``Z_e`` is nonzero only on the elimination-tree paths of the factor's variables, so the cost
     grows with the tree's height, not with the number of variables.
     """
-    from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky
-
-    problem.linearize(state)
-    H = problem.pattern.matrix(problem.H_data)
-    try:
-        F = cholesky(H)
-    except CholmodNotPositiveDefiniteError:  # no prior: a tiny ridge fixes the gauge
-        ridge = 1e-9 * max(1.0, float(np.abs(H.diagonal()).max()))
-        F = cholesky(H, beta=ridge)
-    N = problem.pattern.size
-    out = []
+    F = _factor(problem, state)
+    out, drops = [], []
     for b, mask in zip(problem.batches, masks):
         n = len(b.source)
         sq = np.zeros(n)
+        drop = np.zeros(n)
         rows = np.nonzero(mask[:n])[0]
-        out.append(sq)
+        out.append(drop if cost_decrease and not both else sq)
+        drops.append(drop)
         if rows.size == 0:
             continue
         res, jac = b.kernel.linearize(b.gather(state), b.source.constants)
         R0 = np.broadcast_to(b.sqrt_info0, (n,) + b.sqrt_info0.shape[1:])
         R = np.broadcast_to(b.sqrt_info, (n,) + b.sqrt_info.shape[1:])  # includes sqrt(w)
-        m = res.shape[1]
-        dims, offs = b.arg_dims, b.arg_local_off
         for start in range(0, rows.size, chunk):
             es = rows[start:start + chunk]
-            c = len(es)
             Jw = np.einsum("nab,nbc->nac", R[es], jac[es])        # sqrt(w) R J, (c, m, D)
-            cols = np.arange(c)[:, None] * m + np.arange(m)[None]  # (c, m) column of (e, k)
-            ri, ci, vals = [], [], []
-            for p in range(len(dims)):
-                d, o = int(dims[p]), int(offs[p])
-                Hrows = b.toff[es, p][:, None] + np.arange(d)[None]  # (c, d)
-                # B[Hrows[e, a], cols[e, k]] = Jw[e, k, o + a]
-                ri.append(np.repeat(Hrows, m, axis=1).reshape(-1))
-                ci.append(np.tile(cols, (1, d)).reshape(-1))
-                vals.append(Jw[:, :, o:o + d].transpose(0, 2, 1).reshape(-1))
-            B = sp.csc_matrix((np.concatenate(vals), (np.concatenate(ri), np.concatenate(ci))),
-                              shape=(N, c * m))
-            Z = F.solve_L(F.apply_P(B), use_LDLt_decomposition=False)
-            Z = sp.csc_matrix(Z)
-            h = np.empty((c, m, m))
-            for k1 in range(m):
-                for k2 in range(k1, m):
-                    v = np.asarray(Z[:, k1::m].multiply(Z[:, k2::m]).sum(axis=0)).ravel()
-                    h[:, k1, k2] = v
-                    h[:, k2, k1] = v
+            h = _leverages(F, problem.pattern.size, Jw, b.toff[es], b.arg_dims, b.arg_local_off)
             r0 = np.einsum("nab,nb->na", R0[es], res[es])                # own noise, no weight
+            m = res.shape[1]
             A = np.eye(m)[None] - h
             # a bridge (h = I in some direction: nothing else predicts the factor) is not an
             # outlier: drop the unpredictable directions (least squares) instead of dividing
@@ -97,8 +75,78 @@ def leave_one_out_sq_norms(problem: Problem, state: State, masks: list[np.ndarra
                 r_loo[ok] = np.linalg.solve(A[ok], r0[ok][:, :, None])[:, :, 0]
             for i in np.nonzero(bridge)[0]:
                 r_loo[i] = np.linalg.lstsq(A[i], r0[i], rcond=1e-10)[0]
-            if cost_decrease:
-                sq[es] = 0.5 * np.sum(r0 * r_loo, axis=1)
-            else:
-                sq[es] = np.sum(r_loo * r_loo, axis=1)
-    return out
+            drop[es] = 0.5 * np.sum(r0 * r_loo, axis=1)
+            sq[es] = np.sum(r_loo * r_loo, axis=1)
+    return (out, drops) if both else out
+
+
+def prediction_sq_norms(problem: Problem, state: State, batch: Any,
+                        rows: np.ndarray) -> np.ndarray:
+    """For factors *not* in ``problem`` (rows ``rows`` of the :class:`~fgopt.batch.FactorBatch`
+    ``batch``, over variables of ``problem``): the squared prediction error normalized by its
+    covariance, ``r^T (I + h')^-1 r`` with ``r`` the whitened residual at ``state`` (which is
+    then the leave-one-out residual) and ``h' = R J H^-1 J^T R^T`` (how uncertain ``problem``'s
+    estimate of the factor's relative pose is, in the factor's own units). Under the factor's
+    noise model (times a scale ``s^2``) it is ``s^2 chi2(dim)`` distributed: Baarda's test of a
+    left-out measurement, as ``r^T (I - h)^-1 r`` is for one that is in.
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    out = np.zeros(rows.shape[0])
+    if rows.size == 0:
+        return out
+    F = _factor(problem, state)
+    kernel = batch.kernel
+    var_idx = problem._vars_of(batch.keys[rows])
+    args = tuple(state.storages[problem._kind_id[id(kind)]][problem.var_row[var_idx[:, j]]]
+                 for j, kind in enumerate(kernel.arg_kinds))
+    res, jac = kernel.linearize(args, batch.constants[rows])
+    m = res.shape[1]
+    R = (np.broadcast_to(np.eye(m), (rows.size, m, m)) if batch.sqrt_information is None
+         else batch.sqrt_information[rows])
+    r = np.einsum("nab,nb->na", R, res)
+    Jw = np.einsum("nab,nbc->nac", R, jac)
+    dims = np.array([k.dim for k in kernel.arg_kinds], dtype=np.int64)
+    offs = np.concatenate([[0], np.cumsum(dims)[:-1]]).astype(np.int64)
+    toff = problem.pattern.var_offset[var_idx]
+    h = _leverages(F, problem.pattern.size, Jw, toff, dims, offs)
+    A = np.eye(m)[None] + h
+    return np.einsum("na,na->n", r, np.linalg.solve(A, r[:, :, None])[:, :, 0])
+
+
+def _factor(problem: Problem, state: State):
+    """CHOLMOD factor of ``problem``'s H at ``state`` (a tiny ridge if the gauge is free)."""
+    from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky
+
+    problem.linearize(state)
+    H = problem.pattern.matrix(problem.H_data)
+    try:
+        return cholesky(H)
+    except CholmodNotPositiveDefiniteError:  # no prior: a tiny ridge fixes the gauge
+        ridge = 1e-9 * max(1.0, float(np.abs(H.diagonal()).max()))
+        return cholesky(H, beta=ridge)
+
+
+def _leverages(F, N: int, Jw: np.ndarray, toff: np.ndarray, dims: np.ndarray,
+               offs: np.ndarray) -> np.ndarray:
+    """``h_e = Z_e^T Z_e``, ``Z_e = L^-1 P Jw_e^T`` for each of ``c`` factors: ``Jw (c, m, D)``
+    whitened Jacobians, ``toff (c, k)`` tangent offsets of their variables in H."""
+    c, m = Jw.shape[0], Jw.shape[1]
+    cols = np.arange(c)[:, None] * m + np.arange(m)[None]  # (c, m) column of (e, k)
+    ri, ci, vals = [], [], []
+    for p in range(len(dims)):
+        d, o = int(dims[p]), int(offs[p])
+        Hrows = toff[:, p][:, None] + np.arange(d)[None]  # (c, d)
+        # B[Hrows[e, a], cols[e, k]] = Jw[e, k, o + a]
+        ri.append(np.repeat(Hrows, m, axis=1).reshape(-1))
+        ci.append(np.tile(cols, (1, d)).reshape(-1))
+        vals.append(Jw[:, :, o:o + d].transpose(0, 2, 1).reshape(-1))
+    B = sp.csc_matrix((np.concatenate(vals), (np.concatenate(ri), np.concatenate(ci))),
+                      shape=(N, c * m))
+    Z = sp.csc_matrix(F.solve_L(F.apply_P(B), use_LDLt_decomposition=False))
+    h = np.empty((c, m, m))
+    for k1 in range(m):
+        for k2 in range(k1, m):
+            v = np.asarray(Z[:, k1::m].multiply(Z[:, k2::m]).sum(axis=0)).ravel()
+            h[:, k1, k2] = v
+            h[:, k2, k1] = v
+    return h

@@ -34,7 +34,7 @@ import time
 from typing import Any, Callable
 
 from ..errors import FgoptError
-from .chordal import chordal_initialization
+from .chordal import _PoseGraph, chordal_initialization
 from .result import Result, Status
 
 INITIALIZATIONS = ("auto", "given", "chordal")
@@ -54,6 +54,8 @@ def chi2_upper(dof: int) -> float:
 def cost_bound(problem: Any) -> tuple[float, int] | None:
     """``(bound, dof)``: the largest cost the noise models make plausible at the optimum, or
     ``None`` when the test does not apply (robust losses, GNC weights, no redundancy)."""
+    if not hasattr(problem, "batches") or not hasattr(problem, "_slow"):
+        return None  # another problem class (the fixed formulation): no test
     m = 0
     for b in problem.batches:
         if b.source.loss_code != 0:
@@ -104,6 +106,9 @@ def optimize_auto(graph: Any, initial: Any, params: Any,
         first.info["initialization_reason"] = (
             "given values: the final cost is consistent with the noise models (or the test "
             "does not apply)")
+        return first
+    if first.problem is not None and not _PoseGraph(first.problem).ok:
+        first.info["initialization_reason"] = f"{why}; not a pose graph, no chordal start"
         return first
     try:
         start = chordal_initialization(graph, initial)
