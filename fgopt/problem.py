@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from . import _assembly as asm
+from . import _assembly_np as asm_np
 from .batch import FactorBatch, batch_from_factors
 from .errors import (DimensionMismatchError, EmptyProblemError, FgoptError, KeyNotFoundError,
                      ManifoldError, NonFiniteError)
@@ -39,6 +40,14 @@ from .variables import Variables
 
 _UNSET = object()
 
+#: Batches up to this size are assembled by the NumPy twins (no numba import or cache load);
+#: the same threshold as generated kernels' NumPy twins.
+NUMPY_MAX_BATCH = 1000
+
+
+def _asm(n: int):
+    """The assembly kernels for a batch of ``n`` instances: NumPy when small, else numba."""
+    return asm_np if n <= NUMPY_MAX_BATCH else asm
 
 @dataclass(eq=False)
 class State:
@@ -129,14 +138,16 @@ class Problem:
 
     # ----------------------------------------------------------------- compile: variables
     def _collect_variables(self, graph: Any, values: Variables) -> None:
-        used: dict[int, None] = {}
-        for f in graph.factors:
-            for k in f.keys:
-                if k not in values:
-                    raise KeyNotFoundError(
-                        f"{f.describe()} uses {key_str(k)}, which is not in the initial values: "
-                        f"add it with Variables.add({key_str(k)}, value)")
-                used.setdefault(k, None)
+        # keys in order of first use (one dict build, no Python call per key)
+        used: dict[int, None] = dict.fromkeys(k for f in graph.factors for k in f.keys)
+        have = values._values
+        if not all(k in have for k in used):
+            for f in graph.factors:
+                for k in f.keys:
+                    if k not in have:
+                        raise KeyNotFoundError(
+                            f"{f.describe()} uses {key_str(k)}, which is not in the initial "
+                            f"values: add it with Variables.add({key_str(k)}, value)")
         if graph.batches:
             all_keys = np.concatenate([b.keys.reshape(-1) for b in graph.batches])
             all_keys.sort()  # unique by sort + neighbour test (~0.6x np.unique's time)
@@ -202,6 +213,9 @@ class Problem:
         self._kind_vars = [np.nonzero(self.var_kind == kid)[0] for kid in range(len(self.kinds))]
         self._slow_vars = np.nonzero(self.var_kind < 0)[0]
         self._extra = values  # for unused keys and the final Variables
+        #: Keys of ``values`` that no factor uses (returned unchanged in the final values).
+        self.unused_keys: list[Key] = ([k for k in value_of if k not in self._var_of_key]
+                                       if len(value_of) > V else [])
         self._sorted = np.argsort(self.var_keys)
 
     @staticmethod
@@ -349,14 +363,32 @@ class Problem:
             return state.objects[v]
         return self.kinds[kid].from_storage(state.storages[kid][self.var_row[v]])
 
+    @staticmethod
+    def state_is_finite(state: State) -> bool:
+        """True when every stored value of ``state`` is finite (Python-manifold values that
+        expose no storage are not checked)."""
+        if not all(bool(np.isfinite(s).all()) for s in state.storages):
+            return False
+        for x in state.objects.values():
+            try:
+                data = ops_for(x).to_storage(x)
+            except Exception:  # noqa: BLE001 - duck-typed manifolds have no storage
+                continue
+            if not np.all(np.isfinite(data)):
+                return False
+        return True
+
     def cost(self, state: State) -> float:
-        """Total cost ``sum rho_i`` (``0.5 |r|^2`` without robust losses); NaN if not finite."""
+        """Total cost ``sum rho_i`` (``0.5 |r|^2`` without robust losses); NaN if not finite
+        (also when a value of ``state`` is not finite)."""
+        if not self.state_is_finite(state):
+            return float("nan")
         t0 = time.perf_counter()
         total = 0.0
         for b in self.batches:
             res = b.kernel.residual(b.gather(state), b.source.constants)
-            total += asm.batch_cost(res, b.sqrt_info, b.unit, b.source.loss_code,
-                                    b.source.loss_param, b.source.loss_shape)
+            total += _asm(len(b.source)).batch_cost(res, b.sqrt_info, b.unit, b.source.loss_code,
+                                                    b.source.loss_param, b.source.loss_shape)
         if self._slow:
             view = _StateView(self, state)
             for s in self._slow:
@@ -365,8 +397,8 @@ class Problem:
                 except NonFiniteError:
                     total = np.nan
                     continue
-                total += asm.batch_cost(e[None], s.sqrt_info, s.unit, s.loss_code, s.loss_param,
-                                        s.loss_shape)
+                total += asm_np.batch_cost(e[None], s.sqrt_info, s.unit, s.loss_code,
+                                           s.loss_param, s.loss_shape)
         self.timing["cost"] += time.perf_counter() - t0
         return float(total) if np.isfinite(total) else float("nan")
 
@@ -375,7 +407,8 @@ class Problem:
         if self.pattern is None:
             raise FgoptError("this Problem was built without structure")
         total = self._linearize_into(state, self.H_data, self.g)
-        if not (np.isfinite(total) and np.all(np.isfinite(self.g))):
+        if not (np.isfinite(total) and np.all(np.isfinite(self.g))
+                and np.all(np.isfinite(self.H_data))):
             raise NonFiniteError(self.locate_nonfinite(state))
         return total
 
@@ -383,8 +416,12 @@ class Problem:
         """Linearize a trial state into spare buffers; return its cost (NaN if not finite).
 
         Trust-region methods call this instead of ``cost`` so an accepted step needs no second
-        evaluation of the residuals: :meth:`accept_candidate` swaps the buffers in.
+        evaluation of the residuals: :meth:`accept_candidate` swaps the buffers in. A trial
+        point with a non-finite value, cost, residual or Jacobian gives NaN: the caller rejects
+        it as a step, and the current linearization stays as it was.
         """
+        if not self.state_is_finite(state):
+            return float("nan")
         if self._spare is None:
             self._spare = (np.zeros_like(self.H_data), np.zeros_like(self.g))
         H, g = self._spare
@@ -415,16 +452,20 @@ class Problem:
                 continue
             res, jac = b.kernel.linearize(b.gather(state), b.source.constants)
             t1 = time.perf_counter()
-            fixed = b.fixed.get(b.unit, _UNSET)
-            if fixed is _UNSET:
-                fixed = b.fixed[b.unit] = specialized_scatter(b)
+            n_b = len(b.source)
+            fixed = None
+            if n_b > NUMPY_MAX_BATCH:  # small batches: the NumPy twin (no numba, no compile)
+                fixed = b.fixed.get(b.unit, _UNSET)
+                if fixed is _UNSET:
+                    fixed = b.fixed[b.unit] = specialized_scatter(b)
             if fixed is not None:
                 total += fixed(res, jac, b.sqrt_info, b.source.loss_code, b.source.loss_param,
                                b.source.loss_shape, b.toff, b.pos, H, g, b.weights)
             else:
-                total += asm.scatter_batch(res, jac, b.sqrt_info, b.unit, b.source.loss_code,
-                                           b.source.loss_param, b.source.loss_shape, b.arg_dims,
-                                           b.arg_local_off, b.toff, b.pos, H, g, b.weights)
+                total += _asm(n_b).scatter_batch(
+                    res, jac, b.sqrt_info, b.unit, b.source.loss_code, b.source.loss_param,
+                    b.source.loss_shape, b.arg_dims, b.arg_local_off, b.toff, b.pos, H, g,
+                    b.weights)
             t_lin += t1 - t0
             t_asm += time.perf_counter() - t1
         if self._slow:
@@ -434,10 +475,10 @@ class Problem:
                 e = s.factor.checked_error(view)
                 Js = s.factor.checked_jacobians(view)
                 J = np.concatenate(Js, axis=1)[None]
-                total += asm.scatter_batch(e[None], J, s.sqrt_info, s.unit, s.loss_code,
-                                           s.loss_param, s.loss_shape, s.arg_dims,
-                                           s.arg_local_off, s.toff,
-                                           s.pos, H, g, np.ones(1))
+                total += asm_np.scatter_batch(e[None], J, s.sqrt_info, s.unit, s.loss_code,
+                                              s.loss_param, s.loss_shape, s.arg_dims,
+                                              s.arg_local_off, s.toff,
+                                              s.pos, H, g, np.ones(1))
             t_lin += time.perf_counter() - t0
         self.timing["linearize"] += t_lin
         self.timing["assemble"] += t_asm

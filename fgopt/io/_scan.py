@@ -26,9 +26,10 @@ import bz2
 import gzip
 import math
 import os
+import zlib
 from dataclasses import dataclass
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from ..errors import FileFormatError
@@ -38,7 +39,7 @@ _FNV_PRIME = np.uint64(0x100000001B3)
 _MAX_MANTISSA = 1 << 53
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _is_space(c):
     return c == 32 or c == 9 or c == 13 or c == 11 or c == 12
 
@@ -62,7 +63,7 @@ _EXP_RANGE = 250
 _P10_HI, _P10_LO = _pow10_table()
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _two_prod(a, b):
     """Exact ``a * b = p + e`` (Dekker / Veltkamp splitting; no FMA needed)."""
     p = a * b
@@ -76,7 +77,7 @@ def _two_prod(a, b):
     return p, e
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _scale_exact(m, exp10, p10_hi, p10_lo):
     """Correctly rounded ``m * 10**exp10`` (``0 < m < 10**18``); ``ok`` False when unsure."""
     if exp10 == 0 and m <= _MAX_MANTISSA:
@@ -108,7 +109,7 @@ def _scale_exact(m, exp10, p10_hi, p10_lo):
     return h, True
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _parse_number(buf, s, e, p10_hi, p10_lo):
     """Parse ``buf[s:e]``; returns ``(value, ok)``. ``ok`` False: let Python decide."""
     j = s
@@ -174,7 +175,7 @@ def _parse_number(buf, s, e, p10_hi, p10_lo):
     return (-v if neg else v), ok
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _scan(buf, has_tag, comment, p10_hi, p10_lo):
     n = buf.shape[0]
     num_lines = 1
@@ -250,7 +251,7 @@ def _scan(buf, has_tag, comment, p10_hi, p10_lo):
             rec_count[:nr], tag_hash[:nr], tag_start[:nr], tag_end[:nr])
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _gather_tokens(buf, start, end, width):
     out = np.zeros((start.shape[0], width), dtype=np.uint8)
     for i in range(start.shape[0]):
@@ -351,7 +352,7 @@ def read_bytes(path: str | os.PathLike) -> bytes:
         raise FileFormatError("no such file", p) from None
     except IsADirectoryError:
         raise FileFormatError("is a directory, expected a file", p) from None
-    except (OSError, EOFError) as exc:
+    except (OSError, EOFError, zlib.error) as exc:  # zlib.error: a damaged deflate stream
         raise FileFormatError(f"cannot read: {exc}", p) from None
 
 

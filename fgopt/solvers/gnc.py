@@ -52,7 +52,7 @@ from ..problem import Problem
 from ..variables import Variables
 from ._gnc_check import _thresholds, _Verifier
 from ._subproblem import Restricted
-from .chordal import _PoseGraph, chordal_state
+from .diagnostics import clamp_hits, warn_clamps, warn_unused
 from .lm import LevenbergMarquardt
 from .params import LMParams
 from .result import Result, Status
@@ -178,6 +178,9 @@ class GNC:
         # matter (:class:`Restricted`), so (near-)rejected outliers add no Cholesky fill
         full = Problem(graph, initial, ordering=p.ordering, threads=p.threads,
                        build_structure=False)
+        warn_unused(full.unused_keys)
+        from .chordal import _PoseGraph, chordal_state  # scipy.sparse: only when GNC runs
+
         use_chordal = p.initialization in ("auto", "chordal") and _PoseGraph(full).ok
         if p.initialization == "chordal" and not use_chordal:
             raise FgoptError("GNC initialization='chordal' needs a pose graph (SE2 or SE3 poses, "
@@ -266,11 +269,14 @@ class GNC:
         final = sub.cost(sub_state)
         outliers = sum(int(np.sum(w < 0.5)) for w in weights)
         timing = {"total": time.perf_counter() - t0}
+        clamps, num_clamped = clamp_hits(sub, sub_state)
+        warn_clamps(clamps, num_clamped)
         return Result(None, status=status, message=f"{message}; {outliers} outliers",
                       iterations=solver.iterations, initial_cost=initial_cost, final_cost=final,
                       cost_history=history, timing=timing, method=f"gnc-{p.loss}",
                       linear_solver=getattr(solver.restricted.solver, "name", ""), problem=sub,
-                      state=sub_state,
+                      state=sub_state, unused_keys=tuple(full.unused_keys), clamps=tuple(clamps),
+                      num_clamped=num_clamped,
                       info={"weights": weights, "outliers": outliers, "rounds": rounds,
                             "rejected_by_check": removed, "noise_scale2": scale2,
                             "compilations": solver.restricted.rebuilds})
@@ -295,6 +301,8 @@ class _Solves:
             best = self.lm.optimize_problem(sub, sub_state, solver, self.callback)
             self.iterations += best.iterations
         if self.use_chordal:
+            from .chordal import chordal_state
+
             fresh = chordal_state(sub, sub_state, self.restricted.sub_weights)
             if fresh is not None:
                 other = self.lm.optimize_problem(sub, fresh, solver, self.callback)

@@ -21,7 +21,53 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from ..errors import NotPositiveDefiniteError, have_extra
 from ..problem import Problem, State
+from .linear.base import make_linear_solver
+
+#: Factors per multi-right-hand-side solve without CHOLMOD (dense right-hand sides: N x 3 x 256).
+_DENSE_CHUNK = 256
+
+
+def _sparse_leverages(F):
+    """``h = Z^T Z`` blocks with ``Z = L^-1 P B`` from CHOLMOD's factor (a sparse forward solve)."""
+    def leverages(B, c, m):
+        Z = sp.csc_matrix(F.solve_L(F.apply_P(B), use_LDLt_decomposition=False))
+        h = np.empty((c, m, m))
+        for k1 in range(m):
+            for k2 in range(k1, m):
+                v = np.asarray(Z[:, k1::m].multiply(Z[:, k2::m]).sum(axis=0)).ravel()
+                h[:, k1, k2] = v
+                h[:, k2, k1] = v
+        return h
+
+    return leverages
+
+
+def _solve_leverages(problem: Problem):
+    """``h = B^T H^-1 B`` blocks by a multi-right-hand-side solve with fgopt's own solver (no
+    CHOLMOD): the same leverages as ``Z^T Z``, with dense right-hand sides."""
+    pattern = problem.pattern
+    solver = make_linear_solver("auto", pattern=pattern)
+    solver.analyze(pattern)
+    H_data = problem.H_data.copy()
+    try:
+        solver.factorize(H_data)
+    except NotPositiveDefiniteError:  # no prior: a tiny ridge fixes the gauge
+        H_data[pattern.diag_pos] += 1e-9 * max(1.0, float(np.abs(H_data[pattern.diag_pos]).max()))
+        solver.factorize(H_data)
+
+    def leverages(B, c, m):
+        X = np.asarray(solver.solve(np.asarray(B.todense()))).reshape(B.shape)
+        h = np.empty((c, m, m))
+        for k1 in range(m):
+            for k2 in range(k1, m):
+                v = np.asarray(B[:, k1::m].multiply(X[:, k2::m]).sum(axis=0)).ravel()
+                h[:, k1, k2] = v
+                h[:, k2, k1] = v
+        return h
+
+    return leverages
 
 
 def leave_one_out_sq_norms(problem: Problem, state: State, masks: list[np.ndarray],
@@ -40,12 +86,14 @@ def leave_one_out_sq_norms(problem: Problem, state: State, masks: list[np.ndarra
 
     Linearizes at ``state`` with the problem's current weights (a factor with weight ``w_e``
     enters H as ``w_e J^T J``, so its leverage uses ``sqrt(w_e) J``) and factorizes H once
-    (CHOLMOD, ``P H P^T = L L^T``). The leverage ``h_e = Z_e^T Z_e`` with
+    (CHOLMOD, ``P H P^T = L L^T``; without the ``fgopt[cholmod]`` extra, fgopt's own solver and
+    ``h_e = B_e^T H^-1 B_e`` from dense multi-right-hand-side solves). The leverage ``h_e = Z_e^T Z_e`` with
     ``Z_e = L^-1 P (sqrt(w_e) R_e J_e)^T`` comes from a sparse forward solve: each column of
     ``Z_e`` is nonzero only on the elimination-tree paths of the factor's variables, so the cost
     grows with the tree's height, not with the number of variables.
     """
-    F = _factor(problem, state)
+    leverages, cap = _leverage_fn(problem, state)
+    chunk = min(chunk, cap)
     out, drops = [], []
     for b, mask in zip(problem.batches, masks):
         n = len(b.source)
@@ -62,7 +110,8 @@ def leave_one_out_sq_norms(problem: Problem, state: State, masks: list[np.ndarra
         for start in range(0, rows.size, chunk):
             es = rows[start:start + chunk]
             Jw = np.einsum("nab,nbc->nac", R[es], jac[es])        # sqrt(w) R J, (c, m, D)
-            h = _leverages(F, problem.pattern.size, Jw, b.toff[es], b.arg_dims, b.arg_local_off)
+            h = leverages(_whitened_columns(problem.pattern.size, Jw, b.toff[es], b.arg_dims,
+                                            b.arg_local_off), len(es), res.shape[1])
             r0 = np.einsum("nab,nb->na", R0[es], res[es])                # own noise, no weight
             m = res.shape[1]
             A = np.eye(m)[None] - h
@@ -94,7 +143,7 @@ def prediction_sq_norms(problem: Problem, state: State, batch: Any,
     out = np.zeros(rows.shape[0])
     if rows.size == 0:
         return out
-    F = _factor(problem, state)
+    leverages, cap = _leverage_fn(problem, state)
     kernel = batch.kernel
     var_idx = problem._vars_of(batch.keys[rows])
     args = tuple(state.storages[problem._kind_id[id(kind)]][problem.var_row[var_idx[:, j]]]
@@ -108,28 +157,38 @@ def prediction_sq_norms(problem: Problem, state: State, batch: Any,
     dims = np.array([k.dim for k in kernel.arg_kinds], dtype=np.int64)
     offs = np.concatenate([[0], np.cumsum(dims)[:-1]]).astype(np.int64)
     toff = problem.pattern.var_offset[var_idx]
-    h = _leverages(F, problem.pattern.size, Jw, toff, dims, offs)
+    h = np.empty((rows.size, m, m))
+    step = min(cap, 4000)
+    for a in range(0, rows.size, step):
+        sl = slice(a, a + step)
+        h[sl] = leverages(_whitened_columns(problem.pattern.size, Jw[sl], toff[sl], dims, offs),
+                          Jw[sl].shape[0], m)
     A = np.eye(m)[None] + h
     return np.einsum("na,na->n", r, np.linalg.solve(A, r[:, :, None])[:, :, 0])
 
 
-def _factor(problem: Problem, state: State):
-    """CHOLMOD factor of ``problem``'s H at ``state`` (a tiny ridge if the gauge is free)."""
-    from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky
-
+def _leverage_fn(problem: Problem, state: State):
+    """``(leverages(B, c, m), max chunk)`` for ``problem``'s H at ``state``: CHOLMOD's sparse
+    forward solve with the ``fgopt[cholmod]`` extra, else fgopt's own solver (dense right-hand
+    sides, so smaller chunks). A tiny ridge fixes a free gauge."""
     problem.linearize(state)
-    H = problem.pattern.matrix(problem.H_data)
-    try:
-        return cholesky(H)
-    except CholmodNotPositiveDefiniteError:  # no prior: a tiny ridge fixes the gauge
-        ridge = 1e-9 * max(1.0, float(np.abs(H.diagonal()).max()))
-        return cholesky(H, beta=ridge)
+    if have_extra("sksparse"):
+        from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky
+
+        H = problem.pattern.matrix(problem.H_data)
+        try:
+            F = cholesky(H)
+        except CholmodNotPositiveDefiniteError:  # no prior: a tiny ridge fixes the gauge
+            ridge = 1e-9 * max(1.0, float(np.abs(H.diagonal()).max()))
+            F = cholesky(H, beta=ridge)
+        return _sparse_leverages(F), 1 << 30
+    return _solve_leverages(problem), _DENSE_CHUNK
 
 
-def _leverages(F, N: int, Jw: np.ndarray, toff: np.ndarray, dims: np.ndarray,
-               offs: np.ndarray) -> np.ndarray:
-    """``h_e = Z_e^T Z_e``, ``Z_e = L^-1 P Jw_e^T`` for each of ``c`` factors: ``Jw (c, m, D)``
-    whitened Jacobians, ``toff (c, k)`` tangent offsets of their variables in H."""
+def _whitened_columns(N: int, Jw: np.ndarray, toff: np.ndarray, dims: np.ndarray,
+                      offs: np.ndarray) -> sp.csc_matrix:
+    """``B`` (N x c m): column ``(e, k)`` is row ``k`` of factor ``e``'s whitened Jacobian
+    ``Jw (c, m, D)`` placed at its variables' tangent offsets ``toff (c, k)`` in H."""
     c, m = Jw.shape[0], Jw.shape[1]
     cols = np.arange(c)[:, None] * m + np.arange(m)[None]  # (c, m) column of (e, k)
     ri, ci, vals = [], [], []
@@ -140,13 +199,5 @@ def _leverages(F, N: int, Jw: np.ndarray, toff: np.ndarray, dims: np.ndarray,
         ri.append(np.repeat(Hrows, m, axis=1).reshape(-1))
         ci.append(np.tile(cols, (1, d)).reshape(-1))
         vals.append(Jw[:, :, o:o + d].transpose(0, 2, 1).reshape(-1))
-    B = sp.csc_matrix((np.concatenate(vals), (np.concatenate(ri), np.concatenate(ci))),
-                      shape=(N, c * m))
-    Z = sp.csc_matrix(F.solve_L(F.apply_P(B), use_LDLt_decomposition=False))
-    h = np.empty((c, m, m))
-    for k1 in range(m):
-        for k2 in range(k1, m):
-            v = np.asarray(Z[:, k1::m].multiply(Z[:, k2::m]).sum(axis=0)).ravel()
-            h[:, k1, k2] = v
-            h[:, k2, k1] = v
-    return h
+    return sp.csc_matrix((np.concatenate(vals), (np.concatenate(ri), np.concatenate(ci))),
+                         shape=(N, c * m))

@@ -34,7 +34,6 @@ import time
 from typing import Any, Callable
 
 from ..errors import FgoptError
-from .chordal import _PoseGraph, chordal_initialization
 from .result import Result, Status
 
 INITIALIZATIONS = ("auto", "given", "chordal")
@@ -107,6 +106,8 @@ def optimize_auto(graph: Any, initial: Any, params: Any,
             "given values: the final cost is consistent with the noise models (or the test "
             "does not apply)")
         return first
+    from .chordal import _PoseGraph, chordal_initialization  # scipy.sparse: only past the test
+
     if first.problem is not None and not _PoseGraph(first.problem).ok:
         first.info["initialization_reason"] = f"{why}; not a pose graph, no chordal start"
         return first

@@ -62,12 +62,13 @@ def test_small_or_wide_batches_keep_the_generic_kernel():
 
 
 def test_problem_linearization_is_unchanged(monkeypatch):
-    """A pose graph linearizes to the same H and g with and without specialization."""
+    """A pose graph linearizes to the same H and g with and without specialization (batches
+    above ``NUMPY_MAX_BATCH``: smaller ones use the NumPy twin)."""
     import fgopt
     from fgopt.datasets import manhattan_2d
     from fgopt.problem import Problem
 
-    d = manhattan_2d(300, seed=4)
+    d = manhattan_2d(1200, seed=4)
     out = []
     for enabled in (False, True):
         monkeypatch.setattr(sf, "ENABLED", enabled)
