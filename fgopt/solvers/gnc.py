@@ -98,6 +98,14 @@ class GNCParams:
     """Factors whose weight is below this are left out of a round's solve (their blocks would
     only add Cholesky fill; see :mod:`fgopt.solvers._subproblem`); their residuals are still
     evaluated every round, so they come back if the estimate moves towards them."""
+    consistency_probability: float = 0.999
+    """The consistency step's significance at the inliers' real scale: an accepted factor
+    whose leave-one-out residual is outside its ``c^2`` ellipse is rejected when
+    ``w^2 > s^2 chi2.ppf(p, dim)``; a rejected one comes back when it is inside the ellipse and
+    ``w^2 <= s^2 chi2.ppf(p, dim)`` (between the two, a factor keeps its class: no cycles).
+    Low (0.9), since the ellipse test already protects true factors (M3500: no true loop
+    closure's leave-one-out residual is outside it) and several outliers in one region each
+    look only mildly significant."""
     snooping_alpha: float = 0.05
     """Family-wise significance level of the consistency step's test (Bonferroni over the
     factors): a factor is significant when ``w^2 > s^2 chi2.isf(alpha / m, dim)`` (m factors).
@@ -252,7 +260,8 @@ class GNC:
                 status, message = Status.MAX_ITERATIONS, f"reached max_rounds={p.max_rounds}"
         removed, scale2 = 0, 1.0
         if (p.finalize and mu is not None) or p.verify or p.estimate_scale:
-            check = _Verifier(full, solver, inliers, c2, p.snooping_alpha)
+            check = _Verifier(full, solver, inliers, c2, p.snooping_alpha,
+                              p.consistency_probability)
             state, weights = check.classify(state)
             if p.estimate_scale:
                 state, weights, scale2 = check.consistency(state, weights, p.verbose, deadline)
