@@ -33,6 +33,7 @@ from .noise.models import base_noise, loss_code_and_param
 from .key import Key, key_str
 from .manifolds.base import SCALAR_KIND, BatchKind, is_vector_kind, ops_for
 from .structure import HessianPattern, build_pattern, fill_reducing_order, scatter_positions
+from ._jit import charge_numpy, numpy_budget_left
 from ._scatter_fixed import specialize as specialized_scatter
 from ._threads import PARALLEL_MIN_BATCH, linearize_batch_threaded
 from .variables import Variables
@@ -40,14 +41,15 @@ from .variables import Variables
 
 _UNSET = object()
 
-#: Batches up to this size are assembled by the NumPy twins (no numba import or cache load);
-#: the same threshold as generated kernels' NumPy twins.
+#: Batches up to this size are assembled by the NumPy twins (no numba import or cache load)
+#: while the process's twin budget lasts; the same rule as generated kernels' NumPy twins.
 NUMPY_MAX_BATCH = 1000
 
 
 def _asm(n: int):
-    """The assembly kernels for a batch of ``n`` instances: NumPy when small, else numba."""
-    return asm_np if n <= NUMPY_MAX_BATCH else asm
+    """The assembly kernels for a batch of ``n`` instances: NumPy when small and the process's
+    twin budget lasts (``fgopt._jit.numpy_budget_left``), else numba."""
+    return asm_np if n <= NUMPY_MAX_BATCH and numpy_budget_left() else asm
 
 @dataclass(eq=False)
 class State:
@@ -387,8 +389,12 @@ class Problem:
         total = 0.0
         for b in self.batches:
             res = b.kernel.residual(b.gather(state), b.source.constants)
-            total += _asm(len(b.source)).batch_cost(res, b.sqrt_info, b.unit, b.source.loss_code,
-                                                    b.source.loss_param, b.source.loss_shape)
+            kernels = _asm(len(b.source))
+            t1 = time.perf_counter()
+            total += kernels.batch_cost(res, b.sqrt_info, b.unit, b.source.loss_code,
+                                        b.source.loss_param, b.source.loss_shape)
+            if kernels is asm_np:
+                charge_numpy(time.perf_counter() - t1)
         if self._slow:
             view = _StateView(self, state)
             for s in self._slow:
@@ -452,9 +458,9 @@ class Problem:
                 continue
             res, jac = b.kernel.linearize(b.gather(state), b.source.constants)
             t1 = time.perf_counter()
-            n_b = len(b.source)
+            kernels = _asm(len(b.source))
             fixed = None
-            if n_b > NUMPY_MAX_BATCH:  # small batches: the NumPy twin (no numba, no compile)
+            if kernels is asm:  # numba: the shape-specialized kernel where one applies
                 fixed = b.fixed.get(b.unit, _UNSET)
                 if fixed is _UNSET:
                     fixed = b.fixed[b.unit] = specialized_scatter(b)
@@ -462,12 +468,15 @@ class Problem:
                 total += fixed(res, jac, b.sqrt_info, b.source.loss_code, b.source.loss_param,
                                b.source.loss_shape, b.toff, b.pos, H, g, b.weights)
             else:
-                total += _asm(n_b).scatter_batch(
+                total += kernels.scatter_batch(
                     res, jac, b.sqrt_info, b.unit, b.source.loss_code, b.source.loss_param,
                     b.source.loss_shape, b.arg_dims, b.arg_local_off, b.toff, b.pos, H, g,
                     b.weights)
+            t2 = time.perf_counter()
+            if kernels is asm_np:
+                charge_numpy(t2 - t1)
             t_lin += t1 - t0
-            t_asm += time.perf_counter() - t1
+            t_asm += t2 - t1
         if self._slow:
             t0 = time.perf_counter()
             view = _StateView(self, state)

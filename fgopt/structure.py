@@ -14,6 +14,7 @@ columns; the assembly kernel adds the factor's dense ``D x D`` Hessian block the
 from __future__ import annotations
 
 from dataclasses import dataclass
+import time
 
 import numpy as np
 
@@ -200,9 +201,13 @@ def _expand_blocks(V, N, var_dim, var_offset, rank, blk_col, blk_row):
     block_start = np.zeros(nb + 1, dtype=np.int64)
     np.cumsum(dc, out=block_start[1:])
     col_base = np.empty(int(block_start[-1]), dtype=np.int64)
-    if indices.shape[0] <= 20000:  # small: plain Python beats numba's import + cache load
+    if indices.shape[0] <= 20000 and numpy_budget_left():
+        # small, in a process still renting (fgopt._jit): plain Python beats numba's import
+        # and cache load; its time counts towards the switch to numba
+        t0 = time.perf_counter()
         _fill_indices.python(blk_col, blk_row, var_dim, var_offset, indptr, indices, block_start,
                              col_base)
+        charge_numpy(time.perf_counter() - t0)
     else:
         _fill_indices(blk_col, blk_row, var_dim, var_offset, indptr, indices, block_start,
                       col_base)
@@ -219,7 +224,8 @@ def ranges(lengths: np.ndarray) -> np.ndarray:
     return np.arange(total, dtype=np.int64) - starts
 
 
-from ._jit import is_numba_loaded, njit  # noqa: E402  (numba kernels below)
+from ._jit import (charge_numpy, is_numba_loaded, njit,  # noqa: E402  (numba kernels below)
+                   numpy_budget_left)
 
 
 @njit(cache=True)

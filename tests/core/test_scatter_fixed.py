@@ -63,7 +63,7 @@ def test_small_or_wide_batches_keep_the_generic_kernel():
 
 def test_problem_linearization_is_unchanged(monkeypatch):
     """A pose graph linearizes to the same H and g with and without specialization (batches
-    above ``NUMPY_MAX_BATCH``: smaller ones use the NumPy twin)."""
+    assembled by numba: above ``NUMPY_MAX_BATCH``, or once the NumPy twin budget is spent)."""
     import fgopt
     from fgopt.datasets import manhattan_2d
     from fgopt.problem import Problem
