@@ -394,6 +394,8 @@ def is_ba_shaped(pattern: HessianPattern) -> bool:
         return False
     mask = np.asarray(kinds) == by_count[0]
     n_e = int(mask.sum())
+    if n_e == mask.shape[0]:  # one kind only (pose graphs): nothing would be left to reduce to
+        return False
     if n_e < 2 * (mask.shape[0] - n_e) or 2 * int(pattern.var_dim[mask].sum()) < pattern.size:
         return False
     return L.is_independent(pattern, mask)
