@@ -21,6 +21,8 @@ import os
 
 for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
     os.environ[_v] = "1"
+# The serial baseline runs numba as solve_many's workers do (same results bit for bit).
+os.environ.setdefault("FGOPT_NUMPY_BUDGET", "0")
 
 import argparse  # noqa: E402
 import datetime as dt  # noqa: E402

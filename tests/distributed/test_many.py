@@ -50,7 +50,7 @@ def test_cluster_results_equal_serial_and_errors_stay_in_their_slot(client, data
     assert isinstance(results[3], FgoptError) and "cannot be built" in str(results[3])
     for i in (0, 1, 4):
         graph, initial = problems[i] if i == 0 else problems[i]()
-        serial = fgopt.optimize(graph, initial, max_iterations=50)
+        serial = fgopt.optimize(graph, initial, max_iterations=50, backend="numba")
         assert results[i].final_cost == serial.final_cost
         assert results[i].iterations == serial.iterations
         k = initial.keys()[-1]
@@ -65,7 +65,7 @@ def test_generated_factor_types_solve_on_workers(client):
 
     graph, initial = _problem()
     [remote] = fgopt.solve_many([(graph, initial)], client=client, progress=False)
-    assert remote.final_cost == fgopt.optimize(graph, initial).final_cost
+    assert remote.final_cost == fgopt.optimize(graph, initial, backend="numba").final_cost
 
 
 def test_without_dask_it_runs_serially_with_a_note(monkeypatch, data_file):
@@ -81,7 +81,7 @@ def test_without_dask_it_runs_serially_with_a_note(monkeypatch, data_file):
     problem = read(str(data_file("small/pose2example.txt")))
     with pytest.warns(UserWarning, match=r"fgopt\[distributed\]"):
         [r] = fgopt.solve_many([problem], progress=False)
-    assert r.final_cost == fgopt.optimize(*problem).final_cost
+    assert r.final_cost == fgopt.optimize(*problem, backend="numba").final_cost
 
 
 def test_cli_solve_many_writes_results_and_a_summary(data_file, tmp_path, capsys):
@@ -126,7 +126,8 @@ def test_a_worker_that_dies_is_reported_in_its_slot(data_file):
             client.close()
             cluster.close()
     assert isinstance(results[1], FgoptError) and "worker died" in str(results[1])
-    assert results[0].final_cost == results[2].final_cost == fgopt.optimize(*problem).final_cost
+    serial = fgopt.optimize(*problem, backend="numba")
+    assert results[0].final_cost == results[2].final_cost == serial.final_cost
 
 
 def test_ctrl_c_closes_the_cluster_it_started(monkeypatch, data_file):
