@@ -31,15 +31,15 @@ class Run:
         self.method = method
         self.callback = callback
         self.verbose = bool(getattr(params, "verbose", False))
+        choice = linear_solver if linear_solver is not None else params.linear_solver
         if problem is None:
             if not isinstance(initial, Variables):
                 raise FgoptError(
                     f"initial values must be fgopt.Variables, got {type(initial).__name__}")
             problem = Problem(graph, initial, ordering=params.ordering,
-                              threads=getattr(params, "threads", 1))
+                              threads=getattr(params, "threads", 1), linear_solver=choice)
         self.problem = problem
         if solver is None:
-            choice = linear_solver if linear_solver is not None else params.linear_solver
             solver = make_linear_solver(choice, pattern=problem.pattern)
             solver.analyze(problem.pattern)
         self.solver = solver

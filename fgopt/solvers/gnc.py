@@ -152,7 +152,8 @@ class GNC:
         t0 = time.perf_counter()
         if not isinstance(initial, Variables):
             raise FgoptError(f"initial values must be fgopt.Variables, got {type(initial).__name__}")
-        problem = Problem(graph, initial, ordering=p.ordering, threads=p.threads)
+        problem = Problem(graph, initial, ordering=p.ordering, threads=p.threads,
+                          linear_solver=p.linear_solver)
         solver = make_linear_solver(p.linear_solver, pattern=problem.pattern)
         solver.analyze(problem.pattern)
         lm = LevenbergMarquardt(dataclasses.replace(p.lm, max_iterations=p.max_iterations,

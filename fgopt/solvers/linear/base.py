@@ -13,7 +13,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from ...errors import FgoptError
-from ...structure import HessianPattern
+from ...structure import DENSE_MAX_SIZE, HessianPattern
 
 
 @runtime_checkable
@@ -39,7 +39,7 @@ def choose_linear_solver(pattern: HessianPattern | None) -> str:
     """
     if pattern is None:
         return "cholmod"
-    if pattern.size <= 300:
+    if pattern.size <= DENSE_MAX_SIZE:
         return "dense"
     from .schur import is_ba_shaped
 

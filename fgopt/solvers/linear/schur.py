@@ -38,7 +38,8 @@ import numpy as np
 from scipy.linalg import lapack
 
 from ...errors import FgoptError, NotPositiveDefiniteError
-from ...structure import HessianPattern, _sym_matvec, build_pattern, fill_reducing_order
+from ...structure import (HessianPattern, _sym_matvec, ba_shaped_kind, build_pattern,
+                          fill_reducing_order, kinds_by_count)
 from . import _schur_kernels as K
 from . import _schur_layout as L
 
@@ -128,7 +129,7 @@ class SchurSolver:
         self._c_ptr = np.concatenate([[0], np.cumsum(e_dim * e_dim)]).astype(np.int64)
         self._w_ptr = np.concatenate([[0], np.cumsum(f_dim[edge_f] * e_dim[edge_e])]).astype(
             np.int64)
-        self._cshift = L.column_shift(pattern, ed["var_at"])
+        self._cshift = pattern.col_shift
         self._Cinv = np.empty(int(self._c_ptr[-1]))
         self._B = np.empty(int(self._w_ptr[-1]))
         k_w = np.diff(self._w_ptr[edge_ptr]) if nE else np.zeros(1, np.int64)
@@ -349,9 +350,10 @@ def eliminated_mask(pattern: HessianPattern, eliminate=None, blk=None) -> np.nda
         if kinds is None:
             raise FgoptError("SchurSolver: the pattern carries no variable kinds; pass "
                              "eliminate=<boolean mask or variable indices>")
-        for kid in _kinds_by_count(kinds):
+        known = pattern.independent_kinds
+        for kid in kinds_by_count(np.asarray(kinds)):
             mask = kinds == kid
-            if L.is_independent(pattern, mask, blk):
+            if kid in known if known is not None else L.is_independent(pattern, mask, blk):
                 return mask
         raise FgoptError("SchurSolver: no variable kind is independent (every kind has two "
                          "variables coupled by a factor): nothing to eliminate")
@@ -370,26 +372,22 @@ def eliminated_mask(pattern: HessianPattern, eliminate=None, blk=None) -> np.nda
     return mask
 
 
-def _kinds_by_count(kinds: np.ndarray) -> list[int]:
-    ids, counts = np.unique(kinds[kinds >= 0], return_counts=True)
-    return [int(i) for i in ids[np.argsort(-counts, kind="stable")]]
-
-
 def is_ba_shaped(pattern: HessianPattern) -> bool:
     """True when the kind with the most variables is independent (no factor couples two of
     its variables), has at least twice as many variables as all others together and at least
-    half of the tangent dimension: eliminating it leaves a much smaller reduced system."""
+    half of the tangent dimension: eliminating it leaves a much smaller reduced system
+    (:func:`fgopt.structure.ba_shaped_kind`)."""
     kinds = pattern.var_kind
     if kinds is None or pattern.size == 0:
         return False
-    by_count = _kinds_by_count(np.asarray(kinds))
-    if not by_count:
-        return False
-    mask = np.asarray(kinds) == by_count[0]
-    n_e = int(mask.sum())
-    if n_e < 2 * (mask.shape[0] - n_e) or 2 * int(pattern.var_dim[mask].sum()) < pattern.size:
-        return False
-    return L.is_independent(pattern, mask)
+    kinds = np.asarray(kinds)
+    known = pattern.independent_kinds
+    if known is None:  # a pattern not built by a Problem: look at its blocks
+        by_count = kinds_by_count(kinds)
+        if not by_count or not L.is_independent(pattern, kinds == by_count[0]):
+            return False
+        known = (by_count[0],)
+    return ba_shaped_kind(kinds, pattern.var_dim, known) is not None
 
 
 def choose_linear_solver(pattern: HessianPattern) -> SchurSolver | None:
