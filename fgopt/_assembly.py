@@ -168,6 +168,15 @@ def batch_cost(res, sqrt_info, unit, loss_code, loss_param, loss_shape, cost):
 
 
 @njit(cache=True)
+def all_finite(a):
+    """True when every entry of the 1-D array ``a`` is finite (no temporary mask)."""
+    for i in range(a.shape[0]):
+        if not np.isfinite(a[i]):
+            return False
+    return True
+
+
+@njit(cache=True)
 def first_nonfinite_row(a):
     """Index of the first row of a 2-D or 3-D array with a NaN/inf, or -1."""
     n = a.shape[0]

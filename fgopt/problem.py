@@ -120,6 +120,8 @@ class _StateView:
 
 #: Batches are linearized in slices of this many factors (threads: this many per thread).
 CHUNK = 1 << 14
+#: Trial steps are linearized into a second H while H's data takes at most this many bytes.
+SPARE_MAX_BYTES = 256 << 20
 
 
 class Problem:
@@ -354,6 +356,9 @@ class Problem:
         self.H_data = np.zeros(self.pattern.nnz)
         self.g = np.zeros(self.pattern.size)
         self._spare: tuple[np.ndarray, np.ndarray] | None = None
+        #: Linearize trial states into a second H (see :meth:`linearize_candidate`).
+        self.spare_buffers = self.H_data.nbytes <= SPARE_MAX_BYTES
+        self._holds_candidate = False
 
     # ----------------------------------------------------------------- iteration API
     @property
@@ -403,33 +408,52 @@ class Problem:
         """Fill ``self.H_data`` (lower CSC of H) and ``self.g`` (J^T W r); return the cost."""
         if self.pattern is None:
             raise FgoptError("this Problem was built without structure")
+        self._holds_candidate = False
         total = self._linearize_into(state, self.H_data, self.g)
-        if not (np.isfinite(total) and np.all(np.isfinite(self.g))):
+        if not (np.isfinite(total) and asm.all_finite(self.g)):
             raise NonFiniteError(self.locate_nonfinite(state))
         return total
 
     def linearize_candidate(self, state: State) -> float:
-        """Linearize a trial state into spare buffers; return its cost (NaN if not finite).
+        """Linearize a trial state; return its cost (NaN if not finite).
 
         Trust-region methods call this instead of ``cost`` so an accepted step needs no second
-        evaluation of the residuals: :meth:`accept_candidate` swaps the buffers in.
+        evaluation of the residuals, then :meth:`accept_candidate` or :meth:`reject_candidate`.
+        With ``spare_buffers`` the trial goes into a second H / g (swapped in on acceptance);
+        without, into H itself, and a rejection re-linearizes the current state (same numbers:
+        linearizing a state is deterministic). ``spare_buffers`` defaults to H's data taking at
+        most ``SPARE_MAX_BYTES``: a second H costs as much memory as H again (1.1 GB for 5M BA
+        observations), re-linearizing costs time only on rejected steps.
         """
-        if self._spare is None:
-            self._spare = (np.zeros_like(self.H_data), np.zeros_like(self.g))
-        H, g = self._spare
+        if self.spare_buffers:
+            if self._spare is None:
+                self._spare = (np.zeros_like(self.H_data), np.zeros_like(self.g))
+            H, g = self._spare
+        else:
+            H, g = self.H_data, self.g
+            self._holds_candidate = True
         try:
             total = self._linearize_into(state, H, g)
         except NonFiniteError:
             return float("nan")
-        if not (np.isfinite(total) and np.all(np.isfinite(g)) and np.all(np.isfinite(H))):
+        if not (np.isfinite(total) and asm.all_finite(g) and asm.all_finite(H)):
             return float("nan")
         return total
 
     def accept_candidate(self) -> None:
         """Make the last :meth:`linearize_candidate` the current linearization."""
-        H, g = self._spare
-        self._spare = (self.H_data, self.g)
-        self.H_data, self.g = H, g
+        if self.spare_buffers:
+            H, g = self._spare
+            self._spare = (self.H_data, self.g)
+            self.H_data, self.g = H, g
+        self._holds_candidate = False
+
+    def reject_candidate(self, state: State) -> None:
+        """Keep ``state`` (the current iterate) as the linearization point after a rejected
+        :meth:`linearize_candidate`."""
+        if self._holds_candidate:
+            self._linearize_into(state, self.H_data, self.g)
+            self._holds_candidate = False
 
     def _linearize_into(self, state: State, H: np.ndarray, g: np.ndarray) -> float:
         H[:] = 0.0

@@ -54,10 +54,9 @@ class Dogleg:
         while it < p.max_iterations:
             H, g = problem.H_data, problem.g
             if h_gn is None:
-                Hr = H.copy()
-                Hr[pattern.diag_pos] += p.regularization * np.maximum(H[pattern.diag_pos], 1e-6)
                 try:
-                    h_gn = run.solve(Hr, -g)
+                    h_gn = run.solve_damped(
+                        p.regularization * np.maximum(H[pattern.diag_pos], 1e-6), -g)
                 except NotPositiveDefiniteError:
                     return run.finish(Status.FAILED, "H is not positive definite")
                 gHg = float(g @ pattern.matvec(H, g))

@@ -33,7 +33,7 @@ class GaussNewton:
         for it in range(1, p.max_iterations + 1):
             old = run.cost
             try:
-                delta = run.solve(problem.H_data.copy(), -problem.g)
+                delta = run.solve_damped(None, -problem.g)
             except NotPositiveDefiniteError:
                 return run.finish(Status.FAILED, "H is not positive definite: add a prior to fix "
                                   "the gauge, or use method='lm'")

@@ -122,18 +122,14 @@ class SchurSolver:
         srt = np.lexsort((f_rank[edge_f], edge_e))
         edge_e, edge_f = edge_e[srt], np.ascontiguousarray(edge_f[srt])
         self._edge_ptr, self._edge_f = edge_ptr, edge_f
-        self._edge_p00 = np.ascontiguousarray(ed["edge_p00"][srt])
-        self._edge_orient = np.ascontiguousarray(ed["edge_orient"][srt])
         self._e_off, self._e_dim = var_off[e_vars].astype(np.int64), e_dim
         self._f_hoff, self._f_dim = var_off[f_vars].astype(np.int64), f_dim
         self._c_ptr = np.concatenate([[0], np.cumsum(e_dim * e_dim)]).astype(np.int64)
-        self._w_ptr = np.concatenate([[0], np.cumsum(f_dim[edge_f] * e_dim[edge_e])]).astype(
-            np.int64)
-        self._cshift = pattern.col_shift
         self._Cinv = np.empty(int(self._c_ptr[-1]))
-        self._B = np.empty(int(self._w_ptr[-1]))
-        k_w = np.diff(self._w_ptr[edge_ptr]) if nE else np.zeros(1, np.int64)
-        self._W = np.empty(int(k_w.max(initial=1)))  # one e's W_k = B_k C_e^-1 (scratch)
+        self._block_access(pattern, edge_e, ed["edge_p00"][srt], ed["edge_orient"][srt])
+        del ed
+        w_size = np.bincount(edge_e, weights=f_dim[edge_f], minlength=nE) * e_dim
+        self._W = np.empty(int(w_size.max(initial=1)))  # one e's W_k = B_k C_e^-1 (scratch)
         self._fast = bool(nE and np.all(e_dim == 3) and np.all(f_dim[edge_f] == 9))
         f_soff = np.zeros(nF, dtype=np.int64)  # offsets in S (rank order)
         f_soff[order] = np.concatenate([[0], np.cumsum(f_dim[order])[:-1]]) if nF else []
@@ -153,6 +149,26 @@ class SchurSolver:
             self._dg_ptr = np.concatenate([[0], np.cumsum(f_dim * f_dim)]).astype(np.int64)
             self._Dg = np.zeros(int(self._dg_ptr[-1]))
             self._Minv = np.zeros(int(self._dg_ptr[-1]))
+
+    def _block_access(self, pattern, edge_e, edge_p00, edge_orient) -> None:
+        """How the kernels read ``B_k`` (see :mod:`._schur_kernels`): from H itself when every
+        block lies in its eliminated variable's columns (the Schur layout), else from a copy
+        with the same addressing, refreshed at each factorization."""
+        if not np.any(edge_orient):
+            self._bbase, self._bshift, self._gather = np.ascontiguousarray(edge_p00), \
+                pattern.col_shift, None
+            return
+        nE, e_dim, f_dim = self._e_off.shape[0], self._e_dim, self._f_dim
+        df = f_dim[self._edge_f]
+        rows = np.bincount(edge_e, weights=df, minlength=nE).astype(np.int64)  # per e: sum df
+        start = np.concatenate([[0], np.cumsum(rows * e_dim)[:-1]]).astype(np.int64)
+        cum = np.concatenate([[0], np.cumsum(df)[:-1]]).astype(np.int64)
+        self._bbase = start[edge_e] + cum - cum[self._edge_ptr[edge_e]]
+        self._bshift = np.zeros(pattern.size, dtype=np.int64)
+        cols = np.repeat(self._e_off, e_dim) + L.ranges(e_dim)
+        self._bshift[cols] = L.ranges(e_dim) * np.repeat(rows, e_dim)
+        self._gather = (np.ascontiguousarray(edge_p00), np.ascontiguousarray(edge_orient),
+                        np.empty(int(np.sum(rows * e_dim))))
 
     def _analyze_packed(self, mode, nF, f_dim, order, f_rank, ff_i, ff_j, a_row, a_col):
         """S accumulated in a packed block store (contiguous blocks: ~2x faster than writing
@@ -209,19 +225,27 @@ class SchurSolver:
         t0 = self.clock()
         S = self._packed if self._explicit else self._A
         S[:] = 0.0
+        H_data = np.ascontiguousarray(H_data, dtype=np.float64)
         S[self._a_dst] = H_data[self._a_src]
+        if self._gather is None:
+            X = H_data  # the blocks are read in place: keep H until the solve
+        else:
+            p00, orient, X = self._gather
+            K.gather_blocks(H_data, self._pattern.col_shift, self._e_off, self._e_dim,
+                            self._edge_ptr, self._edge_f, self._f_hoff, self._f_dim, p00, orient,
+                            self._bbase, self._bshift, X)
+        self._X = X
         if self._fast:
             bad = K.eliminate_e3f9(
-                H_data, self._pattern.indptr, self._cshift, self._e_off, self._c_ptr,
-                self._edge_ptr, self._edge_f, self._edge_p00, self._edge_orient, self._f_hoff,
-                self._w_ptr, self._pair_ptr, self._pair_blk, self._blk_ptr, self._blk_base,
-                self._Cinv, self._B, self._W, S, self._explicit)
+                H_data, self._pattern.indptr, self._e_off, self._c_ptr, self._edge_ptr, X,
+                self._bbase, self._bshift, self._pair_ptr, self._pair_blk, self._blk_ptr,
+                self._blk_base, self._Cinv, self._W, S, self._explicit)
         else:
             bad = K.eliminate(
-                H_data, self._pattern.indptr, self._cshift, self._e_off, self._e_dim,
-                self._c_ptr, self._edge_ptr, self._edge_f, self._edge_p00, self._edge_orient,
-                self._f_hoff, self._f_dim, self._w_ptr, self._pair_ptr, self._pair_blk,
-                self._blk_ptr, self._blk_base, self._Cinv, self._B, self._W, S, self._explicit)
+                H_data, self._pattern.indptr, self._e_off, self._e_dim, self._c_ptr,
+                self._edge_ptr, self._edge_f, self._f_dim, X, self._bbase, self._bshift,
+                self._pair_ptr, self._pair_blk, self._blk_ptr, self._blk_base, self._Cinv,
+                self._W, S, self._explicit)
         if bad >= 0:
             raise NotPositiveDefiniteError(
                 f"Schur: the diagonal block of eliminated variable #{bad} is not positive "
@@ -253,9 +277,9 @@ class SchurSolver:
                                   self._dg_ptr, self._Dg)
             else:
                 self._Dg[:] = self._A[self._dg_src]
-                K.schur_block_diagonal(self._Dg, self._dg_ptr, self._e_dim, self._c_ptr,
-                                       self._Cinv, self._edge_ptr, self._edge_f, self._f_dim,
-                                       self._w_ptr, self._B)
+                K.schur_block_diagonal(self._Dg, self._dg_ptr, self._e_off, self._e_dim,
+                                       self._c_ptr, self._Cinv, self._edge_ptr, self._edge_f,
+                                       self._f_dim, self._X, self._bbase, self._bshift)
             bad = K.invert_blocks(self._Dg, self._dg_ptr, self._f_dim, self._Minv)
             if bad >= 0:
                 raise NotPositiveDefiniteError(
@@ -267,8 +291,8 @@ class SchurSolver:
         rhs = np.ascontiguousarray(rhs, dtype=np.float64)
         rS = rhs[self._s_to_h]
         K.reduce_rhs(rhs, rS, self._e_off, self._e_dim, self._c_ptr, self._Cinv,
-                     self._edge_ptr, self._edge_f, self._f_soff, self._f_dim, self._w_ptr,
-                     self._B)
+                     self._edge_ptr, self._edge_f, self._f_soff, self._f_dim, self._X,
+                     self._bbase, self._bshift)
         t1 = self.clock()
         if self._nS == 0:
             xS = rS
@@ -284,8 +308,8 @@ class SchurSolver:
         x = np.empty(self._pattern.size)
         x[self._s_to_h] = xS
         K.back_substitute(rhs, xS, x, self._e_off, self._e_dim, self._c_ptr, self._Cinv,
-                          self._edge_ptr, self._edge_f, self._f_soff, self._f_dim, self._w_ptr,
-                          self._B)
+                          self._edge_ptr, self._edge_f, self._f_soff, self._f_dim, self._X,
+                          self._bbase, self._bshift)
         tm = self.timing
         tm["reduce_rhs"] += t1 - t0
         tm["solve_S"] += t2 - t1
@@ -300,8 +324,9 @@ class SchurSolver:
             return out
         ap = self._apattern
         out = _sym_matvec(ap.indptr, ap.indices, self._A, x)
-        K.implicit_schur_matvec(x, out, self._e_dim, self._c_ptr, self._Cinv, self._edge_ptr,
-                                self._edge_f, self._f_soff, self._f_dim, self._w_ptr, self._B)
+        K.implicit_schur_matvec(x, out, self._e_off, self._e_dim, self._c_ptr, self._Cinv,
+                                self._edge_ptr, self._edge_f, self._f_soff, self._f_dim,
+                                self._X, self._bbase, self._bshift)
         return out
 
     def _precondition(self, r: np.ndarray) -> np.ndarray:
