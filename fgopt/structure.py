@@ -16,7 +16,7 @@ kernel adds the factor's dense ``D x D`` Hessian block through it).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
@@ -26,28 +26,49 @@ ORDERINGS = ("amd", "metis", "nesdis", "colamd", "natural", "default", "best")
 
 @dataclass(eq=False)
 class HessianPattern:
-    """Lower-triangular CSC pattern of H with per-variable block layout."""
+    """Lower-triangular CSC pattern of H with per-variable block layout.
+
+    The row ``indices`` (one int64 per stored entry: as large as H itself) are built on first
+    use from the block list: the Schur solver never needs them.
+    """
 
     size: int                 # N: total tangent dimension
     indptr: np.ndarray        # (N + 1,) int64
-    indices: np.ndarray       # (nnz,) int64 row indices, sorted within each column
     diag_pos: np.ndarray      # (N,) data index of each diagonal entry
     var_offset: np.ndarray    # (V,) tangent offset of each variable
     var_dim: np.ndarray       # (V,) tangent dim of each variable
+    block_codes: np.ndarray   # (nb,) sorted rank(column var) * V + rank(row var) of the blocks
+    block_p00: np.ndarray     # (nb,) data index of each block's entry (0, 0)
+    order: np.ndarray         # (V,) the variable of each rank (rank = position in H)
     var_kind: np.ndarray | None = None  # (V,) manifold kind id (-1: Python manifold), if known
     kind_names: tuple[str, ...] = ()    # names of the kind ids
     #: Kind ids no factor couples with themselves (no block joins two variables of the kind),
     #: when the builder knows them (the compiled problem does); None: unknown.
     independent_kinds: tuple[int, ...] | None = None
     col_shift: np.ndarray = None        # (N,) see column_shift (computed when not given)
+    _indices: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self):
         if self.col_shift is None:
             self.col_shift = column_shift(self.indptr, self.var_offset, self.var_dim)
 
     @property
+    def indices(self) -> np.ndarray:
+        """``(nnz,)`` int64 row indices, sorted within each column."""
+        if self._indices is None:
+            self._indices = _block_rows(self.block_codes, self.var_offset.shape[0], self.order,
+                                        self.var_dim, self.var_offset, self.indptr)
+        return self._indices
+
+    def blocks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(row var, column var, p00)`` of every stored block, diagonal blocks included."""
+        V = self.var_offset.shape[0]
+        return (self.order[self.block_codes % V], self.order[self.block_codes // V],
+                self.block_p00)
+
+    @property
     def nnz(self) -> int:
-        return int(self.indices.shape[0])
+        return int(self.indptr[-1])
 
     def matrix(self, data: np.ndarray) -> sp.csc_matrix:
         """The lower triangle as a scipy CSC matrix sharing ``data`` (no copy)."""
@@ -163,9 +184,9 @@ def build_pattern(var_dim: np.ndarray, order: np.ndarray, pairs_i: np.ndarray,
                             np.arange(V, dtype=np.int64) * (V + 1)])
     del ri, rj, keep
     codes = unique_int(codes)
-    indptr, indices, p00 = _expand_blocks(codes, V, order, var_dim, var_offset, N)
+    indptr, p00 = _block_layout(codes, V, order, var_dim, var_offset, N)
     diag_pos = indptr[:-1].copy()  # diagonal entry is the first of each lower column
-    pattern = HessianPattern(N, indptr, indices, diag_pos, var_offset, var_dim)
+    pattern = HessianPattern(N, indptr, diag_pos, var_offset, var_dim, codes, p00, order)
     col_ptr = np.searchsorted(codes, np.arange(V + 1, dtype=np.int64) * V)
     lookup = {"codes": codes, "col_ptr": col_ptr, "p00": p00, "V": V}
     return pattern, lookup
@@ -210,9 +231,9 @@ from numba import njit  # noqa: E402  (numba kernels below)
 
 
 @njit(cache=True)
-def _expand_blocks(codes, V, order, var_dim, var_offset, N):
-    """Scalar CSC ``(indptr, indices)`` of blocks given as sorted rank codes, and the data index
-    of each block's entry ``(0, 0)``."""
+def _block_layout(codes, V, order, var_dim, var_offset, N):
+    """``indptr`` of the scalar CSC of blocks given as sorted rank codes, and the data index of
+    each block's entry ``(0, 0)``."""
     nb = codes.shape[0]
     indptr = np.zeros(N + 1, dtype=np.int64)
     for b in range(nb):
@@ -222,19 +243,31 @@ def _expand_blocks(codes, V, order, var_dim, var_offset, N):
             indptr[oc + cb + 1] += dc - cb if c == r else dr
     for j in range(N):
         indptr[j + 1] += indptr[j]
-    indices = np.empty(indptr[N], dtype=np.int64)
     p00 = np.empty(nb, dtype=np.int64)
-    fill = indptr[:-1].copy()
+    fill = indptr[:-1].copy()  # per column: where the next block's rows go
     for b in range(nb):
         c, r = order[codes[b] // V], order[codes[b] % V]
+        oc, dc, dr = var_offset[c], var_dim[c], var_dim[r]
+        p00[b] = fill[oc] if dc else 0
+        for cb in range(dc):
+            fill[oc + cb] += dc - cb if c == r else dr
+    return indptr, p00
+
+
+@njit(cache=True)
+def _block_rows(codes, V, order, var_dim, var_offset, indptr):
+    """Row indices of the scalar CSC (see :func:`_block_layout`)."""
+    indices = np.empty(indptr[-1], dtype=np.int64)
+    fill = indptr[:-1].copy()
+    for b in range(codes.shape[0]):
+        c, r = order[codes[b] // V], order[codes[b] % V]
         oc, orow, dc, dr = var_offset[c], var_offset[r], var_dim[c], var_dim[r]
-        p00[b] = fill[oc]
         for cb in range(dc):
             col = oc + cb
             for a in range(cb if c == r else 0, dr):
                 indices[fill[col]] = orow + a
                 fill[col] += 1
-    return indptr, indices, p00
+    return indices
 
 
 @njit(cache=True)

@@ -17,70 +17,16 @@ from ...structure import HessianPattern, ranges
 from . import _schur_kernels as K
 
 
-def scalar_to_var(pattern: HessianPattern) -> np.ndarray:
-    order = np.argsort(pattern.var_offset, kind="stable")
-    return np.repeat(order, pattern.var_dim[order]).astype(np.int64)
-
-
-def column_entries(pattern: HessianPattern, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Data positions of every stored entry of columns ``cols``, and the column of each."""
-    starts, ends = pattern.indptr[cols], pattern.indptr[cols + 1]
-    pos = np.repeat(starts, ends - starts) + ranges(ends - starts)
-    return pos, np.repeat(cols, ends - starts)
-
-
-def off_diagonal_blocks(pattern: HessianPattern, var_at: np.ndarray):
-    """Every stored off-diagonal block once: ``(row var, column var, position of entry (0, 0))``.
-
-    A block lives in the columns of its column variable; its ``(0, 0)`` entry is in that
-    variable's first column, on the row variable's first row.
-    """
-    return _first_column_blocks(pattern.indptr, pattern.indices,
-                                np.ascontiguousarray(pattern.var_offset, dtype=np.int64),
-                                np.ascontiguousarray(pattern.var_dim, dtype=np.int64), var_at)
-
-
-@njit(cache=True)
-def _first_column_blocks(indptr, indices, var_offset, var_dim, var_at):
-    # one pass over each variable's first column (numpy's version built several nnz-sized
-    # temporaries: 15 s and ~2 GB at 5M BA observations)
-    V = var_offset.shape[0]
-    count = 0
-    for v in range(V):
-        if var_dim[v] == 0:
-            continue
-        c = var_offset[v]
-        for p in range(indptr[c], indptr[c + 1]):
-            r = indices[p]
-            rv = var_at[r]
-            if rv != v and r == var_offset[rv]:
-                count += 1
-    rvs = np.empty(count, dtype=np.int64)
-    cvs = np.empty(count, dtype=np.int64)
-    p00 = np.empty(count, dtype=np.int64)
-    count = 0
-    for v in range(V):
-        if var_dim[v] == 0:
-            continue
-        c = var_offset[v]
-        for p in range(indptr[c], indptr[c + 1]):
-            r = indices[p]
-            rv = var_at[r]
-            if rv != v and r == var_offset[rv]:
-                rvs[count], cvs[count], p00[count] = rv, v, p
-                count += 1
-    return rvs, cvs, p00
-
-
 def blocks(pattern: HessianPattern) -> tuple:
-    """``(var_at, row vars, column vars, (0, 0) positions)`` of the off-diagonal blocks."""
-    var_at = scalar_to_var(pattern)
-    return (var_at, *off_diagonal_blocks(pattern, var_at))
+    """``(row vars, column vars, (0, 0) positions)`` of the off-diagonal blocks of H."""
+    rv, cv, p00 = pattern.blocks()
+    off = rv != cv
+    return rv[off], cv[off], p00[off]
 
 
 def is_independent(pattern: HessianPattern, mask: np.ndarray, blk: tuple | None = None) -> bool:
     """True when no stored block of H couples two variables of ``mask``."""
-    _, brv, bcv, _ = blocks(pattern) if blk is None else blk
+    brv, bcv, _ = blocks(pattern) if blk is None else blk
     return not np.any(mask[brv] & mask[bcv])
 
 
@@ -88,7 +34,7 @@ def edges(pattern: HessianPattern, is_e: np.ndarray, blk: tuple) -> dict:
     """E-F edges (orientation 0: block in e's columns, f after e; 1: in f's columns) and F-F
     couplings. F variables are numbered by H offset, E variables likewise."""
     var_off, V = pattern.var_offset, pattern.var_offset.shape[0]
-    var_at, brv, bcv, p00 = blk
+    brv, bcv, p00 = blk
     if np.any(is_e[brv] & is_e[bcv]):
         raise FgoptError("SchurSolver: the variables chosen for elimination are not "
                          "independent (a factor couples two of them); pass eliminate=... "
@@ -105,7 +51,7 @@ def edges(pattern: HessianPattern, is_e: np.ndarray, blk: tuple) -> dict:
     o1 = is_e[brv] & ~is_e[bcv]
     ff = ~is_e[brv] & ~is_e[bcv]
     return {
-        "var_at": var_at, "e_vars": e_vars, "f_vars": f_vars,
+        "e_vars": e_vars, "f_vars": f_vars,
         "edge_e": np.concatenate([eidx[bcv[o0]], eidx[brv[o1]]]),
         "edge_f": np.concatenate([fidx[brv[o0]], fidx[bcv[o1]]]),
         "edge_p00": np.concatenate([p00[o0], p00[o1]]),
@@ -118,11 +64,33 @@ def a_entries(pattern: HessianPattern, s_to_h: np.ndarray):
     """Entries of ``H_FF``: data positions in H and their lower (row, col) in S scalars."""
     h_to_s = np.full(pattern.size, -1, dtype=np.int64)
     h_to_s[s_to_h] = np.arange(s_to_h.shape[0])
-    pos, col = column_entries(pattern, np.sort(s_to_h))
-    sr = h_to_s[pattern.indices[pos]]
-    keep = sr >= 0
-    sr, sc = sr[keep], h_to_s[col[keep]]
-    return pos[keep], np.maximum(sr, sc), np.minimum(sr, sc)
+    rv, cv, p00 = pattern.blocks()
+    off = pattern.var_offset
+    ff = (h_to_s[off[rv]] >= 0) & (h_to_s[off[cv]] >= 0)
+    return _block_entries(rv[ff], cv[ff], p00[ff], off, pattern.var_dim, pattern.col_shift,
+                          h_to_s)
+
+
+@njit(cache=True)
+def _block_entries(rv, cv, p00, var_off, var_dim, col_shift, h_to_s):
+    """Every stored entry of the given blocks: data position, lower (row, col) via h_to_s."""
+    n = 0
+    for b in range(rv.shape[0]):
+        dc, dr = var_dim[cv[b]], var_dim[rv[b]]
+        n += dc * (dc + 1) // 2 if rv[b] == cv[b] else dc * dr
+    pos = np.empty(n, dtype=np.int64)
+    row = np.empty(n, dtype=np.int64)
+    col = np.empty(n, dtype=np.int64)
+    n = 0
+    for b in range(rv.shape[0]):
+        oc, orow = var_off[cv[b]], var_off[rv[b]]
+        for c in range(var_dim[cv[b]]):
+            for a in range(c if rv[b] == cv[b] else 0, var_dim[rv[b]]):
+                pos[n] = p00[b] + col_shift[oc + c] + a
+                sr, sc = h_to_s[orow + a], h_to_s[oc + c]
+                row[n], col[n] = max(sr, sc), min(sr, sc)
+                n += 1
+    return pos, row, col
 
 
 def co_observation_pairs(edge_ptr: np.ndarray, edge_f: np.ndarray, nF: int):
