@@ -17,6 +17,7 @@ accepted iterate stay intact.
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -33,7 +34,7 @@ from .key import Key, key_str
 from .manifolds.base import SCALAR_KIND, BatchKind, is_vector_kind, ops_for
 from .structure import (DENSE_MAX_SIZE, HessianPattern, ba_shaped_kind, build_pattern,
                         fill_reducing_order, independent_kinds, kinds_by_count, schur_order,
-                        scatter_positions)
+                        scatter_positions, unique_int)
 from ._threads import PARALLEL_MIN_BATCH, linearize_batch_threaded
 from .variables import Variables
 
@@ -155,68 +156,100 @@ class Problem:
                         f"{f.describe()} uses {key_str(k)}, which is not in the initial values: "
                         f"add it with Variables.add({key_str(k)}, value)")
                 used.setdefault(k, None)
+        factor_keys = np.fromiter(used, dtype=np.int64, count=len(used))
+        batch_keys = np.zeros(0, dtype=np.int64)
         if graph.batches:
-            batch_keys = np.unique(np.concatenate([b.keys.reshape(-1) for b in graph.batches]))
-            for k in batch_keys.tolist():
-                used.setdefault(k, None)
-        self.kinds: list[BatchKind] = []
-        kind_id: dict[int, int] = {}
-        var_keys = list(used)
-        value_of = values._values
-        # one pass per step over all variables, in comprehensions (not one Python iteration
-        # with many operations per variable: BAL problems have ~10^4 variables)
-        xs = [value_of.get(k) for k in var_keys]
+            batch_keys = unique_int(np.concatenate([b.keys.reshape(-1) for b in graph.batches]))
+            if factor_keys.shape[0]:
+                batch_keys = batch_keys[~np.isin(batch_keys, factor_keys)]
+        # variables: the factors' keys in order of appearance, then the batches' in key order
+        var_keys = np.concatenate([factor_keys, batch_keys])
+        V = var_keys.shape[0]
+        # Values added in bulk (Variables.add_rows) are taken as arrays: no Python step per
+        # variable (a BA problem has ~10^6); the others one by one, in comprehensions.
+        block, brow = values._find_rows(var_keys)
+        per_key = np.flatnonzero(block < 0)
+        value_of = values._dict
+        xs = [value_of.get(k) for k in var_keys[per_key].tolist()]
         missing = next((i for i, x in enumerate(xs) if x is None), None)
         if missing is not None:
-            k = var_keys[missing]
+            k = int(var_keys[per_key[missing]])
             b, row = self._find_key_row(graph, k)
             raise KeyNotFoundError(
                 f"{b.kernel.name} (factor {b._where(row)}) uses {key_str(Key(k))}, which is "
                 "not in the initial values")
         ndarray = np.ndarray
         tkeys = [(ndarray, x.shape) if type(x) is ndarray else type(x) for x in xs]
-        # traits looked up once per (type, shape); kinds numbered in order of first appearance
-        kid_of: dict = {}
+        # traits looked up once per (type, shape) / bulk block; kinds numbered in order of
+        # first appearance among the variables
+        kinds: list[BatchKind] = []
+        found: dict[int, int] = {}  # id(kind) -> provisional number
+
+        def number(kind) -> int:
+            if kind is None:
+                return -1
+            if id(kind) not in found:
+                found[id(kind)] = len(kinds)
+                kinds.append(kind)
+            return found[id(kind)]
+
+        tok = np.empty(V, dtype=np.int64)
         ops_of: dict = {}
+        tok_of: dict = {}
         for tkey in dict.fromkeys(tkeys):
             x = xs[tkeys.index(tkey)]
-            ops = ops_for(x)
-            kind = ops.batch_kind(x)
-            ops_of[tkey] = ops
-            if kind is None:
-                kid_of[tkey] = -1
-                continue
-            kid = kind_id.get(id(kind))
-            if kid is None:
-                kid = kind_id[id(kind)] = len(self.kinds)
-                self.kinds.append(kind)
-            kid_of[tkey] = kid
-        var_kind = np.array([kid_of[t] for t in tkeys], dtype=np.int64)
-        V = len(var_keys)
+            ops = ops_of[tkey] = ops_for(x)
+            tok_of[tkey] = number(ops.batch_kind(x))
+        tok[per_key] = [tok_of[t] for t in tkeys]
+        for b, blk in enumerate(values._pending):
+            on = block == b
+            if on.any():  # the kind the per-key path would find for these values
+                x = blk.kind.wrap(blk.rows[0])
+                tok[on] = number(ops_for(x).batch_kind(x))
+        first = [int(np.argmax(tok == t)) for t in range(len(kinds))]
+        renum = np.full(len(kinds) + 1, -1, dtype=np.int64)  # last entry: -1 -> -1
+        renum[np.argsort(first, kind="stable")] = np.arange(len(kinds))
+        self.kinds = [kinds[t] for t in np.argsort(first, kind="stable").tolist()]
+        kind_id = {id(k): i for i, k in enumerate(self.kinds)}
+        var_kind = renum[tok]
         var_row = np.zeros(V, dtype=np.int64)
         var_dim = np.zeros(V, dtype=np.int64)
-        per_kind: list[list] = []
+        slot = np.full(V, -1, dtype=np.int64)  # position in xs of per-key variables
+        slot[per_key] = np.arange(per_key.shape[0])
+        storages = []
         for kid, kind in enumerate(self.kinds):
             idx = np.nonzero(var_kind == kid)[0]
             var_row[idx] = np.arange(idx.shape[0])
             var_dim[idx] = kind.dim
-            per_kind.append([xs[i] for i in idx.tolist()])
+            S = np.empty((idx.shape[0], kind.storage_dim))
+            pk = slot[idx] >= 0
+            if pk.any():
+                S[pk] = self._storage_of(kind, [xs[i] for i in slot[idx[pk]].tolist()])
+            for b, blk in enumerate(values._pending):
+                on = block[idx] == b
+                if on.any():
+                    S[on] = blk.rows[brow[idx[on]]]
+            storages.append(S)
         slow_idx = np.nonzero(var_kind < 0)[0]
         var_row[slow_idx] = np.arange(slow_idx.shape[0])
-        self._slow_values: list[Any] = [xs[i] for i in slow_idx.tolist()]
+        self._slow_values: list[Any] = [xs[i] for i in slot[slow_idx].tolist()]
         for i, x in zip(slow_idx.tolist(), self._slow_values):
-            var_dim[i] = ops_of[tkeys[i]].dim(x)
+            var_dim[i] = ops_of[tkeys[slot[i]]].dim(x)
         self._kind_id = kind_id
-        self.var_keys = np.array(var_keys, dtype=np.int64)
+        self.var_keys = var_keys
         self.var_kind = var_kind
         self.var_row = var_row
         self.var_dim = var_dim
-        self._var_of_key = {Key(k): i for i, k in enumerate(var_keys)}
-        self._initial_storages = [self._storage_of(kd, xs) for xs, kd in zip(per_kind, self.kinds)]
+        self._initial_storages = storages
         self._kind_vars = [np.nonzero(self.var_kind == kid)[0] for kid in range(len(self.kinds))]
         self._slow_vars = np.nonzero(self.var_kind < 0)[0]
         self._extra = values  # for unused keys and the final Variables
         self._sorted = np.argsort(self.var_keys)
+
+    @functools.cached_property
+    def _var_of_key(self) -> dict:
+        """Key -> variable index (built on first use: slow-path factors and marginals)."""
+        return {Key(k): i for i, k in enumerate(self.var_keys.tolist())}
 
     @staticmethod
     def _storage_of(kind: BatchKind, xs: list) -> np.ndarray:

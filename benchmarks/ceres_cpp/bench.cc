@@ -17,6 +17,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <ctime>
 #include <fstream>
 #include <iostream>
 #include <map>
@@ -43,6 +44,14 @@ Eigen::Matrix<double, N, N> UpperSqrt(const Eigen::Matrix<double, N, N>& I) {
   }
   return J.llt().matrixU();
 }
+// CPU seconds of this process (user + system): unlike wall time, not inflated when other
+// processes compete for the cores.
+static double cpu_now() {
+  struct timespec ts;
+  clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return ts.tv_sec + 1e-9 * ts.tv_nsec;
+}
+
 static double secs(Clock::time_point a, Clock::time_point b) {
   return std::chrono::duration<double>(b - a).count();
 }
@@ -222,9 +231,11 @@ int main(int argc, char** argv) {
   Data d;
   d.kind = kind;
   auto t0 = Clock::now();
+  double c0 = cpu_now();
   ceres::Problem prob;
   bool ok = kind == "bal" ? ReadBal(path, d, prob) : ReadG2o(path, kind == "pose3d", d, prob);
   double load_s = secs(t0, Clock::now());
+  double load_cpu_s = cpu_now() - c0;
   if (!ok) { std::cerr << "cannot read " << path << "\n"; return 1; }
   const std::vector<double> x0 = d.x, q0 = d.q;
 
@@ -246,14 +257,16 @@ int main(int argc, char** argv) {
     o.gradient_tolerance = 1e-16;
     o.parameter_tolerance = 1e-14;
   }
-  std::vector<double> samples;
+  std::vector<double> samples, cpu_samples;
   ceres::Solver::Summary s;
   for (int k = 0; k <= repeats; ++k) {  // k == 0: warm-up
     d.x = x0;
     d.q = q0;
     auto a = Clock::now();
+    double ca = cpu_now();
     ceres::Solve(o, &prob, &s);
     double t = secs(a, Clock::now());
+    if (k > 0) cpu_samples.push_back(cpu_now() - ca);
     if (k > 0) samples.push_back(t);
   }
   std::vector<double> sorted = samples;
@@ -281,7 +294,10 @@ int main(int argc, char** argv) {
       out << p[0] << " " << p[1] << " " << p[2] << "\n";
     }
   }
-  printf("{\"load_s\": %.9g, \"solve_s\": %.9g, \"samples\": [", load_s, med);
+  std::sort(cpu_samples.begin(), cpu_samples.end());
+  double cpu_med = m % 2 ? cpu_samples[m / 2] : 0.5 * (cpu_samples[m / 2 - 1] + cpu_samples[m / 2]);
+  printf("{\"load_s\": %.9g, \"load_cpu_s\": %.9g, \"solve_s\": %.9g, \"solve_cpu_s\": %.9g, "
+         "\"samples\": [", load_s, load_cpu_s, med, cpu_med);
   for (size_t k = 0; k < samples.size(); ++k) printf("%s%.9g", k ? ", " : "", samples[k]);
   printf("], \"iterations\": %d, \"initial_cost\": %.17g, \"final_cost\": %.17g, "
          "\"termination\": \"%s\", \"linear_solver_s\": %.9g, \"ceres\": \"%s\", "
