@@ -90,6 +90,21 @@ def gather_blocks(H, cshift, e_off, e_dim, edge_ptr, edge_f, f_hoff, f_dim, edge
                         X[dst + a] = H[p00 + cshift[fo + a] + c]
 
 
+@njit(cache=True, inline="always")
+def _block_of(codes, col_ptr, nF, fc, fr):
+    """Index of S's block (rows fr, columns fc) among the sorted block codes ``fc * nF + fr``
+    (bisection within column fc's blocks)."""
+    want = fc * nF + fr
+    lo, hi = col_ptr[fc], col_ptr[fc + 1]
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if codes[mid] < want:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
 @njit(cache=True, fastmath=_FM)
 def eliminate(H, indptr, e_off, e_dim, c_ptr, edge_ptr, edge_f, f_dim, X, bbase, bshift,
               pair_ptr, pair_blk, blk_ptr, blk_base, Cinv, W, S, accumulate):
@@ -395,15 +410,56 @@ def apply_blocks(Minv, dg_ptr, f_soff, f_dim, r, z):
 
 
 @njit(cache=True)
-def enumerate_pairs(edge_ptr, edge_f, pair_ptr, out_i, out_j):
-    """Per e, the reduced-variable pairs ``(f_ki, f_kj)``, ``kj <= ki`` (edges sorted by rank)."""
+def pair_blocks(edge_ptr, edge_f, codes, col_ptr, nF, pair_ptr, out):
+    """Per e, the packed block of every pair ``(f_ki, f_kj)``, ``kj <= ki`` (edges sorted by
+    rank), found once here so that :func:`eliminate` reads one small integer per pair."""
     for i in range(edge_ptr.shape[0] - 1):
         p = pair_ptr[i]
         for ki in range(edge_ptr[i], edge_ptr[i + 1]):
             for kj in range(edge_ptr[i], ki + 1):
-                out_i[p] = edge_f[ki]
-                out_j[p] = edge_f[kj]
+                out[p] = _block_of(codes, col_ptr, nF, edge_f[kj], edge_f[ki])
                 p += 1
+
+
+@njit(cache=True)
+def co_observation_codes(edge_ptr, edge_f, nF):
+    """Codes ``f1 * nF + f2`` (``f1 > f2``) of the F pairs that share an E variable, each once
+    (a marker per F variable: no array of all (e, f1, f2) triples)."""
+    nK = edge_f.shape[0]
+    f_ptr = np.zeros(nF + 1, dtype=np.int64)  # edges by F variable: their E variables
+    for k in range(nK):
+        f_ptr[edge_f[k] + 1] += 1
+    for f in range(nF):
+        f_ptr[f + 1] += f_ptr[f]
+    f_e = np.empty(nK, dtype=np.int64)
+    fill = f_ptr[:-1].copy()
+    for e in range(edge_ptr.shape[0] - 1):
+        for k in range(edge_ptr[e], edge_ptr[e + 1]):
+            f_e[fill[edge_f[k]]] = e
+            fill[edge_f[k]] += 1
+    mark = np.full(nF, -1, dtype=np.int64)
+    count = 0
+    for f in range(nF):
+        for p in range(f_ptr[f], f_ptr[f + 1]):
+            e = f_e[p]
+            for k in range(edge_ptr[e], edge_ptr[e + 1]):
+                g = edge_f[k]
+                if g < f and mark[g] != f:
+                    mark[g] = f
+                    count += 1
+    codes = np.empty(count, dtype=np.int64)
+    mark[:] = -1
+    count = 0
+    for f in range(nF):
+        for p in range(f_ptr[f], f_ptr[f + 1]):
+            e = f_e[p]
+            for k in range(edge_ptr[e], edge_ptr[e + 1]):
+                g = edge_f[k]
+                if g < f and mark[g] != f:
+                    mark[g] = f
+                    codes[count] = f * nF + g
+                    count += 1
+    return np.sort(codes)
 
 
 @njit(cache=True, fastmath=_FM)

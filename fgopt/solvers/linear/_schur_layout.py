@@ -94,35 +94,33 @@ def _block_entries(rv, cv, p00, var_off, var_dim, col_shift, h_to_s):
 
 
 def co_observation_pairs(edge_ptr: np.ndarray, edge_f: np.ndarray, nF: int):
-    """Unique pairs ``(f1 > f2)`` of F variables that share an E variable."""
-    k = np.diff(edge_ptr)
-    pair_ptr = np.concatenate([[0], np.cumsum(k * (k + 1) // 2)]).astype(np.int64)
-    pi = np.empty(int(pair_ptr[-1]), dtype=np.int64)
-    pj = np.empty_like(pi)
-    K.enumerate_pairs(edge_ptr, edge_f, pair_ptr, pi, pj)
-    keep = pi != pj
-    codes = np.unique(np.maximum(pi, pj)[keep] * nF + np.minimum(pi, pj)[keep])
+    """Unique pairs ``(f1 > f2)`` of F variables that share an E variable (sorted)."""
+    codes = K.co_observation_codes(edge_ptr, np.ascontiguousarray(edge_f, dtype=np.int64), nF)
     return codes // nF, codes % nF
 
 
-def packed_blocks(nF, f_dim, f_soff, f_rank, edge_ptr, edge_f, ff_i, ff_j, a_row, a_col):
+def packed_blocks(nF, f_dim, f_soff, f_rank, edge_ptr, edge_f, co_i, co_j, ff_i, ff_j, a_row,
+                  a_col):
     """The packed block store of S and the maps into it.
 
     Blocks ``(row var br, column var bc)`` with ``rank(br) >= rank(bc)``: every diagonal block,
-    every pair of F variables sharing an E variable, every F-F coupling of H. Block ``b`` is a
-    column-major ``dr x dc`` array at ``pk_off[b]``. Returns a dict with the kernels' arrays
-    (``pair_ptr``, ``pair_blk``, ``blk_ptr``, ``blk_base``), ``a_dst`` (H_FF -> packed), the lower
-    entries of the store (``pk_src``) with their S ``srow`` / ``scol``, and the pairs
-    ``pi, pj`` / ``fi, fj`` (for a sparse pattern).
+    every pair of F variables sharing an E variable (``co_i, co_j``), every F-F coupling of H.
+    Block ``b`` is a column-major ``dr x dc`` array at ``pk_off[b]``; its code ``bc * nF + br``
+    is ``codes[b]`` (sorted; column ``bc``'s blocks are ``codes[col_ptr[bc]:col_ptr[bc + 1]]``).
+    ``pair_blk[pair_ptr[e] + t]`` is the block of e's t-th pair of edges ``(ki >= kj)`` (edges
+    sorted by ``(e, rank of f)``), int32 while the blocks allow (12 bytes per pair fewer than
+    int64 indices; looked up once here by bisection in ``codes``, not per iteration).
+    Returns a dict with the kernels' arrays (``pair_ptr``, ``pair_blk``, ``blk_ptr``, ``blk_base``),
+    ``a_dst`` (H_FF -> packed), the lower entries of the store (``pk_src``) with their S
+    ``srow`` / ``scol``, and the pairs ``fi, fj`` (for a sparse pattern).
     """
-    k = np.diff(edge_ptr)
-    pair_ptr = np.concatenate([[0], np.cumsum(k * (k + 1) // 2)]).astype(np.int64)
-    pi = np.empty(int(pair_ptr[-1]), dtype=np.int64)
-    pj = np.empty_like(pi)
-    K.enumerate_pairs(edge_ptr, edge_f, pair_ptr, pi, pj)  # rank(pi) >= rank(pj)
-    lo = f_rank[ff_i] >= f_rank[ff_j]
-    fi, fj = np.where(lo, ff_i, ff_j), np.where(lo, ff_j, ff_i)
-    codes = np.unique(np.concatenate([pj * nF + pi, fj * nF + fi,
+    def lower_first(i, j):  # (row, column) with rank(row) >= rank(column)
+        lo = f_rank[i] >= f_rank[j]
+        return np.where(lo, i, j), np.where(lo, j, i)
+
+    ci, cj = lower_first(co_i, co_j)
+    fi, fj = lower_first(ff_i, ff_j)
+    codes = np.unique(np.concatenate([cj * nF + ci, fj * nF + fi,
                                       np.arange(nF, dtype=np.int64) * (nF + 1)]))
     bc, br = codes // nF, codes % nF
     dr, dc = f_dim[br], f_dim[bc]
@@ -135,14 +133,21 @@ def packed_blocks(nF, f_dim, f_soff, f_rank, edge_ptr, edge_f, ff_i, ff_j, a_row
     f_of_s = np.repeat(np.argsort(f_rank), f_dim[np.argsort(f_rank)])
     fr, fc = f_of_s[a_row], f_of_s[a_col]
     blk = np.searchsorted(codes, fc * nF + fr)
+    k = np.diff(edge_ptr)
+    pair_ptr = np.zeros(k.shape[0] + 1, dtype=np.int64)
+    np.cumsum(k * (k + 1) // 2, out=pair_ptr[1:])
+    pair_blk = np.empty(int(pair_ptr[-1]),
+                        dtype=np.int32 if codes.shape[0] < 2**31 else np.int64)
+    col_ptr = np.searchsorted(codes, np.arange(nF + 1, dtype=np.int64) * nF)
+    K.pair_blocks(edge_ptr, edge_f, codes, col_ptr, nF, pair_ptr, pair_blk)
     return {
-        "pair_ptr": pair_ptr, "pair_blk": np.searchsorted(codes, pj * nF + pi),
+        "pair_ptr": pair_ptr, "pair_blk": pair_blk,
         "blk_ptr": np.concatenate([[0], np.cumsum(dc)]).astype(np.int64),
         "blk_base": np.repeat(pk_off[:-1], dc) + ranges(dc) * np.repeat(dr, dc),
         "pk_off": pk_off, "br": br, "bc": bc,
         "a_dst": pk_off[blk] + (a_col - f_soff[fc]) * f_dim[fr] + (a_row - f_soff[fr]),
         "pk_src": pk_src, "srow": srow[pk_src], "scol": scol[pk_src],
-        "pi": pi, "pj": pj, "fi": fi, "fj": fj}
+        "ci": ci, "cj": cj, "fi": fi, "fj": fj}
 
 
 def csc_positions(pat: HessianPattern, row: np.ndarray, col: np.ndarray) -> np.ndarray:

@@ -104,8 +104,7 @@ class SchurSolver:
         nS = int(f_dim.sum())
         mode, co = self.reduced, None
         if mode in ("auto", "sparse") and nF > 2 and nS < self.pcg_min:
-            srt = np.argsort(edge_e, kind="stable")
-            co = L.co_observation_pairs(edge_ptr, np.ascontiguousarray(edge_f[srt]), nF)
+            co = L.co_observation_pairs(edge_ptr, edge_f[np.argsort(edge_e, kind="stable")], nF)
         if mode == "auto":  # measured: dense wins up to ~1000 unknowns, or when S is full
             full = co is not None and len(co[0]) + len(ff_i) >= 0.5 * nF * (nF - 1) / 2
             mode = ("dense" if nS <= self.dense_max or (full and nS <= 4 * self.dense_max)
@@ -119,7 +118,7 @@ class SchurSolver:
         f_rank = np.empty(nF, dtype=np.int64)
         f_rank[order] = np.arange(nF)
         # edges sorted by (e, rank of f): then pairs (ki >= kj) have rank(f_ki) >= rank(f_kj)
-        srt = np.lexsort((f_rank[edge_f], edge_e))
+        srt = np.argsort(edge_e * max(nF, 1) + f_rank[edge_f])  # one sort of distinct codes
         edge_e, edge_f = edge_e[srt], np.ascontiguousarray(edge_f[srt])
         self._edge_ptr, self._edge_f = edge_ptr, edge_f
         self._e_off, self._e_dim = var_off[e_vars].astype(np.int64), e_dim
@@ -142,7 +141,9 @@ class SchurSolver:
             self.pcg_explicit if self.pcg_explicit is not None
             else int(np.sum(k * (k + 1) // 2)) <= 20_000_000)
         if self._explicit:
-            self._analyze_packed(mode, nF, f_dim, order, f_rank, ff_i, ff_j, a_row, a_col)
+            if co is None:
+                co = L.co_observation_pairs(edge_ptr, edge_f, nF)
+            self._analyze_packed(mode, nF, f_dim, order, f_rank, co, ff_i, ff_j, a_row, a_col)
         else:
             self._analyze_implicit(nF, f_dim, order, ff_i, ff_j, a_row, a_col)
         if mode == "pcg":
@@ -170,11 +171,11 @@ class SchurSolver:
         self._gather = (np.ascontiguousarray(edge_p00), np.ascontiguousarray(edge_orient),
                         np.empty(int(np.sum(rows * e_dim))))
 
-    def _analyze_packed(self, mode, nF, f_dim, order, f_rank, ff_i, ff_j, a_row, a_col):
+    def _analyze_packed(self, mode, nF, f_dim, order, f_rank, co, ff_i, ff_j, a_row, a_col):
         """S accumulated in a packed block store (contiguous blocks: ~2x faster than writing
         into the dense / CSC matrix), then copied (lower entries) into the factored matrix."""
         pk = L.packed_blocks(nF, f_dim, self._f_soff, f_rank, self._edge_ptr, self._edge_f,
-                             ff_i, ff_j, a_row, a_col)
+                             co[0], co[1], ff_i, ff_j, a_row, a_col)
         self._pair_ptr, self._pair_blk = pk["pair_ptr"], pk["pair_blk"]
         self._blk_ptr, self._blk_base, self._a_dst = pk["blk_ptr"], pk["blk_base"], pk["a_dst"]
         self._packed = np.zeros(int(pk["pk_off"][-1]))
@@ -187,8 +188,8 @@ class SchurSolver:
         elif mode == "sparse":
             from .cholmod import CholmodSolver
 
-            all_i = np.concatenate([pk["pi"], pk["fi"]])
-            all_j = np.concatenate([pk["pj"], pk["fj"]])
+            all_i = np.concatenate([pk["ci"], pk["fi"]])
+            all_j = np.concatenate([pk["cj"], pk["fj"]])
             keep = all_i != all_j
             spat, _ = build_pattern(f_dim, order, all_i[keep], all_j[keep])
             self._pk_dst = L.csc_positions(spat, srow, scol)
@@ -206,7 +207,7 @@ class SchurSolver:
 
     def _analyze_implicit(self, nF, f_dim, order, ff_i, ff_j, a_row, a_col):
         self._pair_ptr = np.zeros(self._edge_ptr.shape[0], dtype=np.int64)
-        self._pair_blk = np.zeros(0, dtype=np.int64)
+        self._pair_blk = np.zeros(0, dtype=np.int32)
         self._blk_ptr = np.zeros(1, dtype=np.int64)
         self._blk_base = np.zeros(0, dtype=np.int64)
         keep = ff_i != ff_j
