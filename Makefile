@@ -1,6 +1,7 @@
 # Two commands: `make demo` and `make test`. Each sets everything up first (idempotent):
-# Debian's SuiteSparse headers (for scikit-sparse / CHOLMOD), a virtual env in .venv, and the
-# package with its test + notebook extras.
+# Debian's SuiteSparse headers (for the optional scikit-sparse / CHOLMOD extra), a virtual env in
+# .venv, and the package with its test, notebook and cholmod extras. `pip install fgopt` alone
+# needs no apt and no compiler (wheels only); CHOLMOD is then simply not used.
 
 VENV    := .venv
 PY      := $(VENV)/bin/python
@@ -24,7 +25,7 @@ $(STAMP): pyproject.toml
 	@test -x $(PY) || { echo "==> creating $(VENV)"; python3 -m venv $(VENV); }
 	@echo "==> installing fgopt and its dependencies into $(VENV)"
 	@$(PY) -m pip install -q --disable-pip-version-check --upgrade pip wheel setuptools
-	@$(PY) -m pip install -q --disable-pip-version-check -e '.[test,notebook,distributed]'
+	@$(PY) -m pip install -q --disable-pip-version-check -e '.[test,notebook,distributed,cholmod]'
 	@touch $(STAMP)
 
 demo: setup

@@ -187,7 +187,7 @@ def fgopt_times(reps: int) -> dict:
     x0 = fp.flatten(init)
     H, g = np.zeros((fp.size, fp.size)), np.zeros(fp.size)
     prm0 = np.array([0.0, 0, 0, -1.0, 0, 1e-5, 1e-12, 1e12, 1e-6, 1e32, 1e-3, 0, 0, 10.0])
-    hist = np.empty((1, 7))
+    hist = np.empty((1, 8))
     lm_fn, aux = fp.module._lm, fp._aux
 
     rf = fp.optimize(init)

@@ -17,55 +17,104 @@ import os as _os
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     _os.environ.setdefault(_var, "1")
 
-from . import noise as noise
+# numba picks where to cache a function when it is decorated: route fgopt's functions (and the
+# generated kernels) to the private cache root before any fgopt module decorates one (an import
+# hook; numba itself is not imported here).
+from . import _cache_root
+
+_cache_root.route_numba_cache()
+
+# ``fgopt.key`` is both a submodule and the function: import it eagerly (it is tiny) so the
+# function, not the module the import system binds, is what ``fgopt.key`` names.
 from .errors import FgoptError as FgoptError
-from .factors import BetweenFactor as BetweenFactor
-from .factors import Factor as Factor
-from .factors import NumericalFactor as NumericalFactor
-from .factors import PriorFactor as PriorFactor
-from .graph import FactorGraph as FactorGraph
+from .errors import FgoptWarning as FgoptWarning
 from .key import Key as Key
 from .key import key as key
-from .manifolds import SE2 as SE2
-from .manifolds import SE3 as SE3
-from .manifolds import SO2 as SO2
-from .manifolds import SO3 as SO3
-from .manifolds import Sim3 as Sim3
-from .problem import Problem as Problem
-from .solvers import chordal_initialization as chordal_initialization
-from .solvers import marginals as marginals
-from .solvers import optimize as optimize
-from .solvers.result import Result as Result
-from .solvers.result import Status as Status
-from .variables import Variables as Variables
 
-_LAZY = {"io": ".io", "plot": ".plot", "datasets": ".datasets", "symbolic": ".symbolic",
-         "distributed": ".distributed",
-         "solvers": ".solvers", "cameras": ".cameras"}
+# Every other public name loads on first use (PEP 562), so ``import fgopt`` costs what numpy's
+# import does and nothing more: numba, scipy and SymPy load when a kernel, a sparse solve or a
+# symbolic derivation first needs them (measured in benchmarks/startup.py).
+_ATTRS = {
+    "noise": (".noise", None),
+    "BetweenFactor": (".factors", "BetweenFactor"),
+    "Factor": (".factors", "Factor"),
+    "NumericalFactor": (".factors", "NumericalFactor"),
+    "PriorFactor": (".factors", "PriorFactor"),
+    "FactorGraph": (".graph", "FactorGraph"),
+    "SE2": (".manifolds", "SE2"),
+    "SE3": (".manifolds", "SE3"),
+    "SO2": (".manifolds", "SO2"),
+    "SO3": (".manifolds", "SO3"),
+    "Sim3": (".manifolds", "Sim3"),
+    "Problem": (".problem", "Problem"),
+    "chordal_initialization": (".solvers", "chordal_initialization"),
+    "check_jacobians": (".solvers", "check_jacobians"),
+    "marginals": (".solvers", "marginals"),
+    "optimize": (".solvers", "optimize"),
+    "Result": (".solvers.result", "Result"),
+    "Status": (".solvers.result", "Status"),
+    "Variables": (".variables", "Variables"),
+    "factor": (".factors.decorator", "factor"),
+    "const": (".factors.decorator", "const"),
+    "io": (".io", None),
+    "plot": (".plot", None),
+    "datasets": (".datasets", None),
+    "symbolic": (".symbolic", None),
+    "solvers": (".solvers", None),
+    "distributed": (".distributed", None),
+    "cameras": (".cameras", None),
+    "navigation": (".navigation", None),
+    # fgopt.navigation costs ~0.1 s to import: its classes load with it, on first use
+    "NavState": (".navigation", "NavState"),
+    "ImuBias": (".navigation", "ImuBias"),
+    "PreintegrationParams": (".navigation", "PreintegrationParams"),
+    "PreintegratedImu": (".navigation", "PreintegratedImu"),
+    "PreintegratedCombinedImu": (".navigation", "PreintegratedCombinedImu"),
+    "ImuFactor": (".navigation", "ImuFactor"),
+    "CombinedImuFactor": (".navigation", "CombinedImuFactor"),
+    "GpsFactor": (".navigation", "GpsFactor"),
+    "solve_many": (".distributed", "solve_many"),
+    "manifold": (".symbolic.declare", "manifold"),
+    "Product": (".symbolic.declare", "Product"),
+    "check_manifold": (".symbolic.declare", "check_manifold"),
+    "navigation": (".navigation", None),
+    "NavState": (".navigation", "NavState"),
+    "ImuBias": (".navigation", "ImuBias"),
+    "PreintegrationParams": (".navigation", "PreintegrationParams"),
+    "PreintegratedImu": (".navigation", "PreintegratedImu"),
+    "PreintegratedCombinedImu": (".navigation", "PreintegratedCombinedImu"),
+    "ImuFactor": (".navigation", "ImuFactor"),
+    "CombinedImuFactor": (".navigation", "CombinedImuFactor"),
+    "GpsFactor": (".navigation", "GpsFactor"),
+    "incremental": (".incremental", None),
+    "IncrementalSmoother": (".incremental", "IncrementalSmoother"),
+    "IncrementalParams": (".incremental", "IncrementalParams"),
+    "FixedLagSmoother": (".incremental", "FixedLagSmoother"),
+}
+#: Numeric value types of the manifolds shipped as declarations (their symbolic twins are
+#: ``fgopt.symbolic.Unit3`` ...).
+_DECLARED_VALUES = ("Unit3", "OrientedPlane3", "SE23")
+
+__all__ = ["__version__", "FgoptError", "FgoptWarning", "Key", "key", *_ATTRS, *_DECLARED_VALUES]
 
 
 def __getattr__(name: str):
-    """Heavier parts load on first use: ``fgopt.io``, ``fgopt.plot``, ``fgopt.factor``,
-    ``fgopt.manifold`` / ``Product`` / ``check_manifold``, and the numeric ``Unit3``,
-    ``OrientedPlane3``, ``SE23`` (their symbolic twins are ``fgopt.symbolic.Unit3`` ...)."""
+    """Public names load on first use: ``fgopt.optimize``, ``fgopt.SE2``, ``fgopt.io`` ..."""
     import importlib
 
-    if name in _LAZY:
-        return importlib.import_module(_LAZY[name], __name__)
-    if name == "solve_many":
-        from .distributed import solve_many
+    if name in _DECLARED_VALUES:
+        value = getattr(importlib.import_module(".symbolic.geometry", __name__), name).Value
+        globals()[name] = value
+        return value
+    try:
+        module, attr = _ATTRS[name]
+    except KeyError:
+        raise AttributeError(f"module 'fgopt' has no attribute {name!r}") from None
+    mod = importlib.import_module(module, __name__)
+    value = mod if attr is None else getattr(mod, attr)
+    globals()[name] = value
+    return value
 
-        return solve_many
-    if name == "factor":
-        from .factors.decorator import factor
 
-        return factor
-    if name in ("manifold", "Product", "check_manifold"):
-        from .symbolic import declare
-
-        return getattr(declare, name)
-    if name in ("Unit3", "OrientedPlane3", "SE23"):  # numeric value types of shipped manifolds
-        from .symbolic import geometry
-
-        return getattr(geometry, name).Value
-    raise AttributeError(f"module 'fgopt' has no attribute {name!r}")
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_ATTRS) | set(_DECLARED_VALUES))

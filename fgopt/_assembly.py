@@ -9,7 +9,7 @@ precomputed positions (lower triangle only) and ``w J^T r`` into g. Returns the 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from ._jit import njit, prange
 
 from .noise.robust import rho_and_weight
 
@@ -63,6 +63,91 @@ def _local_system(e, J, R, unit, loss_code, loss_param, loss_shape, r, Jw, Hl, g
     return rho, w
 
 
+#: Residual dimension from which :func:`scatter_batch` builds each factor's local Hessian by
+#: row outer products (SIMD-friendly, independent accumulations) instead of the fused
+#: per-entry dot products, whose dependency chains of length ``m`` make them latency-bound:
+#: measured 3.8 -> 0.9 us per 9 x 24 IMU factor, 0.73 -> 0.4 us per 6 x 12 between factor;
+#: the fused form stays ~30 % faster for BA's 2 x 12 Jacobians.
+WIDE_RESIDUAL = 4
+
+
+@njit(cache=True)
+def _whiten_rows(e, J, R, r_out, J_out):
+    """``r = R e``, ``Jw = R J`` (R upper triangular), row by row so the inner loop runs along
+    a contiguous Jacobian row."""
+    m = e.shape[0]
+    D = J.shape[1]
+    for a in range(m):
+        acc = 0.0
+        for c in range(D):
+            J_out[a, c] = 0.0
+        for b in range(a, m):
+            coef = R[a, b]
+            if coef == 0.0:
+                continue
+            acc += coef * e[b]
+            for c in range(D):
+                J_out[a, c] += coef * J[b, c]
+        r_out[a] = acc
+
+
+@njit(cache=True)
+def _scatter_wide(res, jac, sqrt_info, unit, loss_code, loss_param, loss_shape, arg_dims,
+                  arg_local_off, toff, pos, col_shift, H_data, g, weights, cost):
+    """:func:`scatter_batch` for ``m >= WIDE_RESIDUAL``: whitened rows, then ``J^T J`` as a sum
+    of row outer products (zeros of J skipped), then the scatter of its lower triangle."""
+    n, m = res.shape
+    D = jac.shape[2]
+    k = arg_dims.shape[0]
+    r = np.empty(m)
+    Jw = np.empty((m, D))
+    Hl = np.empty((D, D))
+    for i in range(n):
+        if unit:
+            rr = res[i]
+            JJ = jac[i]
+        else:
+            _whiten_rows(res[i], jac[i], sqrt_info[i], r, Jw)
+            rr = r
+            JJ = Jw
+        s = 0.0
+        for a in range(m):
+            s += rr[a] * rr[a]
+        rho, w = rho_and_weight(loss_code, loss_param, loss_shape, s)
+        cost += rho
+        weights[i] = w
+        if w == 0.0:
+            continue
+        # the full D x D product: a triangle's ragged rows measured 2.5x slower (no SIMD)
+        Hl[:, :] = 0.0
+        for t in range(m):
+            for a in range(D):
+                ja = JJ[t, a]
+                if ja == 0.0:
+                    continue
+                for b in range(D):
+                    Hl[a, b] += ja * JJ[t, b]
+        for p in range(k):
+            op, dp = arg_local_off[p], arg_dims[p]
+            gbase = toff[i, p]
+            for a in range(dp):
+                acc = 0.0
+                for t in range(m):
+                    acc += JJ[t, op + a] * rr[t]
+                g[gbase + a] += w * acc
+            for q in range(k):
+                p00 = pos[i, p, q]
+                if p00 < 0:
+                    continue
+                oq, dq, tq = arg_local_off[q], arg_dims[q], toff[i, q]
+                for b in range(dq):
+                    base = p00 + col_shift[tq + b]
+                    cb = oq + b
+                    for a in range(b if p == q else 0, dp):  # diagonal blocks: lower triangle
+                        H_data[base + a] += w * Hl[op + a, cb]
+    return cost
+
+
 @njit(cache=True)
 def scatter_batch(res, jac, sqrt_info, unit, loss_code, loss_param, loss_shape, arg_dims,
                   arg_local_off, toff, pos, col_shift, H_data, g, weights, cost):
@@ -75,8 +160,13 @@ def scatter_batch(res, jac, sqrt_info, unit, loss_code, loss_param, loss_shape, 
     the sum is the same as in one call). Fused: each ``w (J^T J)`` entry is summed over the
     residual rows and added straight into H (no local Hessian buffer), and unit-noise
     residuals/Jacobians are read in place; measured ~30 % faster than building the local system
-    first on Ladybug (2 x 12 Jacobians).
+    first on Ladybug (2 x 12 Jacobians). Residuals of ``WIDE_RESIDUAL`` rows or more take
+    :func:`_scatter_wide`.
     """
+    if res.shape[1] >= WIDE_RESIDUAL:
+        return _scatter_wide(res, jac, sqrt_info, unit, loss_code, loss_param, loss_shape,
+                             arg_dims, arg_local_off, toff, pos, col_shift, H_data, g, weights,
+                             cost)
     n, m = res.shape
     D = jac.shape[2]
     k = arg_dims.shape[0]

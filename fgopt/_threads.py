@@ -13,7 +13,6 @@ from __future__ import annotations
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
-import numba
 import numpy as np
 
 from . import _assembly as asm
@@ -54,6 +53,8 @@ def linearize_batch_threaded(problem: Any, b: Any, state: Any, H: np.ndarray, g:
     if getattr(b, "_Hl", None) is None or b._Hl.shape[0] < n:
         b._Hl, b._gl = np.empty((n, D, D)), np.empty((n, D))
     Hl, gl = b._Hl[:n], b._gl[:n]
+    import numba
+
     previous = numba.get_num_threads()
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     try:

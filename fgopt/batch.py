@@ -88,7 +88,10 @@ class FactorBatch:
 def batch_from_factors(kernel: FactorKernel, factors: list[KernelFactor]) -> FactorBatch:
     """Stack kernel factors that share ``kernel`` and a loss kind into one batch."""
     n = len(factors)
-    keys = np.array([f.keys for f in factors], dtype=np.int64).reshape(n, len(kernel.arg_kinds))
+    k = len(kernel.arg_kinds)
+    # fromiter over the flat keys: ~4x faster than np.array on tuples of Key (an int subclass)
+    keys = np.fromiter((q for f in factors for q in f.keys), dtype=np.int64,
+                       count=n * k).reshape(n, k)
     consts = (np.array([f.constants for f in factors], dtype=float).reshape(n, kernel.num_constants))
     code, param, shape = loss_code_and_param(factors[0].loss)
     if all(base_noise(f.loss).is_unit for f in factors):

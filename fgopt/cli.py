@@ -1,4 +1,4 @@
-"""The ``fgopt`` command line: ``fgopt solve FILE`` and ``fgopt info FILE``.
+"""The ``fgopt`` command line: ``fgopt solve FILE``, ``fgopt info FILE`` and ``fgopt cache``.
 
 ``solve`` reads a g2o / TORO / BAL / Bundler file, fixes the gauge of pose graphs with a tight prior on the
 lowest pose (GTSAM-style; BA relies on LM damping, as Ceres' BAL example), optimizes while
@@ -9,6 +9,10 @@ GTSAM's ``graph.error`` uses. Exit status: 0 converged, 1 not converged (reason 
 
 ``info`` prints variable and factor counts by type, the initial cost, connected components and
 whether the gauge is fixed.
+
+``cache info`` prints the private cache root (:mod:`fgopt._cache_root`), each generated kernel
+entry with its size and whether it verifies against its signature, and the size of numba's cache;
+``cache clear`` removes the entries and numba's cache (they are regenerated on next use).
 """
 
 from __future__ import annotations
@@ -65,7 +69,8 @@ def _positive_int(text: str) -> int:
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="fgopt", description="Factor-graph optimization on "
                                 "manifolds: solve or inspect g2o / TORO / BAL files.")
-    sub = p.add_subparsers(dest="command", required=True, metavar="{solve,solve-many,info}")
+    sub = p.add_subparsers(dest="command", required=True,
+                           metavar="{solve,solve-many,info,cache}")
 
     def file_options(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("file", help="g2o / TORO (.g2o, .graph, .txt) or BAL file, optionally "
@@ -113,7 +118,55 @@ def build_parser() -> argparse.ArgumentParser:
     i = sub.add_parser("info", help="counts, initial cost, connectivity and gauge of a file")
     file_options(i)
     i.set_defaults(run=cmd_info)
+
+    c = sub.add_parser("cache", help="the kernel cache: where it is, what it holds; clear it")
+    c.add_argument("action", choices=["info", "clear"],
+                   help="info: root, entries, sizes, verification; clear: remove every entry "
+                   "and numba's cache")
+    c.set_defaults(run=cmd_cache)
     return p
+
+
+def _size(n: float) -> str:
+    for unit in ("B", "KB", "MB"):
+        if n < 1024:
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} GB"
+
+
+def cmd_cache(args: argparse.Namespace) -> int:
+    import os
+    import stat
+
+    from . import _cache_root
+    from .symbolic import cache
+
+    root = _cache_root.root()
+    if args.action == "clear":
+        removed = cache.clear()
+        print(f"removed {removed['entries']} kernel entries and {removed['numba_files']} numba "
+              f"cache files ({_size(removed['bytes'])}) from {root}")
+        return 0
+    st = os.stat(root)
+    print(f"root:     {root} (uid {st.st_uid}, mode {stat.S_IMODE(st.st_mode):04o}: private)")
+    key = root / _cache_root.KEY_FILE
+    print(f"key:      {key}" + (" (0600)" if key.exists() else " (not made yet)"))
+    entries = cache.entries()
+    failed = [e for e in entries if e["problem"] is not None]
+    total = sum(e["bytes"] for e in entries)
+    print(f"kernels:  {root / _cache_root.KERNELS}: {len(entries)} entries, {_size(total)}; "
+          f"{len(entries) - len(failed)} verified, {len(failed)} failed")
+    for e in entries:
+        state = "ok" if e["problem"] is None else f"FAILED: {e['problem']}"
+        print(f"  {e['name']:<60} {_size(e['bytes']):>9}  {state}")
+    numba_dir = root / _cache_root.NUMBA
+    files = [p for p in numba_dir.rglob("*") if p.is_file()] if numba_dir.is_dir() else []
+    print(f"numba:    {numba_dir}: {len(files)} files, "
+          f"{_size(sum(p.stat().st_size for p in files))}")
+    if failed:
+        print("entries that fail verification are discarded and regenerated on next use")
+    return 0
 
 
 def _load(args: argparse.Namespace) -> tuple[str, Any, Any, float]:

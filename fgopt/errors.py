@@ -10,6 +10,11 @@ class FgoptError(Exception):
     """Root of every error fgopt raises on purpose."""
 
 
+class FgoptWarning(UserWarning):
+    """Something a result depends on that the user probably did not intend (e.g. initial values
+    no factor uses); the run goes on, and the result records it."""
+
+
 class KeyNotFoundError(FgoptError, KeyError):
     """A key is used that the `Variables` (or the graph) does not hold."""
 
@@ -23,6 +28,10 @@ class DuplicateKeyError(FgoptError):
 
 class DimensionMismatchError(FgoptError, ValueError):
     """A value, measurement, noise model or Jacobian has the wrong size."""
+
+
+class FgoptIndexError(FgoptError, IndexError):
+    """An index is out of range (e.g. an entry of a symbolic vector)."""
 
 
 class NotPositiveDefiniteError(FgoptError, ValueError):
@@ -76,3 +85,27 @@ class CalibrationError(FgoptError, ValueError):
 class TriangulationError(FgoptError, ValueError):
     """A landmark cannot be triangulated: fewer than two views, or a rank-deficient system
     (the views' rays are parallel)."""
+
+
+#: Optional extras: import name -> (extra, what it adds). ``pip install 'fgopt[<extra>]'``.
+EXTRAS = {"sksparse": ("cholmod", "CHOLMOD (scikit-sparse; needs SuiteSparse)")}
+
+
+def have_extra(module: str) -> bool:
+    """Whether the optional dependency ``module`` (see :data:`EXTRAS`) is importable."""
+    import importlib.util
+
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):
+        return False
+
+
+def missing_extra(module: str, feature: str) -> BackendUnavailableError:
+    """The error for ``feature`` needing the absent optional dependency ``module``: it names the
+    extra and the pip command that adds it."""
+    extra, what = EXTRAS[module]
+    return BackendUnavailableError(
+        f"{feature} needs {what}, which is not installed: pip install 'fgopt[{extra}]' "
+        f"(on Debian/Ubuntu first apt-get install libsuitesparse-dev), or use fgopt's own "
+        f"solvers (the default)")

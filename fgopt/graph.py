@@ -5,7 +5,9 @@ from __future__ import annotations
 from collections import Counter
 from typing import Any, Iterable, Iterator
 
-from .errors import FgoptError
+import numpy as np
+
+from .errors import FgoptError, FgoptIndexError
 from .factors.base import Factor
 from .key import Key, key_str
 
@@ -88,6 +90,9 @@ class FactorGraph:
                 yield b.factor(i)
 
     def __getitem__(self, i: int) -> Factor:
+        if isinstance(i, bool) or not isinstance(i, (int, np.integer)):
+            raise FgoptError(f"FactorGraph index must be an int, got {i!r}")
+        i = int(i)
         if i < 0:
             i += len(self)
         if 0 <= i < len(self._factors):
@@ -97,7 +102,7 @@ class FactorGraph:
             if j < len(b):
                 return b.factor(j)
             j -= len(b)
-        raise IndexError(f"factor index {i} out of range ({len(self)} factors)")
+        raise FgoptIndexError(f"factor index {i} out of range ({len(self)} factors)")
 
     def keys(self) -> list[Key]:
         """All keys any factor touches, in first-use order."""

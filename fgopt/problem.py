@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from . import _assembly as asm
+from . import _assembly_np as asm_np
 from .batch import FactorBatch, batch_from_factors
 from .errors import (DimensionMismatchError, EmptyProblemError, FgoptError, KeyNotFoundError,
                      ManifoldError, NonFiniteError)
@@ -38,6 +39,24 @@ from .structure import (DENSE_MAX_SIZE, HessianPattern, ba_shaped_kind, build_pa
 from ._threads import PARALLEL_MIN_BATCH, linearize_batch_threaded
 from .variables import Variables
 
+
+
+#: Batches up to this size are assembled by the NumPy twins (no numba import or cache load);
+#: the same threshold as generated kernels' NumPy twins.
+NUMPY_MAX_BATCH = 1000
+
+
+def _asm(n: int):
+    """The assembly kernels for a batch of ``n`` instances: NumPy when small, else numba."""
+    return asm_np if n <= NUMPY_MAX_BATCH else asm
+
+
+def _all_finite(a: np.ndarray) -> bool:
+    """No NaN / inf in the 1-D array ``a``: numba for large arrays (no temporary mask: H of 5M
+    BA observations is 1.1 GB), NumPy for small ones (no numba import)."""
+    if a.shape[0] <= 1 << 16:
+        return bool(np.isfinite(a).all())
+    return bool(asm.all_finite(a))
 
 @dataclass(eq=False)
 class State:
@@ -148,14 +167,15 @@ class Problem:
 
     # ----------------------------------------------------------------- compile: variables
     def _collect_variables(self, graph: Any, values: Variables) -> None:
-        used: dict[int, None] = {}
-        for f in graph.factors:
-            for k in f.keys:
-                if k not in values:
-                    raise KeyNotFoundError(
-                        f"{f.describe()} uses {key_str(k)}, which is not in the initial values: "
-                        f"add it with Variables.add({key_str(k)}, value)")
-                used.setdefault(k, None)
+        # keys in order of first use (one dict build, no Python call per key)
+        used: dict[int, None] = dict.fromkeys(k for f in graph.factors for k in f.keys)
+        if not all(k in values for k in used):
+            for f in graph.factors:
+                for k in f.keys:
+                    if k not in values:
+                        raise KeyNotFoundError(
+                            f"{f.describe()} uses {key_str(k)}, which is not in the initial "
+                            f"values: add it with Variables.add({key_str(k)}, value)")
         factor_keys = np.fromiter(used, dtype=np.int64, count=len(used))
         batch_keys = np.zeros(0, dtype=np.int64)
         if graph.batches:
@@ -244,6 +264,13 @@ class Problem:
         self._kind_vars = [np.nonzero(self.var_kind == kid)[0] for kid in range(len(self.kinds))]
         self._slow_vars = np.nonzero(self.var_kind < 0)[0]
         self._extra = values  # for unused keys and the final Variables
+        #: Keys of ``values`` that no factor uses (returned unchanged in the final values).
+        self.unused_keys: list[Key] = []
+        if len(values) > V:  # without turning bulk rows into per-key values
+            have = np.concatenate(
+                [np.fromiter(values._dict.keys(), dtype=np.int64, count=len(values._dict))]
+                + [blk.keys for blk in values._pending])
+            self.unused_keys = [Key(k) for k in have[~np.isin(have, var_keys)].tolist()]
         self._sorted = np.argsort(self.var_keys)
 
     @functools.cached_property
@@ -413,11 +440,34 @@ class Problem:
             return state.objects[v]
         return self.kinds[kid].from_storage(state.storages[kid][self.var_row[v]])
 
+    @staticmethod
+    def state_is_finite(state: State) -> bool:
+        """True when every stored value of ``state`` is finite (Python-manifold values that
+        expose no storage are not checked)."""
+        if not all(bool(np.isfinite(s).all()) for s in state.storages):
+            return False
+        for x in state.objects.values():
+            try:
+                data = ops_for(x).to_storage(x)
+            except Exception:  # noqa: BLE001 - duck-typed manifolds have no storage
+                continue
+            if not np.all(np.isfinite(data)):
+                return False
+        return True
+
     def cost(self, state: State) -> float:
-        """Total cost ``sum rho_i`` (``0.5 |r|^2`` without robust losses); NaN if not finite."""
+        """Total cost ``sum rho_i`` (``0.5 |r|^2`` without robust losses); NaN if not finite
+        (also when a value of ``state`` is not finite)."""
+        if not self.state_is_finite(state):
+            return float("nan")
         t0 = time.perf_counter()
         total = 0.0
         for b in self.batches:
+            if len(b.source) <= NUMPY_MAX_BATCH:  # NumPy twins: no numba for small batches
+                res = b.kernel.residual(b.gather(state), b.source.constants)
+                total += asm_np.batch_cost(res, b.sqrt_info, b.unit, b.source.loss_code,
+                                           b.source.loss_param, b.source.loss_shape)
+                continue
             cost = 0.0
             for lo, hi in b.chunks(CHUNK):
                 res = b.kernel.residual(b.gather(state, lo, hi), b.source.constants[lo:hi])
@@ -432,8 +482,8 @@ class Problem:
                 except NonFiniteError:
                     total = np.nan
                     continue
-                total += asm.batch_cost(e[None], s.sqrt_info, s.unit, s.loss_code, s.loss_param,
-                                        s.loss_shape, 0.0)
+                total += asm_np.batch_cost(e[None], s.sqrt_info, s.unit, s.loss_code,
+                                           s.loss_param, s.loss_shape)
         self.timing["cost"] += time.perf_counter() - t0
         return float(total) if np.isfinite(total) else float("nan")
 
@@ -443,7 +493,7 @@ class Problem:
             raise FgoptError("this Problem was built without structure")
         self._holds_candidate = False
         total = self._linearize_into(state, self.H_data, self.g)
-        if not (np.isfinite(total) and asm.all_finite(self.g)):
+        if not (np.isfinite(total) and _all_finite(self.g) and _all_finite(self.H_data)):
             raise NonFiniteError(self.locate_nonfinite(state))
         return total
 
@@ -456,8 +506,12 @@ class Problem:
         without, into H itself, and a rejection re-linearizes the current state (same numbers:
         linearizing a state is deterministic). ``spare_buffers`` defaults to H's data taking at
         most ``SPARE_MAX_BYTES``: a second H costs as much memory as H again (1.1 GB for 5M BA
-        observations), re-linearizing costs time only on rejected steps.
+        observations), re-linearizing costs time only on rejected steps. A trial point with a
+        non-finite value, cost, residual or Jacobian gives NaN: the caller rejects it as a step,
+        and the current linearization stays (or is restored) as it was.
         """
+        if not self.state_is_finite(state):
+            return float("nan")
         if self.spare_buffers:
             if self._spare is None:
                 self._spare = (np.zeros_like(self.H_data), np.zeros_like(self.g))
@@ -469,7 +523,7 @@ class Problem:
             total = self._linearize_into(state, H, g)
         except NonFiniteError:
             return float("nan")
-        if not (np.isfinite(total) and asm.all_finite(g) and asm.all_finite(H)):
+        if not (np.isfinite(total) and _all_finite(g) and _all_finite(H)):
             return float("nan")
         return total
 
@@ -501,6 +555,17 @@ class Problem:
                     total += linearize_batch_threaded(self, b, state, H, g, lo, hi)
                 t_lin += time.perf_counter() - t0
                 continue
+            if len(b.source) <= NUMPY_MAX_BATCH:  # NumPy twins: no numba for small batches
+                t0 = time.perf_counter()
+                res, jac = b.kernel.linearize(b.gather(state), b.source.constants)
+                t1 = time.perf_counter()
+                total += asm_np.scatter_batch(
+                    res, jac, b.sqrt_info, b.unit, b.source.loss_code, b.source.loss_param,
+                    b.source.loss_shape, b.arg_dims, b.arg_local_off, b.toff, b.pos, shift, H, g,
+                    b.weights)
+                t_lin += t1 - t0
+                t_asm += time.perf_counter() - t1
+                continue
             # in slices: the kernels' residual / Jacobian / gathered arguments stay a few MB
             # instead of ~300 bytes per factor at once (1.5 GB for 5M BA observations)
             cost = 0.0
@@ -523,10 +588,10 @@ class Problem:
                 e = s.factor.checked_error(view)
                 Js = s.factor.checked_jacobians(view)
                 J = np.concatenate(Js, axis=1)[None]
-                total += asm.scatter_batch(e[None], J, s.sqrt_info, s.unit, s.loss_code,
-                                           s.loss_param, s.loss_shape, s.arg_dims,
-                                           s.arg_local_off, s.toff, s.pos, shift, H, g,
-                                           np.ones(1), 0.0)
+                total += asm_np.scatter_batch(e[None], J, s.sqrt_info, s.unit, s.loss_code,
+                                              s.loss_param, s.loss_shape, s.arg_dims,
+                                              s.arg_local_off, s.toff, s.pos, shift, H, g,
+                                              np.ones(1))
             t_lin += time.perf_counter() - t0
         self.timing["linearize"] += t_lin
         self.timing["assemble"] += t_asm

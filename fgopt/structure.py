@@ -19,9 +19,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.sparse as sp
 
-ORDERINGS = ("amd", "metis", "nesdis", "colamd", "natural", "default", "best")
+ORDERINGS = ("amd", "mmd", "metis", "nesdis", "colamd", "natural", "default", "best")
+#: Orderings only CHOLMOD computes (the ``fgopt[cholmod]`` extra).
+CHOLMOD_ORDERINGS = ("metis", "nesdis", "colamd", "default", "best")
+
 
 
 @dataclass(eq=False)
@@ -56,8 +58,9 @@ class HessianPattern:
     def indices(self) -> np.ndarray:
         """``(nnz,)`` int64 row indices, sorted within each column."""
         if self._indices is None:
-            self._indices = _block_rows(self.block_codes, self.var_offset.shape[0], self.order,
-                                        self.var_dim, self.var_offset, self.indptr)
+            rows = _block_rows.python if _small(int(self.indptr[-1])) else _block_rows
+            self._indices = rows(self.block_codes, self.var_offset.shape[0], self.order,
+                                 self.var_dim, self.var_offset, self.indptr)
         return self._indices
 
     def blocks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -70,13 +73,17 @@ class HessianPattern:
     def nnz(self) -> int:
         return int(self.indptr[-1])
 
-    def matrix(self, data: np.ndarray) -> sp.csc_matrix:
+    def matrix(self, data: np.ndarray) -> "sp.csc_matrix":
         """The lower triangle as a scipy CSC matrix sharing ``data`` (no copy)."""
+        import scipy.sparse as sp
+
         m = sp.csc_matrix((data, self.indices, self.indptr), shape=(self.size, self.size))
         m.has_sorted_indices = True
         return m
 
-    def full(self, data: np.ndarray) -> sp.csc_matrix:
+    def full(self, data: np.ndarray) -> "sp.csc_matrix":
+        import scipy.sparse as sp
+
         L = self.matrix(data)
         return (L + L.T - sp.diags(data[self.diag_pos])).tocsc()
 
@@ -85,23 +92,66 @@ class HessianPattern:
         return _sym_matvec(self.indptr, self.indices, data, x)
 
 
+#: Largest index distance of two coupled variables for which the given order is kept.
+BANDED = 8
+
+
+def _densely_banded(num_vars: int, pairs_i: np.ndarray, pairs_j: np.ndarray) -> bool:
+    """Every coupling within ``BANDED`` positions, and at least half the band's block pairs
+    coupled: eliminating in the given order then only fills what is mostly filled already (a
+    chain of navigation states), unlike a thin 2-D grid's sparse band, where AMD does better."""
+    if pairs_i.shape[0] == 0:
+        return False
+    a = np.asarray(pairs_i, dtype=np.int64)
+    b = np.asarray(pairs_j, dtype=np.int64)
+    width = int(np.max(np.abs(a - b)))
+    if width == 0 or width > BANDED:
+        return False
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    coupled = np.unique(lo[lo != hi] * num_vars + hi[lo != hi]).shape[0]
+    return coupled >= 0.5 * num_vars * width
+
+
 def fill_reducing_order(num_vars: int, pairs_i: np.ndarray, pairs_j: np.ndarray,
                         method: str = "amd") -> np.ndarray:
     """A permutation of the variables (block graph) that reduces Cholesky fill.
 
-    Returns ``perm`` with ``perm[k]`` = the variable eliminated ``k``-th.
+    Returns ``perm`` with ``perm[k]`` = the variable eliminated ``k``-th. ``"amd"`` is CHOLMOD's
+    AMD when the ``fgopt[cholmod]`` extra is installed, else ``"mmd"``: the multiple minimum
+    degree ordering of SuperLU (in scipy's wheels) on the block graph, which measured the same
+    fill as AMD on M3500 and less on sphere2500 (``benchmarks/startup.py``, ordering table).
+    Tiny problems, and (for ``"amd"`` / ``"mmd"``) graphs densely banded in the given order
+    (:func:`_densely_banded`, e.g. a navigation chain of states in time order), keep the given
+    order: fill stays inside the band, and skipping the ordering measured 1.4 ms faster per
+    solve of GTSAM's ImuFactorsExample (101 states; 2.9 -> 2.1 ms to compile).
     """
+    from .errors import FgoptError, have_extra, missing_extra
+
+    if method not in ORDERINGS:
+        raise FgoptError(f"unknown ordering {method!r}: choose one of {', '.join(ORDERINGS)}")
+    if method in CHOLMOD_ORDERINGS and not have_extra("sksparse"):
+        # Checked before the shortcuts below: a missing extra is an error whatever the graph.
+        raise missing_extra("sksparse", f"ordering={method!r}")
     if method == "natural" or num_vars <= 16:  # tiny problems: ordering costs more than fill
         return np.arange(num_vars)
-    from sksparse.cholmod import analyze
+    if method in ("amd", "mmd") and _densely_banded(num_vars, pairs_i, pairs_j):
+        return np.arange(num_vars)
+    import scipy.sparse as sp
 
     rows = np.concatenate([pairs_i, pairs_j, np.arange(num_vars)])
     cols = np.concatenate([pairs_j, pairs_i, np.arange(num_vars)])
     A = sp.csc_matrix((np.ones(rows.shape[0]), (rows, cols)), shape=(num_vars, num_vars))
     A.sum_duplicates()
-    A = A + sp.identity(num_vars, format="csc") * num_vars  # values are irrelevant; keep SPD
+    # Values only matter to keep the factorization's pivots on the diagonal: |diag| > row sums.
+    A = (A + sp.identity(num_vars, format="csc") * (num_vars + 1.0)).tocsc()
+    if method == "amd" and not have_extra("sksparse"):
+        method = "mmd"
+    if method == "mmd":
+        return minimum_degree_order(A)
+    from sksparse.cholmod import analyze
+
     with np.errstate(all="ignore"):
-        f = analyze(A.tocsc(), mode="simplicial", ordering_method=method)
+        f = analyze(A, mode="simplicial", ordering_method=method)
     return np.asarray(f.P(), dtype=np.int64)
 
 
@@ -153,6 +203,18 @@ def schur_order(var_kind: np.ndarray, eliminated_kind: int) -> np.ndarray:
     """
     e = np.asarray(var_kind) == eliminated_kind
     return np.concatenate([np.nonzero(e)[0], np.nonzero(~e)[0]]).astype(np.int64)
+def minimum_degree_order(A) -> np.ndarray:
+    """Multiple minimum degree elimination order of the symmetric pattern of ``A`` (SuperLU's
+    ``MMD_AT_PLUS_A``, shipped in scipy's wheels; no SuiteSparse).
+
+    SuperLU factors ``A[:, c]`` with column permutation ``c``; in symmetric mode with diagonal
+    pivots (``A`` must be strictly diagonally dominant) the elimination order is ``argsort(c)``.
+    """
+    from scipy.sparse.linalg import splu
+
+    lu = splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+              options={"SymmetricMode": True})
+    return np.argsort(lu.perm_c).astype(np.int64)
 
 
 def build_pattern(var_dim: np.ndarray, order: np.ndarray, pairs_i: np.ndarray,
@@ -184,7 +246,8 @@ def build_pattern(var_dim: np.ndarray, order: np.ndarray, pairs_i: np.ndarray,
                             np.arange(V, dtype=np.int64) * (V + 1)])
     del ri, rj, keep
     codes = unique_int(codes)
-    indptr, p00 = _block_layout(codes, V, order, var_dim, var_offset, N)
+    layout = _block_layout.python if _small(codes.shape[0] * 4) else _block_layout
+    indptr, p00 = layout(codes, V, order, var_dim, var_offset, N)
     diag_pos = indptr[:-1].copy()  # diagonal entry is the first of each lower column
     pattern = HessianPattern(N, indptr, diag_pos, var_offset, var_dim, codes, p00, order)
     col_ptr = np.searchsorted(codes, np.arange(V + 1, dtype=np.int64) * V)
@@ -227,7 +290,13 @@ def ranges(lengths: np.ndarray) -> np.ndarray:
     return np.arange(total, dtype=np.int64) - starts
 
 
-from numba import njit  # noqa: E402  (numba kernels below)
+from ._jit import is_numba_loaded, njit  # noqa: E402  (numba kernels below)
+
+
+def _small(work: int) -> bool:
+    """Loops of about ``work`` steps run as plain Python while numba is not in use yet: its
+    import, initialization and cache loads (~0.5 s) would cost more."""
+    return work <= 20000 and not is_numba_loaded()
 
 
 @njit(cache=True)
@@ -296,11 +365,14 @@ def scatter_positions(lookup: dict, var_rank: np.ndarray, var_idx: np.ndarray) -
     else -1. Entry ``(a, b)`` is then at ``pos + col_shift[off[v_q] + b] + a``
     (:func:`column_shift`).
     """
-    return _scatter_positions(np.ascontiguousarray(lookup["codes"], dtype=np.int64),
-                              np.ascontiguousarray(lookup["col_ptr"], dtype=np.int64),
-                              np.ascontiguousarray(lookup["p00"], dtype=np.int64),
-                              int(lookup["V"]), np.ascontiguousarray(var_rank, dtype=np.int64),
-                              np.ascontiguousarray(var_idx, dtype=np.int64))
+    n, k = var_idx.shape
+    # small problems before numba is in use: the same loop as plain Python (no numba import)
+    run = _scatter_positions.python if _small(n * k * k) else _scatter_positions
+    return run(np.ascontiguousarray(lookup["codes"], dtype=np.int64),
+               np.ascontiguousarray(lookup["col_ptr"], dtype=np.int64),
+               np.ascontiguousarray(lookup["p00"], dtype=np.int64),
+               int(lookup["V"]), np.ascontiguousarray(var_rank, dtype=np.int64),
+               np.ascontiguousarray(var_idx, dtype=np.int64))
 
 
 @njit(cache=True)

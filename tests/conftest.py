@@ -1,5 +1,10 @@
-"""Shared fixtures: the real-data folder (skips with a reason when it is absent), and one kernel
-cache for the whole session."""
+"""Shared fixtures: the real-data folder (skips with a reason when it is absent), one kernel
+cache for the whole session, and GTSAM comparisons that must run where GTSAM is installable.
+
+With ``FGOPT_REQUIRE_GTSAM=1`` (set by ``.ci/run``) a test skipped because ``gtsam`` could not be
+imported (``pytest.importorskip("gtsam")``) is reported as a failure: CI installs gtsam with the
+``[test]`` extra, so a skipped comparison there means a broken install, not a missing wheel.
+"""
 
 from __future__ import annotations
 
@@ -17,7 +22,33 @@ def pytest_configure(config):
     are memoized per process, so a cache directory switched mid-session would leave subprocesses
     looking in a directory the parent never wrote."""
     if "FGOPT_CACHE_DIR" not in os.environ:
-        os.environ["FGOPT_CACHE_DIR"] = str(config.cache.mkdir("fgopt-kernels"))
+        path = config.cache.mkdir("fgopt-kernels")
+        path.chmod(0o700)  # fgopt refuses a cache root others can write (a umask of 002)
+        os.environ["FGOPT_CACHE_DIR"] = str(path)
+
+
+REQUIRE_GTSAM = os.environ.get("FGOPT_REQUIRE_GTSAM", "") not in ("", "0")
+
+
+def _skipped_for_gtsam(report) -> str | None:
+    """The skip reason if ``report`` is a skip caused by gtsam being unavailable."""
+    if not report.skipped or not isinstance(report.longrepr, tuple):
+        return None
+    reason = str(report.longrepr[2])
+    return reason if "gtsam" in reason.lower() else None
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    """Under ``FGOPT_REQUIRE_GTSAM=1`` a GTSAM comparison that skipped fails instead."""
+    outcome = yield
+    report = outcome.get_result()
+    reason = _skipped_for_gtsam(report) if REQUIRE_GTSAM else None
+    if reason is not None:
+        report.outcome = "failed"
+        report.longrepr = (f"{item.nodeid}: FGOPT_REQUIRE_GTSAM=1 but this GTSAM comparison was "
+                           f"skipped ({reason}); install the test extra: "
+                           "pip install -e '.[test]'")
 
 
 def data_dir() -> Path:

@@ -35,7 +35,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .._jit import njit
 
 CAL3_S2, CAL3DS2, CAL3BUNDLER, CAL3FISHEYE, CAL3UNIFIED, DOUBLESPHERE, CAL3_S2STEREO = range(7)
 STORAGE_DIMS = (5, 9, 5, 9, 10, 6, 6)

@@ -20,7 +20,7 @@ camera is rejected by the optimizer and a bad initial estimate is reported by na
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .._jit import njit
 
 from . import _calib_kernels as CK
 

@@ -22,7 +22,7 @@ step is rejected; at the initial estimate the optimizer names the factor) or, wi
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .._jit import njit
 
 from . import _calib_kernels as CK
 from . import _projection_kernels as PK

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from .._jit import njit
 
 from . import _calib_kernels as CK
 from . import _projection_kernels as PK

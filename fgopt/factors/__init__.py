@@ -13,7 +13,7 @@ from .numerical import NumericalFactor as NumericalFactor
 from .numerical import numerical_jacobian as numerical_jacobian
 from .numerical import numerical_jacobians as numerical_jacobians
 
-_DECORATOR_NAMES = ("factor", "SymbolicFactor", "SymbolicFactorType")
+_DECORATOR_NAMES = ("factor", "const", "SymbolicFactor", "SymbolicFactorType")
 
 
 def __getattr__(name: str):

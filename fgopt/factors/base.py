@@ -35,9 +35,21 @@ class Factor:
     kernel: FactorKernel | None = None
 
     def __init__(self, keys: Sequence[int], dim: int, loss: Loss | None = None):
+        name = type(self).__name__
+        if isinstance(keys, (int, np.integer)) and not isinstance(dim, (int, np.integer)):
+            raise FgoptError(
+                f"{name}: Factor.__init__ takes (keys, dim, loss), got keys={keys!r} and "
+                f"dim={dim!r}: miniSAM's order Factor(dim, keys, loss) swapped? Write "
+                f"super().__init__([key, ...], {keys!r}, loss)")
+        if isinstance(keys, (int, np.integer, str, bytes)) or not hasattr(keys, "__iter__"):
+            raise FgoptError(f"{name}: keys must be a list of keys (e.g. [key('x', 1)]), "
+                             f"got {keys!r}")
         self.keys: tuple[Key, ...] = tuple(as_key(k) for k in keys)
         if len(set(self.keys)) != len(self.keys):
-            raise FgoptError(f"{type(self).__name__}: repeated key in {list(self.keys)}")
+            raise FgoptError(f"{name}: repeated key in {list(self.keys)}")
+        if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)):
+            raise FgoptError(f"{name}: dim must be an int (the residual size), got {dim!r}: "
+                             "Factor.__init__ takes (keys, dim, loss)")
         self.dim = int(dim)
         if self.dim <= 0:
             raise DimensionMismatchError(f"{type(self).__name__}: residual dim must be positive")

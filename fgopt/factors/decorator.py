@@ -9,8 +9,16 @@
                       loss=noise)
 
 Calling the factor type makes an instance (an ordinary :class:`~fgopt.factors.base.KernelFactor`).
-Each argument given a :class:`fgopt.Key` is a *variable*, anything else a *constant* (its
-storage goes into the instance's constants row). One kernel is generated per pattern of
+The rule for arguments, with no guessing:
+
+* a :class:`fgopt.Key` (``fgopt.key('x', 1)``, or ``fgopt.Key(7)`` for a plain-int key) is a
+  *variable*;
+* a float, a numpy array, a sequence of numbers, a manifold value (``SE2``...) or anything
+  wrapped in :func:`const` is a *constant* (its storage goes into the instance's constants row);
+* a bare ``int`` (or ``bool``, numpy integer) is refused with an :class:`~fgopt.errors.FgoptError`:
+  plain ints are keys elsewhere in fgopt (``Variables.add(7, x)``), so ``b=1`` could mean key 1
+  or the number 1. Write ``fgopt.Key(1)`` or ``1.0`` / ``fgopt.const(1)``.
+ One kernel is generated per pattern of
 variables: the function is run once on symbolic arguments, its tangent-space Jacobians w.r.t.
 the variables are derived (:mod:`fgopt.symbolic.linearize`), CSE'd and emitted as a batched
 numba module (:mod:`fgopt.symbolic.codegen`), cached on disk (:mod:`fgopt.symbolic.cache`).
@@ -79,6 +87,31 @@ def factor(fn: Callable | None = None, *, name: str | None = None, method: str =
                                   cache=cache, variables=variables, scope=scope)
 
     return wrap if fn is None else wrap(fn, sys._getframe(1).f_locals)
+
+
+class const:
+    """Marks a value given to an ``@fgopt.factor`` argument as a constant: ``fgopt.const(1)``.
+
+    Only needed where a value could be read as a key (a bare int); floats, arrays and manifold
+    values are constants already.
+    """
+
+    __slots__ = ("value",)
+
+    def __init__(self, value: Any):
+        if isinstance(value, Key):
+            raise FgoptError(f"fgopt.const({value!r}): a Key is a variable; pass the key itself, "
+                             "or a number for a constant")
+        self.value = value
+
+    def __repr__(self) -> str:
+        return f"fgopt.const({self.value!r})"
+
+
+def _ambiguous(value: Any) -> bool:
+    """A bare int / bool / numpy integer: a key or a number? (``Key`` is not ambiguous.)"""
+    return (isinstance(value, (int, np.integer)) and not isinstance(value, Key)) or isinstance(
+        value, np.bool_)
 
 
 class SymbolicFactor(KernelFactor):
@@ -172,6 +205,13 @@ class SymbolicFactorType:
         missing = [self.params[i][0] for i, v in enumerate(values) if v is _MISSING]
         if len(missing) > 0:
             raise FgoptError(f"{self.name}: missing argument(s) {', '.join(missing)}")
+        for i, v in enumerate(values):
+            if _ambiguous(v):
+                name, tp = self.params[i]
+                raise FgoptError(
+                    f"{self.name}: argument '{name}' ({tp.__name__}) got the int {v!r}, which could "
+                    f"be a key or a number: pass fgopt.key(...) / fgopt.Key({int(v)}) for a "
+                    f"variable, or {float(v)!r} / fgopt.const({int(v)}) for a constant")
         pattern = tuple(isinstance(v, Key) for v in values)
         kernel = self._kernels.get(pattern)
         if kernel is None:
@@ -189,6 +229,8 @@ class SymbolicFactorType:
 
     def _constant(self, i: int, value: Any) -> np.ndarray:
         s = self._storage_dims[i]
+        if type(value) is const:
+            value = value.value
         if type(value) is np.ndarray and value.shape == (s,) and value.dtype == np.float64:
             return value  # fast path (KernelFactor copies it)
         name, tp = self.params[i]
@@ -205,9 +247,6 @@ class SymbolicFactorType:
                                  f"{type(value).__name__} (give an fgopt.manifolds.{twin}, its "
                                  f"storage, or a key)")
             value = value.to_storage()
-        if isinstance(value, (int, np.integer)) and not isinstance(value, bool) and s != 1:
-            raise FgoptError(f"{self.name}: argument '{name}' got the int {value}; pass "
-                             "fgopt.key(...) to make it a variable")
         try:
             arr = np.asarray(value, dtype=np.float64).reshape(-1)
         except (TypeError, ValueError) as exc:
@@ -263,14 +302,25 @@ class SymbolicFactorType:
                              "J^T J and J^T r")
         return module.linearize_hessian
 
-    def _module(self, pattern: tuple):
+    def cache_key(self, pattern: tuple) -> str:
+        """The kernel cache key of a variable pattern (function, pattern, options, package)."""
         parts = (self.name, tuple((n,) + type_key(tp) for n, tp in self.params),
                  pattern, self.method, self.engine, self.hessian)
-        key = _cache.kernel_key(self.fn, parts, self.fingerprint) if self.use_cache else None
+        return _cache.kernel_key(self.fn, parts, self.fingerprint)
+
+    def _module(self, pattern: tuple):
+        key = self.cache_key(pattern) if self.use_cache else None
         if key is not None:
-            module = _cache.load(self.name, key)
+            module = _cache.load(self.name, key, required=self._required())
             if module is not None:
                 return module
+            # built-in factors ship their generated source: nothing is derived at first use
+            from .library.shipped import shipped_source
+
+            source = shipped_source(self.name, key)
+            if source is not None:
+                _cache.STATS["shipped"] += 1
+                return _cache.store(self.name, key, source)
         from ..symbolic.derive import derive_source
 
         source = derive_source(self, pattern)
@@ -280,6 +330,11 @@ class SymbolicFactorType:
 
             key = "nocache_" + hashlib.sha256(source.encode()).hexdigest()[:16]
         return _cache.store(self.name, key, source)
+
+    def _required(self) -> tuple[str, ...]:
+        """What a generated module of this type must define (else its cache entry is redone)."""
+        base = ("META", "NUM_CONSTANTS", "residual", "linearize")
+        return base + ("linearize_hessian",) if self.hessian else base
 
     @property
     def source(self) -> str:
@@ -292,9 +347,11 @@ class SymbolicFactorType:
         """Run the function on symbolic arguments; returns ``(args, output)``."""
         from ..symbolic.ops import symbolic_value
 
+        from ..symbolic.derive import trace
+
         names = names or tuple(n for n, _ in self.params)
         args = [symbolic_value(tp, n) for n, (_, tp) in zip(names, self.params)]
-        return args, self.fn(*args)
+        return args, trace(self, args)
 
     def __repr__(self) -> str:
         sig = ", ".join(f"{n}: {tp.__name__}" for n, tp in self.params)
@@ -325,6 +382,14 @@ def batch_kind_of(tp: type):
         return M.vector_kind(tp.storage_dim())
     if issubclass(tp, DeclaredManifold):
         return tp.Value.batch_kind()
+    from ..symbolic.ops import NUMERIC_TWINS
+
+    registered = NUMERIC_TWINS.get(tp)
+    if registered is not None:
+        return registered.batch_kind()
+    if tp.__name__ == "NavState":
+        raise FgoptError("symbolic NavState variables hold fgopt.navigation.NavState values: "
+                         "import fgopt.navigation first")
     twin = _NUMERIC_TWIN.get(tp.__name__)
     if twin is None or not hasattr(M, twin):
         raise FgoptError(f"no numeric manifold for symbolic type {tp.__name__}")
@@ -335,8 +400,9 @@ def _kernel_from_module(module: Any, params: tuple, pattern: tuple, name: str,
                         recipe: tuple | None = None) -> FactorKernel:
     meta = module.META
     kinds = tuple(batch_kind_of(tp) for (_, tp), v in zip(params, pattern) if v)
-    with open(module.__file__) as fh:
-        source = fh.read()
+    source = module.__fgopt_source__  # the verified text that ran, not a re-read of the file
     return FactorKernel(name=name, arg_kinds=kinds, residual_dim=meta["residual_dim"],
                         num_constants=module.NUM_CONSTANTS, residual=module.residual,
-                        linearize=module.linearize, source=source, recipe=recipe)
+                        linearize=module.linearize, source=source, recipe=recipe,
+                        clamps=tuple(meta.get("clamps", ())),
+                        clamp_arguments=getattr(module, "clamp_arguments", None))

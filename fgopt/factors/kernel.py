@@ -55,6 +55,10 @@ class FactorKernel:
     #: (the receiving process rebuilds or loads it; compiled code is never shipped). The function
     #: must return one object per distinct ``args`` (kernels compare by identity).
     recipe: tuple | None = field(default=None, repr=False)
+    #: Clamped functions in the residual (dicts: function, low, high, where, code), and
+    #: ``clamp_arguments(args, consts) -> (n, len(clamps))`` evaluating their arguments.
+    clamps: tuple = field(default=(), repr=False)
+    clamp_arguments: ResidualFn | None = field(default=None, repr=False)
 
     def __reduce__(self):
         if self.recipe is None:

@@ -1,7 +1,8 @@
-"""Read and write factor-graph files: g2o / TORO pose graphs, BAL and Bundler bundle adjustment.
+"""Read and write factor-graph files: g2o / TORO pose graphs, BAL and Bundler bundle adjustment,
+and 2-D SLAM files in GTSAM's ``load2D`` formats (Victoria Park's ``ODOMETRY`` / ``LANDMARK``).
 
-``read(path)`` picks the reader by content (and extension); ``read_g2o`` / ``write_g2o`` and
-``read_bal`` / ``write_bal`` are the specific entries. Malformed input raises
+``read(path)`` picks the reader by content (and extension); ``read_g2o`` / ``write_g2o``,
+``read_bal`` / ``write_bal`` and ``load2d`` / ``parse_load2d`` are the specific entries. Malformed input raises
 :class:`fgopt.errors.FileFormatError` naming the file and line. Log messages (initial guesses,
 repairs, skipped lines) go to the ``fgopt.io`` logger.
 """
@@ -17,4 +18,6 @@ from .g2o import FIX_SIGMA as FIX_SIGMA
 from .g2o import add_gauge_prior as add_gauge_prior
 from .g2o import read_g2o as read_g2o
 from .g2o_write import write_g2o as write_g2o
+from .load2d import load2d as load2d
+from .load2d import parse_load2d as parse_load2d
 from .stereo_vo import read_stereo_vo as read_stereo_vo

@@ -117,7 +117,9 @@ def _edges_of(rd, g, dim: int) -> _Edges:
         vals = np.take_along_axis(d, cols, axis=1)
         meas = vals[:, :3].copy()
         info = im.unpack_upper(vals[:, 3:9], 3)
-        param = np.where(has_param, rd.ids(g, [2])[:, 0], -1)
+        param = np.full(d.shape[0], -1, dtype=np.int64)
+        with_id = np.nonzero(has_param)[0]  # column 2 is mx on the other lines
+        param[with_id] = rd.ids(g, [2], with_id)[:, 0]
     return _Edges(g, g.spec.what, ids[:, 0], ids[:, 1], meas, info, param)
 
 

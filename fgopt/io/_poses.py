@@ -7,7 +7,7 @@ File vectors: 2D ``(x, y, theta)``; 3D ``(x, y, z, qx, qy, qz, qw)``. Storage ro
 
 from __future__ import annotations
 
-import numba
+from .._jit import njit
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import breadth_first_order
@@ -49,7 +49,7 @@ def se3_file(storage: np.ndarray) -> np.ndarray:
     return np.column_stack([storage[:, 4:7], storage[:, :4]])
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _compose_tree(gid, poses, order, parent, rel, flip):
     """``poses[c] = poses[parent[c]] * (rel[c] or rel[c]^-1)`` in BFS ``order`` (root first)."""
     inv = np.empty(MAX_STORAGE_DIM)

@@ -29,9 +29,10 @@ import bz2
 import gzip
 import math
 import os
+import zlib
 from dataclasses import dataclass
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from ..errors import FileFormatError
@@ -41,7 +42,7 @@ _FNV_PRIME = np.uint64(0x100000001B3)
 _MAX_MANTISSA = 1 << 53
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _is_space(c):
     return c == 32 or c == 9 or c == 13 or c == 11 or c == 12
 
@@ -65,7 +66,7 @@ _EXP_RANGE = 250
 _P10_HI, _P10_LO = _pow10_table()
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _two_prod(a, b):
     """Exact ``a * b = p + e`` (Dekker / Veltkamp splitting; no FMA needed)."""
     p = a * b
@@ -79,7 +80,7 @@ def _two_prod(a, b):
     return p, e
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _scale_exact(m, exp10, p10_hi, p10_lo):
     """Correctly rounded ``m * 10**exp10`` (``0 < m < 10**18``); ``ok`` False when unsure."""
     if exp10 == 0 and m <= _MAX_MANTISSA:
@@ -111,7 +112,7 @@ def _scale_exact(m, exp10, p10_hi, p10_lo):
     return h, True
 
 
-@numba.njit(cache=True, inline="always")
+@njit(cache=True, inline="always")
 def _ends_token(buf, j, n, comment):
     """True at a token boundary: end of data, whitespace, line end or the comment character."""
     if j >= n:
@@ -120,7 +121,7 @@ def _ends_token(buf, j, n, comment):
     return c == 10 or c == comment or _is_space(c)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _parse_token(buf, s, n, comment, p10_hi, p10_lo):
     """Parse the token starting at ``s``; returns ``(value, ok, end)``, ``end`` = where the
     token ends. ``ok`` False: let Python decide (also for tokens that are not numbers).
@@ -192,7 +193,7 @@ def _parse_token(buf, s, n, comment, p10_hi, p10_lo):
     return (-v if neg else v), ok, j
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _count(buf):
     """Upper bounds for the outputs: lines, and runs of non-space bytes (tokens)."""
     lines = 1
@@ -209,7 +210,7 @@ def _count(buf):
     return lines, toks
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _scan_part(buf, stop_at, has_tag, comment, p10_hi, p10_lo, values, slow, tok_start,
                rec_line, rec_first, rec_count, tag_hash, tag_start, tag_end, state):
     """Scan the lines starting before byte ``stop_at``; resumable: ``state`` = ``[next byte,
@@ -263,7 +264,7 @@ def _scan_part(buf, stop_at, has_tag, comment, p10_hi, p10_lo, values, slow, tok
     state[0], state[1], state[2], state[3] = i, nv, nr, line
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _token_ends(buf, starts, comment):
     """Where each token starting at ``starts`` ends (whitespace, line end or comment)."""
     out = np.empty(starts.shape[0], dtype=np.int64)
@@ -276,7 +277,7 @@ def _token_ends(buf, starts, comment):
     return out
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _gather_tokens(buf, start, end, width):
     out = np.zeros((start.shape[0], width), dtype=np.uint8)
     for i in range(start.shape[0]):
@@ -372,7 +373,7 @@ def _nth(which, i: int) -> int:
     return int(which[i])
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def _first_nonfinite(a):
     """Index of the first non-finite entry of the 1-D array ``a``, or -1 (no temporary mask)."""
     for i in range(a.shape[0]):
@@ -401,7 +402,7 @@ def read_bytes(path: str | os.PathLike) -> bytes:
         raise FileFormatError("no such file", p) from None
     except IsADirectoryError:
         raise FileFormatError("is a directory, expected a file", p) from None
-    except (OSError, EOFError) as exc:
+    except (OSError, EOFError, zlib.error) as exc:  # zlib.error: a damaged deflate stream
         raise FileFormatError(f"cannot read: {exc}", p) from None
 
 

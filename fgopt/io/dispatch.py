@@ -2,7 +2,8 @@
 
 A file starting with ``# Bundle file`` is a Bundler ``.out`` file; otherwise a file whose first
 token is a number is BAL (its header ``cameras points observations``); a file whose first token
-is a record tag (``VERTEX_SE2``, ``EDGE2``, ...) is g2o / TORO.
+is ``ODOMETRY`` / ``LANDMARK`` / ``BR`` is a GTSAM ``load2D`` SLAM file; any other record tag
+(``VERTEX_SE2``, ``EDGE2``, ...) is g2o / TORO.
 ``.gz`` / ``.bz2`` files are decompressed first.
 """
 
@@ -16,13 +17,16 @@ from ..graph import FactorGraph
 from ..variables import Variables
 from ._scan import read_bytes
 
-FORMATS = ("g2o", "bal", "bundler")
+FORMATS = ("g2o", "bal", "bundler", "load2d")
+#: First tags of GTSAM ``load2D`` SLAM files that the g2o reader does not read.
+_LOAD2D_TAGS = (b"ODOMETRY", b"LANDMARK", b"BR")
 _FIRST_TOKEN = re.compile(rb"^[ \t\r\f\v]*([^\s#]+)", re.MULTILINE)
 _G2O_EXT = (".g2o", ".graph")
 
 
 def detect_format(path: str | os.PathLike, data: bytes | None = None) -> str:
-    """``"g2o"``, ``"bal"`` or ``"bundler"``; raises :class:`FileFormatError` when none fits."""
+    """``"g2o"``, ``"bal"``, ``"bundler"`` or ``"load2d"``; raises :class:`FileFormatError` when
+    none fits."""
     p = os.fspath(path)
     if data is None:
         data = read_bytes(p)
@@ -35,6 +39,8 @@ def detect_format(path: str | os.PathLike, data: bytes | None = None) -> str:
     line = data[:m.start(1)].count(b"\n") + 1
     if re.fullmatch(rb"[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?", tok):
         return "bal"
+    if tok in _LOAD2D_TAGS:
+        return "load2d"
     if re.fullmatch(rb"[A-Za-z_][A-Za-z0-9_:]*", tok):
         return "g2o"
     raise FileFormatError(f"cannot tell the format from the first token {tok[:40]!r}: expected "
@@ -49,7 +55,9 @@ def read(path: str | os.PathLike, *, format: str | None = None, add_prior: bool 
     Args:
         path: a g2o / TORO pose graph (``.g2o``, ``.graph``, ``.txt``), a BAL problem or a
             Bundler ``.out`` file, optionally ``.gz`` / ``.bz2`` compressed.
-        format: ``"g2o"``, ``"bal"`` or ``"bundler"`` to skip detection.
+        format: ``"g2o"``, ``"bal"``, ``"bundler"`` or ``"load2d"`` (GTSAM's 2-D SLAM files
+            with ``ODOMETRY`` / ``LANDMARK`` / ``BR`` records, :func:`fgopt.io.load2d`) to skip
+            detection.
         add_prior, skip_unknown, repair_information: g2o options, see :func:`read_g2o`
             (BAL files have no gauge prior, unknown tags or information matrices; passing a
             non-default value for one is an error).
@@ -81,4 +89,11 @@ def read(path: str | os.PathLike, *, format: str | None = None, add_prior: bool 
             raise FgoptError("read: add_prior, skip_unknown and repair_information apply to g2o "
                              f"files; {p} is a Bundler file")
         return read_bundler(p, data=data)
+    if format == "load2d":
+        if add_prior or skip_unknown or repair_information is not None:
+            raise FgoptError("read: add_prior, skip_unknown and repair_information apply to g2o "
+                             f"files; {p} is a load2D file (see fgopt.io.load2d for its options)")
+        from .load2d import load2d
+
+        return load2d(p)
     raise FgoptError(f"read: unknown format {format!r}; choose one of {', '.join(FORMATS)}")

@@ -125,13 +125,17 @@ class _Reader:
             data = sc.values[idx]
         return _Group(tag, spec, rec, sc.line[rec], data)
 
-    def ids(self, g: _Group, cols: slice | list[int]) -> np.ndarray:
-        """Integer ids in columns ``cols``; non-integers and out-of-range ids are errors."""
-        v = g.data[:, cols]
+    def ids(self, g: _Group, cols: slice | list[int], rows: np.ndarray | None = None
+            ) -> np.ndarray:
+        """Integer ids in columns ``cols`` (of ``rows``, default all); non-integers and
+        out-of-range ids are errors."""
+        rows = np.arange(g.data.shape[0]) if rows is None else rows
+        v = g.data[rows][:, cols]
         ok = (v == np.floor(v)) & (v >= 0) & (v < _MAX_ID)
         ok |= np.isnan(v)  # padding of variable-length records
         if not ok.all():
             row, col = (int(a[0]) for a in np.nonzero(~ok))
+            row = int(rows[row])
             col = np.arange(g.data.shape[1])[cols][col]
             tok = self.sc.token(int(self.sc.first[g.rec[row]]) + int(col))
             raise self.sc.error(f"{g.tag}: id {tok!r} is not a non-negative integer",

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Any, Callable, Protocol, runtime_checkable
 
-import numba
+from .._jit import njit
 import numpy as np
 
 from ..errors import DimensionMismatchError, ManifoldError
@@ -117,14 +117,14 @@ def register(cls: type, ops: ManifoldOps) -> None:
 # ----------------------------------------------------------------------------- vector spaces
 
 
-@numba.njit(cache=True)
 def _vector_retract(x, delta):
-    return x + delta
+    """``x + delta`` row-wise (NumPy: nothing to compile for vector spaces)."""
+    return np.asarray(x, dtype=np.float64) + delta
 
 
-@numba.njit(cache=True)
 def _vector_local(a, b):
-    return b - a
+    """``b - a`` row-wise."""
+    return np.asarray(b, dtype=np.float64) - a
 
 
 @lru_cache(maxsize=None)

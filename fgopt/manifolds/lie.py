@@ -18,13 +18,38 @@ from typing import Any
 
 import numpy as np
 
+from .. import _jit
 from ..errors import DimensionMismatchError, FgoptError, ManifoldError, NonFiniteError
 from . import _kernels as K
 from .base import BatchKind, register
 
 
+
+#: Per-value group operations run as plain Python until numba is in use in the process or this
+#: many have run: a script's first values then cost no numba import (0.25-0.4 s) and no
+#: initialization of its compiler (0.2-0.3 s); bulk construction still gets numba's speed.
+PYTHON_ELEMENT_OPS = 2000
+_element_ops = [0]
+
+
+def _element(kernel, *args) -> None:
+    if _element_ops[0] < PYTHON_ELEMENT_OPS and not _jit.is_numba_loaded():
+        _element_ops[0] += 1
+        kernel.python(*args)
+    else:
+        kernel(*args)
+
+
 class InvalidGroupElementError(FgoptError, ValueError):
     """A value given to a Lie group constructor is not a group element (e.g. scale <= 0)."""
+
+
+def as_float(value: Any, what: str) -> float:
+    """``float(value)``, or a DimensionMismatchError naming ``what``."""
+    try:
+        return float(value)
+    except (TypeError, ValueError) as exc:
+        raise DimensionMismatchError(f"{what}: expected a number, got {value!r}") from exc
 
 
 def as_float_vector(value: Any, n: int, what: str) -> np.ndarray:
@@ -122,12 +147,12 @@ class LieGroup:
         """The group product ``self * other``."""
         self._check_same(other, "compose")
         out = np.empty(self._STORAGE_DIM)
-        K.lie_compose(self._GID, self._buf, other._buf, out)
+        _element(K.lie_compose, self._GID, self._buf, other._buf, out)
         return self._wrap(out)
 
     def inverse(self):
         out = np.empty(self._STORAGE_DIM)
-        K.lie_inverse(self._GID, self._buf, out)
+        _element(K.lie_inverse, self._GID, self._buf, out)
         return self._wrap(out)
 
     def between(self, other):
@@ -140,19 +165,19 @@ class LieGroup:
         """The group exponential ``Exp(v)`` of a tangent vector (shape ``(dim,)``)."""
         v = as_float_vector(v, cls._DIM, f"{cls.__name__}.exp")
         out = np.empty(cls._STORAGE_DIM)
-        K.lie_exp(cls._GID, v, out)
+        _element(K.lie_exp, cls._GID, v, out)
         return cls._wrap(out)
 
     def log(self) -> np.ndarray:
         """The group logarithm ``Log(self)``, shape ``(dim,)``; rotation angle in [0, pi]."""
         out = np.empty(self._DIM)
-        K.lie_log(self._GID, self._buf, out)
+        _element(K.lie_log, self._GID, self._buf, out)
         return out
 
     def adjoint(self) -> np.ndarray:
         """``Adj``, shape ``(dim, dim)``, with ``self * Exp(v) = Exp(Adj v) * self``."""
         out = np.empty((self._DIM, self._DIM))
-        K.lie_adjoint(self._GID, self._buf, out)
+        _element(K.lie_adjoint, self._GID, self._buf, out)
         return out
 
     def retract(self, delta: Any):

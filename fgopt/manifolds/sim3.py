@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import NonFiniteError
 from . import _kernels as K
-from .lie import InvalidGroupElementError, LieGroup, as_float_vector, register_group
+from .lie import InvalidGroupElementError, LieGroup, as_float, as_float_vector, register_group
 from .se3 import as_so3
 from .so2 import as_matrix, normalize_unit
 from .so3 import SO3
@@ -38,7 +38,7 @@ class Sim3(LieGroup):
         data = np.empty(8)
         data[:4] = as_so3(rotation, "Sim3 rotation")._data
         data[4:7] = as_float_vector(translation, 3, "Sim3 translation")
-        data[7] = float(scale)
+        data[7] = as_float(scale, "Sim3 scale")
         self._normalize(data)
         self._set(data)
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import DimensionMismatchError, NonFiniteError
 from . import _kernels as K
-from .lie import InvalidGroupElementError, LieGroup, register_group
+from .lie import InvalidGroupElementError, LieGroup, as_float, register_group
 
 
 def normalize_unit(data: np.ndarray, what: str) -> None:
@@ -57,7 +57,7 @@ class SO2(LieGroup):
     _IDENTITY = np.array([1.0, 0.0])
 
     def __init__(self, theta: float = 0.0):
-        t = float(theta)
+        t = as_float(theta, "SO2 angle")
         if not math.isfinite(t):
             raise NonFiniteError(f"SO2: angle must be finite, got {theta!r}")
         data = np.array([math.cos(t), math.sin(t)])

@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from . import _kernels as K
-from .lie import LieGroup, as_float_vector, register_group
+from .lie import LieGroup, as_float, as_float_vector, register_group
 from .so2 import as_matrix, check_rotation_matrix, normalize_unit
 
 
@@ -59,7 +59,7 @@ class SO3(LieGroup):
     @classmethod
     def from_axis_angle(cls, axis: Any, angle: float) -> SO3:
         axis = as_float_vector(axis, 3, "SO3.from_axis_angle")
-        return cls.exp(axis / np.linalg.norm(axis) * float(angle))
+        return cls.exp(axis / np.linalg.norm(axis) * as_float(angle, "SO3 angle"))
 
     @classmethod
     def random(cls, rng: Any = None) -> SO3:

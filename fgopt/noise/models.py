@@ -12,6 +12,8 @@ inside its numba scatter kernel (see :func:`fgopt.noise.robust.rho_and_weight`).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from ..errors import DimensionMismatchError, NonFiniteError, NotPositiveDefiniteError
@@ -93,12 +95,59 @@ class Gaussian(NoiseModel):
 
 
 class Diagonal(NoiseModel):
-    """Independent noise per residual component."""
+    """Independent noise per residual component.
+
+    Pose residuals are in fgopt's tangent order, rotation first: SE(2) ``[theta, x, y]``, SE(3)
+    ``[wx, wy, wz, x, y, z]``, Sim(3) ``[w, v, log s]``. GTSAM's Pose2 and miniSAM's SE2 use
+    ``[x, y, theta]``, miniSAM's SE3 ``[v, w]``: sigmas copied from them in that order give a
+    different model. The named constructors :meth:`pose2`, :meth:`pose3` and :meth:`sim3` take
+    sigmas by component and remember them for the repr.
+    """
+
+    #: Component names of a pose model (tangent order), for the repr; None for plain sigmas.
+    _labels: tuple[str, ...] | None = None
+    _constructor: str = ""
 
     @classmethod
     def sigmas(cls, sigmas) -> "Diagonal":
         s = _positive_vector(sigmas, "sigmas")
         return cls(np.diag(1.0 / s))
+
+    @classmethod
+    def pose2(cls, x: float, y: float, theta: float) -> "Diagonal":
+        """SE(2) sigmas by component (meters, radians), stored in fgopt's tangent order
+        ``[theta, x, y]`` (GTSAM's ``Diagonal.Sigmas([x, y, theta])`` as a Pose2 noise)."""
+        return cls._labelled("pose2", ("theta", "x", "y"), [theta, x, y])
+
+    @classmethod
+    def pose3(cls, rotation: Any, translation: Any) -> "Diagonal":
+        """SE(3) sigmas by component: ``rotation`` (radians, about x, y, z) and ``translation``
+        (meters, along x, y, z), each one number or three; tangent order ``[w, v]`` (GTSAM's
+        Pose3 order; miniSAM's/Sophus' SE3 is ``[v, w]``)."""
+        rot, trans = _three(rotation, "rotation"), _three(translation, "translation")
+        return cls._labelled("pose3", ("wx", "wy", "wz", "x", "y", "z"), rot + trans)
+
+    @classmethod
+    def sim3(cls, rotation: Any, translation: Any, scale: float) -> "Diagonal":
+        """Sim(3) sigmas by component (``scale`` is the sigma of ``log s``); tangent order
+        ``[w, v, log s]``."""
+        rot, trans = _three(rotation, "rotation"), _three(translation, "translation")
+        return cls._labelled("sim3", ("wx", "wy", "wz", "x", "y", "z", "log_s"),
+                             rot + trans + [scale])
+
+    @classmethod
+    def _labelled(cls, constructor: str, labels: tuple, sigmas: list) -> "Diagonal":
+        m = cls.sigmas(sigmas)
+        m._labels, m._constructor = labels, constructor
+        return m
+
+    def __repr__(self) -> str:
+        s = self.sigma_values
+        if self._labels is not None:
+            parts = ", ".join(f"{n}={v:g}" for n, v in zip(self._labels, s))
+            return (f"Diagonal.{self._constructor}(sigmas {parts}; tangent order "
+                    f"[{', '.join(self._labels)}])")
+        return f"{type(self).__name__}(sigmas=[{', '.join(f'{v:g}' for v in s)}])"
 
     @classmethod
     def variances(cls, variances) -> "Diagonal":
@@ -121,6 +170,9 @@ class Isotropic(Diagonal):
         s = _positive_vector([sigma], "sigma")[0]
         return cls(np.eye(int(dim)) / s)
 
+    def __repr__(self) -> str:
+        return f"Isotropic(dim={self.dim}, sigma={self.sigma_values[0]:g})"
+
 
 class Unit(Isotropic):
     """Unit noise: the residual is already whitened."""
@@ -134,8 +186,21 @@ class Unit(Isotropic):
         return f"Unit(dim={self.dim})"
 
 
+def _three(v: Any, name: str) -> list:
+    """One number or three, as a list of three floats."""
+    a = _positive_vector(v, f"{name} sigmas")
+    if a.shape[0] == 1:
+        a = np.repeat(a, 3)
+    if a.shape[0] != 3:
+        raise DimensionMismatchError(f"{name} sigmas: give one number or three, got {a.shape[0]}")
+    return a.tolist()
+
+
 def _positive_vector(values, name: str) -> np.ndarray:
-    v = np.atleast_1d(np.asarray(values, dtype=float)).reshape(-1)
+    try:
+        v = np.atleast_1d(np.asarray(values, dtype=float)).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise DimensionMismatchError(f"{name} must be numbers, got {values!r}") from exc
     if not np.all(np.isfinite(v)):
         raise NonFiniteError(f"{name} has a NaN or inf entry: {v}")
     if np.any(v <= 0):

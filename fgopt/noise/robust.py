@@ -23,13 +23,15 @@ from __future__ import annotations
 
 import math
 
-import numba
+import numpy as np
+
+from .._jit import njit
 
 #: SymForce's default epsilon (10 machine epsilons), as in :mod:`fgopt.symbolic`.
 BARRON_EPSILON = 2.220446049250313e-15
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def barron(k, alpha, s):
     """Barron's loss and IRLS weight at ``s = t^2`` (epsilon-safe at ``alpha`` = 0 and 2)."""
     eps = BARRON_EPSILON
@@ -40,7 +42,7 @@ def barron(k, alpha, s):
     return k2 * b / d * math.expm1(0.5 * d * lu), math.exp((0.5 * d - 1.0) * lu)
 
 
-@numba.njit(cache=True)
+@njit(cache=True)
 def rho_and_weight(code, k, shape, s):
     if code == 0:
         return 0.5 * s, 1.0
@@ -63,3 +65,32 @@ def rho_and_weight(code, k, shape, s):
     if code == 5:  # Barron
         return barron(k, shape, s)
     return 0.5 * s, 1.0
+
+
+def rho_and_weight_np(code: int, k: float, shape: float, s: np.ndarray):
+    """:func:`rho_and_weight` over an array of squared norms ``s`` (NumPy; small batches)."""
+    s = np.asarray(s, dtype=float)
+    with np.errstate(all="ignore"):
+        if code == 0 or code not in (1, 2, 3, 4, 5):
+            return 0.5 * s, np.ones_like(s)
+        k2 = k * k
+        if code == 1:  # Huber
+            t = np.sqrt(s)
+            inside = t <= k
+            return (np.where(inside, 0.5 * s, k * t - 0.5 * k2),
+                    np.where(inside, 1.0, k / np.where(inside, 1.0, t)))
+        if code == 2:  # Cauchy
+            return 0.5 * k2 * np.log1p(s / k2), 1.0 / (1.0 + s / k2)
+        if code == 3:  # Tukey
+            u = 1.0 - s / k2
+            inside = s <= k2
+            return (np.where(inside, k2 / 6.0 * (1.0 - u * u * u), k2 / 6.0),
+                    np.where(inside, u * u, 0.0))
+        if code == 4:  # Geman-McClure
+            d = k2 + s
+            return 0.5 * k2 * s / d, k2 * k2 / (d * d)
+        eps = BARRON_EPSILON
+        b = abs(shape - 2.0) + eps
+        d = shape + (eps if shape >= 0.0 else -eps)
+        lu = np.log1p(s / (k2 * b))
+        return k2 * b / d * np.expm1(0.5 * d * lu), np.exp((0.5 * d - 1.0) * lu)

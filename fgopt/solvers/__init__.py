@@ -1,4 +1,5 @@
-"""Nonlinear optimizers (LM, Gauss-Newton, Dogleg) over a compiled problem, and ``optimize``."""
+"""Nonlinear optimizers (LM, Gauss-Newton, Dogleg) over a compiled problem, ``optimize``, and
+``check_jacobians`` (a factor's Jacobians against central differences)."""
 
 from __future__ import annotations
 
@@ -6,12 +7,12 @@ import dataclasses
 from typing import Any
 
 from ..errors import FgoptError
-from .chordal import chordal_initialization as chordal_initialization
-from .covariance import marginals as marginals
 from .dogleg import Dogleg as Dogleg
 from .gnc import GNC as GNC
 from .gnc import GNCParams as GNCParams
 from .gauss_newton import GaussNewton as GaussNewton
+from .jacobian_check import JacobianReport as JacobianReport
+from .jacobian_check import check_jacobians as check_jacobians
 from .linear.base import LinearSolver as LinearSolver
 from .linear.base import make_linear_solver as make_linear_solver
 from .lm import LevenbergMarquardt as LevenbergMarquardt
@@ -22,6 +23,22 @@ from .params import TerminationParams as TerminationParams
 from .result import IterationRecord as IterationRecord
 from .result import Result as Result
 from .result import Status as Status
+
+
+
+def __getattr__(name: str):
+    """``chordal_initialization`` and ``marginals`` load on first use (they import scipy's
+    sparse package, which a small solve does not need)."""
+    if name == "chordal_initialization":
+        from .chordal import chordal_initialization
+
+        return chordal_initialization
+    if name == "marginals":
+        from .covariance import marginals
+
+        return marginals
+    raise AttributeError(f"module 'fgopt.solvers' has no attribute {name!r}")
+
 
 _METHODS = {"lm": (LevenbergMarquardt, LMParams), "gn": (GaussNewton, GaussNewtonParams),
             "dogleg": (Dogleg, DoglegParams), "gnc": (GNC, GNCParams)}

@@ -11,8 +11,9 @@ import numpy as np
 from ..errors import FgoptError, NonFiniteError
 from ..problem import Problem, State
 from ..variables import Variables
+from .diagnostics import clamp_hits, warn_clamps, warn_unused
 from .linear.base import make_linear_solver
-from .result import IterationRecord, Result, Status
+from .result import IterationRecord, Result, Status, stall_status
 
 Callback = Callable[[IterationRecord], "bool | None"]
 
@@ -32,12 +33,16 @@ class Run:
         self.callback = callback
         self.verbose = bool(getattr(params, "verbose", False))
         choice = linear_solver if linear_solver is not None else params.linear_solver
+        #: True when this run compiled its own problem (a user's call, not a GNC round): only
+        #: then does it warn about unused keys and clamp hits.
+        self.top_level = problem is None
         if problem is None:
             if not isinstance(initial, Variables):
                 raise FgoptError(
                     f"initial values must be fgopt.Variables, got {type(initial).__name__}")
             problem = Problem(graph, initial, ordering=params.ordering,
                               threads=getattr(params, "threads", 1), linear_solver=choice)
+            warn_unused(problem.unused_keys)
         self.problem = problem
         if solver is None:
             solver = make_linear_solver(choice, pattern=problem.pattern)
@@ -46,10 +51,21 @@ class Run:
         self.t_setup = time.perf_counter() - self.t0
         self.t_solve = 0.0
         self.state: State = state if state is not None else problem.initial_state()
-        self.cost = problem.linearize(self.state)  # raises NonFiniteError naming the factor
+        try:
+            self.cost = problem.linearize(self.state)
+        except NonFiniteError as exc:  # names the factor; add clamped calls outside their domain
+            hits, total = clamp_hits(problem, self.state)
+            if total == 0:
+                raise
+            raise NonFiniteError(f"{exc}; at the initial values {total} clamped call(s) are "
+                                 f"outside their domain, e.g. {hits[0]}") from None
         self.initial_cost = self.cost
         self.history = [self.cost]
         self.records: list[IterationRecord] = []
+        #: First iteration of the trailing run of rejected steps (None after an accepted one),
+        #: and the largest decrease the model predicted for one of them.
+        self.rejected_since: int | None = None
+        self.rejected_gain = 0.0
         if self.verbose:
             print(f"{method}: {problem.num_variables} variables, "
                   f"{sum(len(b.source) for b in problem.batches) + len(problem._slow)} factors, "
@@ -85,15 +101,23 @@ class Run:
     def state_norm(self) -> float:
         return math.sqrt(sum(float(np.sum(s * s)) for s in self.state.storages))
 
-    def relinearize(self) -> None:
-        try:
-            self.cost = self.problem.linearize(self.state)
-        except NonFiniteError:
-            raise
-
     def record(self, iteration: int, candidate_cost: float, lam: float, step_norm: float,
-               accepted: bool, previous_cost: float) -> bool:
-        """Log one iteration; returns True when the callback asks to stop."""
+               accepted: bool, previous_cost: float, predicted: float = math.inf,
+               poor: bool = False) -> bool:
+        """Log one iteration; returns True when the callback asks to stop.
+
+        ``predicted``: the decrease the method's model predicted for a rejected (or ``poor``)
+        step, infinite when the trial point was not finite; kept to tell a stall from
+        convergence. ``poor``: an accepted step that still counts as no progress (Dogleg: cut
+        short by a trust region it then shrank, because the gain ratio was below 0.25).
+        """
+        if accepted and not poor:
+            self.rejected_since, self.rejected_gain = None, 0.0
+        else:
+            if self.rejected_since is None:
+                self.rejected_since = iteration
+            gain = predicted if math.isfinite(candidate_cost) else math.inf
+            self.rejected_gain = max(self.rejected_gain, gain if gain == gain else math.inf)
         rel = (previous_cost - candidate_cost) / previous_cost if previous_cost > 0 else 0.0
         rec = IterationRecord(iteration, self.cost, candidate_cost, rel if math.isfinite(rel)
                               else float("nan"), lam, step_norm, self.problem.gradient_norm(),
@@ -132,6 +156,10 @@ class Run:
         return None
 
     def finish(self, status: Status, message: str) -> Result:
+        status, message = stall_status(status, message, self.cost, self.rejected_since,
+                                       self.rejected_gain)
+        clamps, num_clamped = clamp_hits(self.problem, self.state) if self.top_level else ([], 0)
+        warn_clamps(clamps, num_clamped)
         total = time.perf_counter() - self.t0
         t = self.problem.timing
         timing = {"setup": self.t_setup, "linearize": t["linearize"], "assemble": t["assemble"],
@@ -145,4 +173,6 @@ class Run:
                       final_cost=self.cost, cost_history=self.history,
                       iteration_records=self.records, timing=timing, method=self.method,
                       linear_solver=getattr(self.solver, "name", type(self.solver).__name__),
-                      problem=self.problem, state=self.state)
+                      problem=self.problem, state=self.state,
+                      unused_keys=tuple(self.problem.unused_keys), clamps=tuple(clamps),
+                      num_clamped=num_clamped)

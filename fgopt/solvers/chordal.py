@@ -28,9 +28,9 @@ from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
-from numba import njit
+from .._jit import njit
 
-from ..errors import FgoptError
+from ..errors import FgoptError, have_extra
 from ..manifolds import _kernels as K
 from ..problem import Problem, State
 from ..variables import Variables
@@ -78,9 +78,17 @@ def _project_to_rotations(M: np.ndarray) -> np.ndarray:
 
 
 def _solve_spd(A: sp.spmatrix, B: np.ndarray) -> np.ndarray:
-    from sksparse.cholmod import cholesky
+    """``A^-1 B``: CHOLMOD when the ``fgopt[cholmod]`` extra is installed, else SuperLU (scipy)
+    in a minimum-degree order with diagonal pivots (A is SPD)."""
+    if have_extra("sksparse"):
+        from sksparse.cholmod import cholesky
 
-    return cholesky(A.tocsc()).solve_A(B)
+        return cholesky(A.tocsc()).solve_A(B)
+    from scipy.sparse.linalg import splu
+
+    lu = splu(A.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+              options={"SymmetricMode": True})
+    return lu.solve(np.asarray(B, dtype=float))
 
 
 def _block_weights(sqrt_info: np.ndarray, n: int, rot_dim: int) -> tuple[np.ndarray, np.ndarray]:

@@ -13,20 +13,21 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from ..errors import FgoptError, KeyNotFoundError, NotPositiveDefiniteError
+from ..errors import FgoptError, KeyNotFoundError, NotPositiveDefiniteError, have_extra
 from ..key import Key, as_key, key_str
 from .linear.base import make_linear_solver
 
 
 def marginals(result: Any, keys: Iterable[int] | None = None, graph: Any = None,
-              values: Any = None, linear_solver: str = "cholmod") -> dict[Key, np.ndarray]:
+              values: Any = None, linear_solver: str | None = None) -> dict[Key, np.ndarray]:
     """``{key: covariance}`` in each key's tangent space.
 
     Args:
         result: a :class:`~fgopt.Result` (its compiled problem and final state are reused), or
             ``None`` together with ``graph`` and ``values``.
         keys: the variables to report (default: all).
-        linear_solver: backend for the factorization of H (``"cholmod"`` or ``"dense"``...).
+        linear_solver: backend for the factorization of H (default: CHOLMOD when the
+            ``fgopt[cholmod]`` extra is installed, else fgopt's block Cholesky; or ``"dense"``...).
     """
     if result is not None:
         problem, state = result.problem, result.state
@@ -42,6 +43,8 @@ def marginals(result: Any, keys: Iterable[int] | None = None, graph: Any = None,
         state = problem.initial_state()
     problem.set_weights(None)
     problem.linearize(state)
+    if linear_solver is None:
+        linear_solver = "cholmod" if have_extra("sksparse") else "block"
     solver = make_linear_solver(linear_solver, pattern=problem.pattern)
     solver.analyze(problem.pattern)
     try:

@@ -4,7 +4,15 @@ Per linearization: the Gauss-Newton step ``h_gn = -H^-1 g`` (one factorization, 
 radius shrinks) and the Cauchy step ``h_sd = -alpha g`` with ``alpha = g.g / g.H.g``. The step is
 ``h_gn`` if it fits the radius ``Delta``, else the scaled gradient step if even ``h_sd`` does not,
 else the point where the segment ``h_sd -> h_gn`` leaves the trust region. The radius grows
-(to ``max(Delta, 3|h|)``) when the gain ratio exceeds 0.75 and halves below 0.25.
+(to ``max(Delta, 3|h|)``) when the gain ratio exceeds 0.75 and halves below 0.25. A rejected
+step (no decrease, or a value, cost, residual or Jacobian that is not finite at the trial
+point) sets the radius to half the rejected step's length, so the next trial is shorter.
+
+A small cost decrease does not count as convergence when the step was cut short by the trust
+region and the model predicted it poorly (gain ratio < 0.25): the decrease is small because the
+region is. With right derivatives the gain ratio tends to 1 as the region shrinks, so a region
+that keeps shrinking means the model is wrong (e.g. a wrong hand-written Jacobian: gain ratio
+stuck near 0.24 on miniSAM's GPS example); such a run ends as ``Status.STALLED``, not converged.
 """
 
 from __future__ import annotations
@@ -59,6 +67,8 @@ class Dogleg:
                         p.regularization * np.maximum(H[pattern.diag_pos], 1e-6), -g)
                 except NotPositiveDefiniteError:
                     return run.finish(Status.FAILED, "H is not positive definite")
+                if not np.all(np.isfinite(h_gn)):
+                    return run.finish(Status.FAILED, "the Gauss-Newton step is not finite")
                 gHg = float(g @ pattern.matvec(H, g))
                 h_sd = -(float(g @ g) / gHg) * g if gHg > 0 else -g
             it += 1
@@ -69,25 +79,41 @@ class Dogleg:
             candidate = problem.retract(run.state, h)
             new_cost = problem.cost(candidate)
             rho = (old - new_cost) / predicted if predicted > 0 else -math.inf
+            accepted = math.isfinite(new_cost) and rho > 0
+            done = None
+            # a step the trust region cut short whose gain ratio is poor: its small decrease
+            # says nothing about convergence (the region, not the optimum, made it small)
+            poor = rho < 0.25 and step_norm < (1.0 - 1e-9) * float(np.linalg.norm(h_gn))
+            if accepted:
+                done = None if poor else run.converged_by_decrease(old, new_cost)
+                if done is None:
+                    # the next step needs the Jacobian here: a non-finite one rejects the point
+                    new_cost = problem.linearize_candidate(candidate)
+                    accepted = math.isfinite(new_cost)
             used_radius = radius
-            if rho > 0.75:
+            if not accepted:
+                # shrink below the rejected step, not only the radius: a Gauss-Newton step well
+                # inside the region would otherwise be retried unchanged (a NaN trial forever)
+                radius = 0.5 * min(radius, step_norm)
+            elif rho > 0.75:
                 radius = max(radius, 3.0 * step_norm)
             elif rho < 0.25:
                 radius = 0.5 * radius
-            if math.isfinite(new_cost) and rho > 0:
+            if accepted:
                 run.state = candidate
-                done = run.converged_by_decrease(old, new_cost)
                 if done is None:
-                    run.relinearize()
+                    problem.accept_candidate()
                     done = run.converged_by_gradient()
-                else:
-                    run.cost = new_cost
+                run.cost = new_cost
                 h_gn = None
-                stop = run.record(it, new_cost, used_radius, step_norm, True, old)
+                stop = run.record(it, new_cost, used_radius, step_norm, True, old, predicted,
+                                  poor=poor)
                 if done is not None:
                     return run.finish(Status.CONVERGED, done)
             else:
-                stop = run.record(it, new_cost, used_radius, step_norm, False, old)
+                problem.reject_candidate(run.state)  # H back to the current state's (no-op
+                # unless a trial was linearized into H itself)
+                stop = run.record(it, new_cost, used_radius, step_norm, False, old, predicted)
                 if radius < p.min_radius:
                     return run.finish(Status.CONVERGED, "trust region collapsed: no further decrease")
             done = run.converged_by_step(step_norm)

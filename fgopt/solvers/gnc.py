@@ -44,7 +44,7 @@ from ..errors import FgoptError
 from ..key import key_char, key_index
 from ..problem import Problem
 from ..variables import Variables
-from .chordal import _PoseGraph, chordal_state
+from .diagnostics import clamp_hits, warn_clamps, warn_unused
 from .linear.base import make_linear_solver
 from .lm import LevenbergMarquardt
 from .params import LMParams
@@ -154,12 +154,15 @@ class GNC:
             raise FgoptError(f"initial values must be fgopt.Variables, got {type(initial).__name__}")
         problem = Problem(graph, initial, ordering=p.ordering, threads=p.threads,
                           linear_solver=p.linear_solver)
+        warn_unused(problem.unused_keys)
         solver = make_linear_solver(p.linear_solver, pattern=problem.pattern)
         solver.analyze(problem.pattern)
         lm = LevenbergMarquardt(dataclasses.replace(p.lm, max_iterations=p.max_iterations,
                                                     verbose=False))
         inliers = _known_inlier_mask(problem, p.known_inliers)
         c2 = _thresholds(problem, p.inlier_probability)
+        from .chordal import _PoseGraph, chordal_state  # scipy.sparse: only when GNC runs
+
         use_chordal = p.initialization in ("auto", "chordal") and _PoseGraph(problem).ok
         if p.initialization == "chordal" and not use_chordal:
             raise FgoptError("GNC initialization='chordal' needs a pose graph (SE2 or SE3 poses, "
@@ -241,10 +244,14 @@ class GNC:
         problem.set_weights(None)
         outliers = sum(int(np.sum(w < 0.5)) for w in weights)
         timing = {"total": time.perf_counter() - t0}
+        clamps, num_clamped = clamp_hits(problem, state)
+        warn_clamps(clamps, num_clamped)
         return Result(None, status=status, message=f"{message}; {outliers} outliers",
                       iterations=iterations, initial_cost=initial_cost, final_cost=final,
                       cost_history=history, timing=timing, method=f"gnc-{p.loss}",
                       linear_solver=getattr(solver, "name", ""), problem=problem, state=state,
+                      unused_keys=tuple(problem.unused_keys), clamps=tuple(clamps),
+                      num_clamped=num_clamped,
                       info={"weights": weights, "outliers": outliers, "rounds": rounds,
                             "rejected_by_check": removed})
 

@@ -19,7 +19,53 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from ..errors import NotPositiveDefiniteError, have_extra
 from ..problem import Problem, State
+from .linear.base import make_linear_solver
+
+#: Factors per multi-right-hand-side solve without CHOLMOD (dense right-hand sides: N x 3 x 256).
+_DENSE_CHUNK = 256
+
+
+def _sparse_leverages(F):
+    """``h = Z^T Z`` blocks with ``Z = L^-1 P B`` from CHOLMOD's factor (a sparse forward solve)."""
+    def leverages(B, c, m):
+        Z = sp.csc_matrix(F.solve_L(F.apply_P(B), use_LDLt_decomposition=False))
+        h = np.empty((c, m, m))
+        for k1 in range(m):
+            for k2 in range(k1, m):
+                v = np.asarray(Z[:, k1::m].multiply(Z[:, k2::m]).sum(axis=0)).ravel()
+                h[:, k1, k2] = v
+                h[:, k2, k1] = v
+        return h
+
+    return leverages
+
+
+def _solve_leverages(problem: Problem):
+    """``h = B^T H^-1 B`` blocks by a multi-right-hand-side solve with fgopt's own solver (no
+    CHOLMOD): the same leverages as ``Z^T Z``, with dense right-hand sides."""
+    pattern = problem.pattern
+    solver = make_linear_solver("auto", pattern=pattern)
+    solver.analyze(pattern)
+    H_data = problem.H_data.copy()
+    try:
+        solver.factorize(H_data)
+    except NotPositiveDefiniteError:  # no prior: a tiny ridge fixes the gauge
+        H_data[pattern.diag_pos] += 1e-9 * max(1.0, float(np.abs(H_data[pattern.diag_pos]).max()))
+        solver.factorize(H_data)
+
+    def leverages(B, c, m):
+        X = np.asarray(solver.solve(np.asarray(B.todense()))).reshape(B.shape)
+        h = np.empty((c, m, m))
+        for k1 in range(m):
+            for k2 in range(k1, m):
+                v = np.asarray(B[:, k1::m].multiply(X[:, k2::m]).sum(axis=0)).ravel()
+                h[:, k1, k2] = v
+                h[:, k2, k1] = v
+        return h
+
+    return leverages
 
 
 def leave_one_out_sq_norms(problem: Problem, state: State, masks: list[np.ndarray],
@@ -35,20 +81,26 @@ def leave_one_out_sq_norms(problem: Problem, state: State, masks: list[np.ndarra
 
     Linearizes at ``state`` with the problem's current weights (a factor with weight ``w_e``
     enters H as ``w_e J^T J``, so its leverage uses ``sqrt(w_e) J``) and factorizes H once
-    (CHOLMOD, ``P H P^T = L L^T``). The leverage ``h_e = Z_e^T Z_e`` with
+    (CHOLMOD, ``P H P^T = L L^T``; without the ``fgopt[cholmod]`` extra, fgopt's own solver and
+    ``h_e = B_e^T H^-1 B_e`` from dense multi-right-hand-side solves). The leverage ``h_e = Z_e^T Z_e`` with
     ``Z_e = L^-1 P (sqrt(w_e) R_e J_e)^T`` comes from a sparse forward solve: each column of
     ``Z_e`` is nonzero only on the elimination-tree paths of the factor's variables, so the cost
     grows with the tree's height, not with the number of variables.
     """
-    from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky
-
     problem.linearize(state)
     H = problem.pattern.matrix(problem.H_data)
-    try:
-        F = cholesky(H)
-    except CholmodNotPositiveDefiniteError:  # no prior: a tiny ridge fixes the gauge
-        ridge = 1e-9 * max(1.0, float(np.abs(H.diagonal()).max()))
-        F = cholesky(H, beta=ridge)
+    if have_extra("sksparse"):
+        from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky
+
+        try:
+            F = cholesky(H)
+        except CholmodNotPositiveDefiniteError:  # no prior: a tiny ridge fixes the gauge
+            ridge = 1e-9 * max(1.0, float(np.abs(H.diagonal()).max()))
+            F = cholesky(H, beta=ridge)
+        leverages = _sparse_leverages(F)
+    else:
+        chunk = min(chunk, _DENSE_CHUNK)
+        leverages = _solve_leverages(problem)
     N = problem.pattern.size
     out = []
     for b, mask in zip(problem.batches, masks):
@@ -78,14 +130,7 @@ def leave_one_out_sq_norms(problem: Problem, state: State, masks: list[np.ndarra
                 vals.append(Jw[:, :, o:o + d].transpose(0, 2, 1).reshape(-1))
             B = sp.csc_matrix((np.concatenate(vals), (np.concatenate(ri), np.concatenate(ci))),
                               shape=(N, c * m))
-            Z = F.solve_L(F.apply_P(B), use_LDLt_decomposition=False)
-            Z = sp.csc_matrix(Z)
-            h = np.empty((c, m, m))
-            for k1 in range(m):
-                for k2 in range(k1, m):
-                    v = np.asarray(Z[:, k1::m].multiply(Z[:, k2::m]).sum(axis=0)).ravel()
-                    h[:, k1, k2] = v
-                    h[:, k2, k1] = v
+            h = leverages(B, c, m)
             r0 = np.einsum("nab,nb->na", R0[es], res[es])                # own noise, no weight
             A = np.eye(m)[None] - h
             # a bridge (h = I in some direction: nothing else predicts the factor) is not an

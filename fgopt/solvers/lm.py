@@ -1,12 +1,14 @@
 """Levenberg-Marquardt with a gain-ratio trust-region test.
 
 Each iteration solves ``(H + lambda D) delta = -g``, with ``D = clip(diag H, min, max)`` (Ceres'
-scale-invariant "diagonal damping") or ``D = I`` (GTSAM's default), predicts the decrease of the quadratic model
-``L(delta) = 0.5 |J delta + r|^2``, and accepts when ``rho = actual / predicted`` exceeds
-``min_relative_decrease``. On success lambda shrinks by ``max(1/3, 1 - (2 rho - 1)^3)``
+scale-invariant "diagonal damping") or ``D = I`` (GTSAM's default), predicts the decrease of the
+quadratic model ``L(delta) = 0.5 |J delta + r|^2``, and accepts when ``rho = actual / predicted``
+exceeds ``min_relative_decrease``. On success lambda shrinks by ``max(1/3, 1 - (2 rho - 1)^3)``
 (Nielsen, as Ceres) or by a fixed factor 10 (GTSAM); on failure it grows by a factor ``nu`` that
 doubles each consecutive failure (or by 10). ``LMParams.damping="auto"`` picks GTSAM's pair for
-pure Lie-group problems and Ceres' for problems with vector variables (BA); see LMParams. Damping changes only H's diagonal, so the linear solver's analysis is reused.
+pose graphs, identity damping with Nielsen's rule for navigation-like problems (Lie groups
+mixed with vectors), and Ceres' pair for BA-shaped and vector-only ones (:func:`auto_policy`).
+Damping changes only H's diagonal, so the linear solver's analysis is reused.
 """
 
 from __future__ import annotations
@@ -22,6 +24,56 @@ from ..variables import Variables
 from ._run import Callback, Run
 from .params import LMParams
 from .result import Result, Status
+
+
+PROBLEM_CLASSES = ("pose", "mixed", "scaled")
+
+
+def problem_class(problem: Any) -> str:
+    """The class ``"auto"`` LM parameters are chosen by (see :func:`auto_policy`)."""
+    return problem_class_for(problem.kinds, len(problem._slow_vars) > 0,
+                             lambda: problem.pattern)
+
+
+def problem_class_for(kinds: Any, has_slow: bool, pattern: Any) -> str:
+    """:func:`problem_class` from a problem's batch ``kinds``, whether it has slow-path
+    variables, and a callable returning its :class:`~fgopt.structure.HessianPattern` (asked only
+    for problems mixing Lie groups and vectors): ``"pose"`` (only Lie groups), ``"mixed"``
+    (Lie groups and vectors, not BA-shaped) or ``"scaled"`` (BA-shaped, vector-only, or with
+    duck-typed variables)."""
+    if has_slow:
+        return "scaled"
+    if not any(is_vector_kind(k) for k in kinds):
+        return "pose"
+    if all(is_vector_kind(k) for k in kinds):
+        return "scaled"
+    from .linear.schur import is_ba_shaped
+
+    pat = pattern()
+    return "mixed" if pat is not None and not is_ba_shaped(pat) else "scaled"
+
+
+def auto_policy(cls: str, p: LMParams) -> tuple[bool, bool]:
+    """``(identity damping, lambda by a fixed factor)`` for problem class ``cls`` under
+    ``LMParams.damping`` / ``lambda_policy`` (``"auto"`` resolved per class, measured):
+
+    * ``"pose"`` (pose graphs): GTSAM's pair, identity damping and lambda multiplied / divided
+      by 10. M3500 converges in 5 iterations instead of 8 with Ceres' pair, garage in 4 instead
+      of 7; Nielsen's lambda rule would take 10 on garage, 6 on sphere2500.
+    * ``"mixed"`` (navigation: SE3 poses, velocities, IMU biases): identity damping with
+      Nielsen's lambda rule. The IMU factors make ``diag H`` ~1e8 times the curvature of the
+      directions only GPS observes, so Marquardt's ``lambda diag H`` over-damps exactly those:
+      GTSAM's ImuFactorsExample needs 41 iterations with diagonal damping, 3 with identity;
+      with a GPS fix on every 5th state only (a harder, nonlinear problem) identity + Nielsen
+      converges in 87 iterations, diagonal + Nielsen in 102, and GTSAM's pair not in 200.
+    * ``"scaled"`` (BA-shaped, e.g. SE3 cameras + points, and vector-only problems such as
+      BAL's R^9 cameras): Ceres' pair, scale-invariant diagonal damping and Nielsen's rule;
+      identity damping needs 99 iterations on Ladybug-49 where diagonal needs 22.
+    """
+    identity = p.damping == "identity" or (p.damping == "auto" and cls in ("pose", "mixed"))
+    by_factor = p.lambda_policy == "factor" or (p.lambda_policy == "auto" and identity
+                                                and cls == "pose")
+    return identity, by_factor
 
 
 class LevenbergMarquardt:
@@ -43,10 +95,7 @@ class LevenbergMarquardt:
     def iterate(self, run: Run) -> Result:
         p = self.params
         problem = run.problem
-        identity = p.damping == "identity" or (
-            p.damping == "auto" and not any(is_vector_kind(k) for k in problem.kinds)
-            and len(problem._slow_vars) == 0)
-        by_factor = p.lambda_policy == "factor" or (p.lambda_policy == "auto" and identity)
+        identity, by_factor = auto_policy(problem_class(problem), p)
         # GTSAM's defaults where LM follows GTSAM (identity damping), Ceres' where it follows Ceres
         run.relative_tolerance = p.relative_tolerance if p.relative_tolerance is not None else (
             1e-5 if identity else 1e-6)
@@ -102,7 +151,7 @@ class LevenbergMarquardt:
                     return run.finish(Status.CONVERGED, done)
             else:
                 problem.reject_candidate(run.state)
-                stop = run.record(it, new_cost, lam, step_norm, False, old)
+                stop = run.record(it, new_cost, lam, step_norm, False, old, predicted)
                 if by_factor:
                     lam *= p.lambda_factor
                 else:

@@ -35,13 +35,16 @@ class LMParams(TerminationParams):
     """A step is accepted when actual/predicted decrease exceeds this (Ceres' default)."""
     damping: str = "auto"
     """``"diagonal"``: D = clip(diag H) (Ceres, scale invariant); ``"identity"``: D = I (GTSAM);
-    ``"auto"``: identity when every variable is a Lie group (pose graphs: M3500 converges in 5
-    iterations instead of 8, garage 4 instead of 7), diagonal otherwise (BA: identity damping
-    needs 99 iterations on Ladybug-49 where diagonal needs 22)."""
+    ``"auto"``: identity when the problem has Lie-group variables and is not BA-shaped (pose
+    graphs: M3500 converges in 5 iterations instead of 8, garage 4 instead of 7; IMU + GPS
+    navigation: 3 instead of 41), diagonal for BA-shaped and vector-only problems (identity
+    damping needs 99 iterations on Ladybug-49 where diagonal needs 22); see
+    ``fgopt.solvers.lm.auto_policy``."""
     lambda_policy: str = "auto"
     """``"nielsen"``: on success lambda *= max(1/3, 1 - (2 rho - 1)^3), on failure *= nu with nu
     doubling (Ceres); ``"factor"``: /= ``lambda_factor`` on success, *= on failure (GTSAM);
-    ``"auto"``: ``"factor"`` with identity damping, ``"nielsen"`` with diagonal damping."""
+    ``"auto"``: ``"factor"`` for pose graphs (only Lie-group variables), ``"nielsen"``
+    otherwise (``fgopt.solvers.lm.auto_policy``)."""
     lambda_factor: float = 10.0
     linear_solver: str = "auto"
     ordering: str = "amd"

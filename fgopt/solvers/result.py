@@ -5,11 +5,17 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass, field
 
+from ..key import key_str
 from ..variables import Variables
 
 
 class Status(enum.Enum):
     CONVERGED = "converged"
+    STALLED = "stalled"
+    """No progress: every step since some iteration was rejected although the model predicted
+    a decrease the cost could resolve (a wrong Jacobian, or NaN beyond the current point); the
+    stopping test that fired (damping or radius limit, step size) says nothing about
+    convergence. The values are the last accepted ones."""
     MAX_ITERATIONS = "max iterations"
     FAILED = "failed"
     STOPPED = "stopped by callback"
@@ -43,6 +49,26 @@ class IterationRecord:
                 f"{self.time:8.3f}{mark}")
 
 
+#: A rejected step whose model predicted a decrease above this fraction of the cost was one the
+#: cost could resolve in floating point: when every step since then was rejected, the run
+#: stalled (the rounding of a sum of squares is ~1e-16 relative per term, far below).
+RESOLVABLE_DECREASE = 1e-10
+
+
+def stall_status(status: Status, message: str, cost: float, rejected_since: int | None,
+                 rejected_gain: float) -> tuple[Status, str]:
+    """``(Status.STALLED, why)`` for a "converged" run whose last steps were all rejected while
+    the model predicted a resolvable decrease (``rejected_gain``, infinite for non-finite
+    trials); otherwise ``(status, message)`` unchanged."""
+    if (status is Status.CONVERGED and rejected_since is not None and cost > 0
+            and rejected_gain > RESOLVABLE_DECREASE * cost):
+        return Status.STALLED, (f"no progress: every step since iteration {rejected_since} was "
+                                "rejected or fell far short of the model's predicted decrease "
+                                f"({message}); check the Jacobians with "
+                                "fgopt.check_jacobians(graph, values)")
+    return status, message
+
+
 @dataclass
 class Result:
     """What an optimizer returns. ``values`` are built on first access from the final state."""
@@ -64,6 +90,13 @@ class Result:
     """The final :class:`fgopt.problem.State` (storage arrays)."""
     info: dict = field(default_factory=dict, repr=False)
     """Method-specific details (e.g. GNC weights and outlier count)."""
+    unused_keys: tuple = ()
+    """Keys of the initial values no factor uses (not optimized, returned unchanged)."""
+    clamps: tuple = ()
+    """:class:`~fgopt.solvers.diagnostics.ClampHit` of factors whose clamped ``sqrt``/``log``/
+    ``acos``/``asin`` argument lies outside its domain at the final values (at most 100 listed)."""
+    num_clamped: int = 0
+    """How many such (factor, clamped call) pairs there are in all."""
 
     @property
     def values(self) -> Variables:
@@ -92,6 +125,14 @@ class Result:
             f"{self.iterations} iterations — {self.message})",
             f"  cost: {self.initial_cost:.6g} -> {self.final_cost:.6g}",
         ]
+        if self.num_clamped > 0:
+            lines.append(f"  clamped: {self.num_clamped} factor(s) end outside a clamped "
+                         f"function's domain, e.g. {self.clamps[0]}")
+        if len(self.unused_keys) > 0:
+            shown = ", ".join(key_str(k) for k in self.unused_keys[:8])
+            more = ", ..." if len(self.unused_keys) > 8 else ""
+            lines.append(f"  unused: {len(self.unused_keys)} initial key(s) no factor uses "
+                         f"({shown}{more}), returned unchanged")
         if t:
             parts = ", ".join(f"{k} {v:.3f}s" for k, v in t.items())
             lines.append(f"  time: {parts}")

@@ -11,15 +11,17 @@ tangent-space Jacobians::
         return V2(d.norm(), atan2(d[1], d[0])) - measured
 
 Module map (one job each): ``matrix`` (Matrix, V1..V9, Scalar), ``lie`` (group base),
-``rot`` (Rot2, Rot3), ``pose`` (Pose2, Pose3), ``cameras`` (SnavelyCamera, PinholeCamera),
+``rot`` (Rot2, Rot3), ``pose`` (Pose2, Pose3), ``navstate`` (NavState), ``cameras`` (SnavelyCamera, PinholeCamera),
 ``functions`` (epsilon-safe math), ``_sym`` (SymPy side: epsilon, sign_no_zero),
 ``ops`` (storage/tangent ops), ``jacobians`` (tangent-space Jacobians), ``singularity``
 (removable-singularity checker), ``linearize`` (residual + Jacobian programs), ``cse``,
 ``printer``, ``codegen`` (kernel modules), ``cache`` (on-disk cache), ``derive`` (a factor's
-kernel source), ``runtime`` (helpers of generated code), ``declare`` (``@fgopt.manifold``:
-user-declared manifolds, ``Product``, ``check_manifold``), ``geometry`` (manifolds declared that
-way that ship with fgopt: ``Unit3``, ``OrientedPlane3``, ``SE23``; loaded on first access). ``@fgopt.factor`` itself, which makes
-factor types from these, is :mod:`fgopt.factors.decorator` (the factors layer).
+kernel source), ``runtime`` (helpers of generated code), ``generated`` (:func:`generate`:
+functions with tangent Jacobians as numba functions; derived in ``_generate_source``), ``declare``
+(``@fgopt.manifold``: user-declared manifolds, ``Product``, ``check_manifold``), ``geometry``
+(manifolds declared that way that ship with fgopt: ``Unit3``, ``OrientedPlane3``, ``SE23``;
+loaded on first access). ``@fgopt.factor`` itself, which makes factor types from these, is
+:mod:`fgopt.factors.decorator` (the factors layer).
 
 Importing this package does not import SymPy; ``epsilon`` and ``pi`` (SymPy objects) load it on
 first access.
@@ -73,6 +75,7 @@ from .matrix import V9 as V9
 from .matrix import Matrix as Matrix
 from .matrix import Scalar as Scalar
 from .matrix import vector_type as vector_type
+from .navstate import NavState as NavState
 from .pose import Pose2 as Pose2
 from .pose import Pose3 as Pose3
 from .rot import Rot2 as Rot2
@@ -88,6 +91,8 @@ _LAZY = {
     "check_removable_singularity": (".singularity", "check_removable_singularity"),
     "python_function": (".codegen", "python_function"),
     "total_ops": (".cse", "total_ops"),
+    "generate": (".generated", "generate"),
+    "GeneratedFunction": (".generated", "GeneratedFunction"),
     "manifold": (".declare", "manifold"),
     "Product": (".declare", "Product"),
     "check_manifold": (".declare", "check_manifold"),

@@ -1,57 +1,61 @@
-"""On-disk cache of generated kernel modules.
+"""On-disk cache of generated kernel modules, verified before they are imported.
 
-Generated source is written as ``<cache dir>/kernels/<name>_<key>.py`` and imported with
-importlib; the kernels in it use ``numba.njit(cache=True)``, so numba keeps their machine code
-next to it (``__pycache__``). A second process that builds the same factor type finds the file,
-imports it (no SymPy), and numba loads the compiled code: nothing is re-derived or re-compiled.
+Generated source is written as ``<cache root>/kernels/<module>.py`` (the root is
+:func:`fgopt._cache_root.root`: ``$FGOPT_CACHE_DIR``, ``$XDG_CACHE_HOME/fgopt`` or
+``~/.cache/fgopt``, private); the kernels in it use ``numba.njit(cache=True)``, and numba keeps
+their machine code under ``<cache root>/numba``. A second process that builds the same factor
+type finds the file, imports it (no SymPy), and numba loads the compiled code: nothing is
+re-derived or re-compiled.
+
+Every entry is signed when fgopt writes it: ``<module>.sig`` holds
+``HMAC-SHA256(key, module name + the exact bytes written)`` under the root's per-user key
+(``<root>/key``, 0600). Before an entry is imported its bytes are read once, checked against the
+signature and executed from that same buffer (never re-read from disk), so an edited, truncated,
+emptied or replaced file - or a signature copied from another entry - is never executed: the
+entry is discarded and regenerated, with one :class:`CacheWarning` naming it. An entry that is
+intact but fails to import or lacks what its user needs is handled the same way. Python's own
+bytecode cache is not used (it would run a ``.pyc`` nobody checked); fgopt keeps the compiled
+code object beside the entry (``<module>.<python tag>.bc``), signed together with the source's
+digest. A per-entry signature (rather than one signed index) needs no lock between processes that
+write different entries at the same time, and binds the module name so signatures cannot be
+swapped between entries.
 
 The key hashes the factor function's code (its source, or bytecode when the source is not
 available, plus the code / values of the globals it references), its argument types, the
 variable pattern and options, fgopt's version and the source of the ``fgopt.symbolic``
 modules that generate code (:data:`FINGERPRINT_MODULES`; editing them invalidates old entries).
-
-Cache directory: ``$FGOPT_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/fgopt`` or
-``~/.cache/fgopt``; a temporary directory if that is not writable.
 """
 
 from __future__ import annotations
 
 import hashlib
-import importlib.util
+import hmac
 import inspect
 import marshal
 import os
 import sys
-import tempfile
 import textwrap
 import types
+import warnings
 from collections.abc import Callable
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
-#: Counters for tests and benchmarks: kernels ``derived`` (SymPy ran), ``loaded`` from disk.
-STATS = {"derived": 0, "loaded": 0, "written": 0}
+from .. import _cache_root
+
+#: Counters for tests and benchmarks: kernels ``derived`` (SymPy ran), ``loaded`` from disk,
+#: ``shipped`` (a built-in factor's source came with the package).
+STATS = {"derived": 0, "loaded": 0, "written": 0, "shipped": 0}
+
+
+class CacheWarning(UserWarning):
+    """A kernel cache entry failed verification or import; it was discarded and regenerated."""
 
 
 def cache_dir() -> Path:
-    """The kernel cache directory (created if missing)."""
-    env = os.environ.get("FGOPT_CACHE_DIR")
-    if env:
-        base = Path(env).expanduser()
-    else:
-        xdg = os.environ.get("XDG_CACHE_HOME")
-        base = (Path(xdg) if xdg else Path.home() / ".cache") / "fgopt"
-    path = base / "kernels"
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        if not os.access(path, os.W_OK):
-            raise PermissionError(str(path))
-    except OSError:
-        path = Path(tempfile.gettempdir()) / f"fgopt-{os.getuid() if hasattr(os, 'getuid') else 0}" \
-            / "kernels"
-        path.mkdir(parents=True, exist_ok=True)
-    return path
+    """The kernel cache directory ``<root>/kernels`` (created private if missing)."""
+    return _cache_root.subdir(_cache_root.KERNELS)
 
 
 #: Modules whose source defines what generated kernels compute (hashed into every key). Other
@@ -148,49 +152,192 @@ def module_name(name: str, key: str) -> str:
     return f"fgk_{safe}_{key}"
 
 
-def _import(path: Path, modname: str) -> types.ModuleType:
+# ------------------------------------------------------------------------- signing, import
+_SIG, _BC = ".sig", f".{sys.implementation.cache_tag}.bc"
+
+
+def _sign(modname: str, data: bytes) -> str:
+    key = _cache_root.secret_key()
+    return hmac.new(key, b"fgopt-kernel\0" + modname.encode() + b"\0" + data,
+                    hashlib.sha256).hexdigest()
+
+
+def _bc_mac(modname: str, digest: bytes, code: bytes) -> bytes:
+    msg = b"".join((b"fgopt-bytecode\0", modname.encode(), b"\0", _BC.encode(), b"\0", digest,
+                    code))
+    return hmac.new(_cache_root.secret_key(), msg, hashlib.sha256).digest()
+
+
+def _read(path: Path) -> bytes | None:
+    try:
+        return path.read_bytes()
+    except OSError:
+        return None
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{os.urandom(4).hex()}.tmp")  # threads
+    with os.fdopen(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600), "wb") as fh:
+        fh.write(data)
+    os.replace(tmp, path)
+
+
+def _code(path: Path, modname: str, data: bytes) -> types.CodeType:
+    """The code object of verified ``data``: from the signed bytecode file, else compiled.
+
+    Bytecode file: ``MAC (32 bytes) | sha256 of the source (32) | marshal data``. One made for
+    other source bytes is stale and quietly replaced; one whose MAC fails is reported.
+    """
+    bc_path = path.with_name(modname + _BC)
+    digest = hashlib.sha256(data).digest()
+    blob = _read(bc_path)
+    if blob is not None and blob[32:64] == digest:
+        mac, body = blob[:32], blob[64:]
+        if hmac.compare_digest(mac, _bc_mac(modname, digest, body)):
+            code = marshal.loads(body)
+            if code.co_filename == str(path):  # else the cache folder moved: recompile
+                return code
+        else:
+            _warn(modname, bc_path, "its bytecode does not match its signature")
+    code = compile(data, str(path), "exec", dont_inherit=True)
+    body = marshal.dumps(code)
+    try:
+        _write_atomic(bc_path, _bc_mac(modname, digest, body) + digest + body)
+    except OSError:
+        pass  # a read-only cache still works, it only compiles each time
+    return code
+
+
+def _exec(path: Path, modname: str, data: bytes) -> types.ModuleType:
     if modname in sys.modules:
         return sys.modules[modname]
-    spec = importlib.util.spec_from_file_location(modname, path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
+    code = _code(path, modname, data)
+    module = types.ModuleType(modname)
+    module.__file__ = str(path)
+    module.__fgopt_source__ = data.decode()  # the verified text (the file may change later)
     sys.modules[modname] = module
     try:
-        spec.loader.exec_module(module)
+        exec(code, module.__dict__)
     except BaseException:
         del sys.modules[modname]
         raise
     return module
 
 
-def load(name: str, key: str) -> types.ModuleType | None:
-    """The cached module for ``key``, or ``None`` if there is none (or it is unreadable)."""
+def _warn(modname: str, path: Path, problem: str) -> None:
+    """One warning per discarded entry (the regenerated entry is then used silently)."""
+    warnings.warn(f"fgopt kernel cache: entry {modname} ({path}): {problem}; it was discarded "
+                  "and is regenerated", CacheWarning, stacklevel=4)
+
+
+def _discard(path: Path, modname: str) -> None:
+    for p in (path, path.with_name(modname + _SIG), path.with_name(modname + _BC)):
+        try:
+            p.unlink()
+        except FileNotFoundError:
+            pass
+
+
+def _problem(path: Path, modname: str, data: bytes) -> str | None:
+    sig = _read(path.with_name(modname + _SIG))
+    if sig is None:
+        return "it has no signature (not written by this fgopt)"
+    if len(data) == 0:
+        return "it is empty"
+    if not hmac.compare_digest(sig.strip(), _sign(modname, data).encode()):
+        return "its bytes differ from what fgopt wrote (edited, truncated or replaced)"
+    return None
+
+
+def verify(path: Path) -> str | None:
+    """``None`` if the entry at ``path`` holds exactly the bytes fgopt signed, else the problem."""
+    data = _read(path)
+    return "unreadable" if data is None else _problem(path, path.stem, data)
+
+
+def load(name: str, key: str, required: tuple[str, ...] = ()) -> types.ModuleType | None:
+    """The cached module for ``key``, verified; ``None`` if there is none or it was discarded.
+
+    ``required``: names the module must define (else it is treated as broken).
+    """
+    modname = module_name(name, key)
+    if modname in sys.modules:
+        return sys.modules[modname]
     path = module_path(name, key)
-    if not path.exists():
+    _cache_root.secret_key()  # made on first use; that removes entries no key ever signed
+    data = _read(path)
+    if data is None:
         return None
-    try:
-        module = _import(path, module_name(name, key))
-    except Exception:  # noqa: BLE001 - a corrupt / partial file: regenerate it
+    problem = _problem(path, modname, data)  # the very bytes that will run
+    module = None
+    if problem is None:
+        try:
+            module = _exec(path, modname, data)
+        except Exception as exc:  # noqa: BLE001 - any failure of a cached entry: regenerate it
+            problem = f"it does not import ({type(exc).__name__}: {exc})"
+        else:
+            missing = [n for n in required if not hasattr(module, n)]
+            if missing:
+                sys.modules.pop(modname, None)
+                problem = f"it lacks {', '.join(missing)}"
+    if problem is not None:
+        _discard(path, modname)
+        _warn(modname, path, problem)
         return None
     STATS["loaded"] += 1
     return module
 
 
 def store(name: str, key: str, source: str) -> types.ModuleType:
-    """Write ``source`` atomically (never overwriting an existing entry) and import it."""
+    """Sign and write ``source`` (atomically; an identical entry is left as it is), then import
+    it from memory."""
+    modname = module_name(name, key)
     path = module_path(name, key)
-    if not path.exists():
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        tmp.write_text(source)
-        try:
-            os.link(tmp, path)  # atomic, fails if another process won the race
-        except FileExistsError:
-            pass
-        except OSError:
-            if not path.exists():
-                os.replace(tmp, path)
-        finally:
-            if tmp.exists():
-                tmp.unlink()
+    data = source.encode()
+    sig = _sign(modname, data).encode()
+    sig_path = path.with_name(modname + _SIG)
+    if _read(path) != data or _read(sig_path) != sig:
+        # signature first: a reader between the two writes sees a mismatch, never an unsigned
+        # file it could mistake for a legacy entry
+        _write_atomic(sig_path, sig)
+        _write_atomic(path, data)
         STATS["written"] += 1
-    return _import(path, module_name(name, key))
+    return _exec(path, modname, data)
+
+
+# ------------------------------------------------------------------------------ inspection
+def entries() -> list[dict]:
+    """Each kernel entry: ``name``, ``path``, ``bytes`` (source + signature + bytecode) and
+    ``problem`` (``None`` when it verifies)."""
+    out = []
+    d = cache_dir()
+    for path in sorted(d.glob("fgk_*.py")):
+        size = sum(p.stat().st_size for p in (path, path.with_name(path.stem + _SIG),
+                                              path.with_name(path.stem + _BC)) if p.exists())
+        out.append({"name": path.stem, "path": path, "bytes": size, "problem": verify(path)})
+    return out
+
+
+def clear() -> dict:
+    """Remove every kernel entry and numba's cache under the root; returns counts and bytes."""
+    root = _cache_root.root()
+    removed = {"entries": 0, "numba_files": 0, "bytes": 0}
+    kernels = root / _cache_root.KERNELS
+    if kernels.is_dir():
+        _cache_root.check_private(kernels)
+        stale = list(kernels.glob(".fgk_*.tmp")) + list(kernels.glob("__pycache__/fgk_*.pyc"))
+        for p in list(kernels.glob("fgk_*")) + stale:  # .pyc: left by older fgopt versions
+            removed["bytes"] += p.stat().st_size
+            removed["entries"] += p.suffix == ".py"
+            p.unlink()
+    numba_dir = root / _cache_root.NUMBA
+    if numba_dir.is_dir():
+        _cache_root.check_private(numba_dir)
+        for p in sorted(numba_dir.rglob("*"), reverse=True):
+            if p.is_file() and p.suffix in (".nbi", ".nbc"):
+                removed["bytes"] += p.stat().st_size
+                removed["numba_files"] += 1
+                p.unlink()
+            elif p.is_dir() and not any(p.iterdir()):
+                p.rmdir()
+    return removed

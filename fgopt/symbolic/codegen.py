@@ -5,11 +5,19 @@ One module per factor type and variable pattern. It holds
 * ``_residual_kernel(<vars>, _consts, _res)`` and ``_linearize_kernel(..., _res, _jac)``
   (plus ``_linearize_hessian_kernel(..., _hess, _rhs)`` on request): one ``for _i in range(n)``
   loop over instances with flat CSE'd scalar code inside, writing into preallocated arrays,
-  compiled with ``numba.njit(cache=True, fastmath=False, error_model="numpy")``;
+  compiled with ``numba.njit(cache=True, fastmath=False, error_model="numpy")`` through
+  :func:`fgopt._jit.njit` (numba is imported and the kernel compiled or loaded on first call);
+* ``_residual_numpy`` / ``_linearize_numpy``: NumPy twins, the same CSE'd program on whole
+  columns (``a_0 = _a[:, 0]``...), when every expression has a NumPy form. Batches of at most
+  ``fgopt.symbolic.runtime.NUMPY_MAX_BATCH`` instances run the twin, so a small problem or a
+  new custom factor needs no numba compilation (3-8 s for a Pose3 factor) and no cache load;
 * Python wrappers ``residual(args, consts)`` / ``linearize(args, consts)`` with the
   :class:`~fgopt.factors.kernel.FactorKernel` signature (they check shapes, allocate outputs and
-  make one kernel call per batch);
-* ``META``: what the kernel computes (names, dims, op counts), read back on cache hits.
+  make one kernel call per batch, twin or numba kernel by batch size);
+* ``META``: what the kernel computes (names, dims, op counts), read back on cache hits;
+* for factors that call clamped functions (``sqrt``/``log``/``acos``/``asin`` of
+  :mod:`fgopt.symbolic.functions`): ``_clamp_kernel`` / ``clamp_arguments(args, consts)`` with the
+  clamped arguments, and ``META["clamps"]`` (function, bounds, the user's file:line).
 
 Section order inside a kernel (as SymForce's templates): total ops, input loads (only entries
 that are used), intermediate terms ``_tmpN``, output terms. Kernels compute the *unwhitened*
@@ -25,7 +33,7 @@ from typing import Any
 from .cse import Program, total_ops
 
 #: Bump when the layout of generated modules changes (part of every cache key).
-CODEGEN_VERSION = "1"
+CODEGEN_VERSION = "2"
 
 RESERVED_NAMES = frozenset({"math", "np", "numba", "abs", "min", "max", "range", "EPSILON",
                             "META", "residual", "linearize", "linearize_hessian", "prepare"})
@@ -81,14 +89,46 @@ def _kernel_source(fn_name: str, prog: Program, layouts: Sequence[ArgLayout], ou
     for name, (arr, index) in outputs.items():
         for k, e in enumerate(prog.outputs[name]):
             body.append(f"        {arr}[_i, {index(k)}] = {to_source(e)}")
-    head = ['@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)',
+    head = ['@njit(cache=True, fastmath=False, error_model="numpy", nogil=True)',
             f"def {fn_name}({params}):",
             f'    """{doc}"""']
     return "\n".join(head + body) + "\n"
 
 
+def _numpy_source(fn_name: str, prog: Program, layouts: Sequence[ArgLayout], outputs: dict,
+                  kernel: str) -> str | None:
+    """The NumPy twin of a kernel: the same program on whole columns (``_i`` -> ``:``), or
+    ``None`` when an expression has no NumPy form. Used for small batches, where it needs no
+    numba compilation or cache load (see the module docstring)."""
+    from .printer import to_numpy_source
+
+    used: set = set()
+    for _, e in prog.stmts:
+        used |= e.free_symbols
+    for e in prog.all_outputs():
+        used |= getattr(e, "free_symbols", set())
+    var_params = [f"_{a.name}" for a in layouts if a.is_variable]
+    out_params = [arr for arr, _ in outputs.values()]
+    body = [f"    # the program of {kernel}, on columns"]
+    body += [f"    {ln.replace('[_i, ', '[:, ')}" for ln in _loads(layouts, used)]
+    for sym, e in prog.stmts:
+        src = to_numpy_source(e)
+        if src is None:
+            return None
+        body.append(f"    {sym.name} = {src}")
+    for name, (arr, index) in outputs.items():
+        for k, e in enumerate(prog.outputs[name]):
+            src = to_numpy_source(e)
+            if src is None:
+                return None
+            body.append(f"    {arr}[:, {index(k)}] = {src}")
+    head = [f"def {fn_name}({', '.join(var_params + ['_consts'] + out_params)}):",
+            f'    """NumPy twin of ``{kernel}`` (small batches)."""']
+    return "\n".join(head + body) + "\n"
+
+
 def _wrapper_source(fn_name: str, kernel: str, layouts: Sequence[ArgLayout],
-                    outs: Sequence[tuple[str, str]]) -> str:
+                    outs: Sequence[tuple[str, str]], twin: str | None = None) -> str:
     var_names = [f"_{a.name}" for a in layouts if a.is_variable]
     lines = [f"def {fn_name}(args, consts):",
              f'    """Batched {fn_name} of ``n`` instances; see the module docstring."""',
@@ -98,7 +138,14 @@ def _wrapper_source(fn_name: str, kernel: str, layouts: Sequence[ArgLayout],
     for arr, shape in outs:
         lines.append(f"    {arr} = np.empty((n, {shape}))")
     call_args = ", ".join(var_names + ["consts"] + [arr for arr, _ in outs])
-    lines.append(f"    {kernel}({call_args})")
+    if twin is not None:
+        lines.append("    if n <= NUMPY_MAX_BATCH:")
+        lines.append("        with np.errstate(all='ignore'):  # as numba's error_model='numpy'")
+        lines.append(f"            {twin}({call_args})")
+        lines.append("    else:")
+        lines.append(f"        {kernel}({call_args})")
+    else:
+        lines.append(f"    {kernel}({call_args})")
     ret = ", ".join(arr for arr, _ in outs)
     lines.append(f"    return {ret}")
     return "\n".join(lines) + "\n"
@@ -106,7 +153,7 @@ def _wrapper_source(fn_name: str, kernel: str, layouts: Sequence[ArgLayout],
 
 def module_source(name: str, signature: str, origin: str, layouts: Sequence[ArgLayout],
                   res_prog: Program, lin_prog: Program, meta: dict,
-                  hess_prog: Program | None = None) -> str:
+                  hess_prog: Program | None = None, clamp_prog: Program | None = None) -> str:
     """The full generated module (see the module docstring)."""
     from ._sym import EPSILON_VALUE
 
@@ -134,10 +181,10 @@ def module_source(name: str, signature: str, origin: str, layouts: Sequence[ArgL
         "",
         "import math",
         "",
-        "import numba",
         "import numpy as np",
         "",
-        "from fgopt.symbolic.runtime import prepare",
+        "from fgopt._jit import njit",
+        "from fgopt.symbolic.runtime import NUMPY_MAX_BATCH, prepare",
         "",
         f"EPSILON = {EPSILON_VALUE!r}",
         f"NAME = {name!r}",
@@ -169,15 +216,37 @@ def module_source(name: str, signature: str, origin: str, layouts: Sequence[ArgL
             f"Writes _res (n, {r}), _jac (n, {r}, {D}), _hess = J^T J (n, {D}, {D}), "
             f"_rhs = J^T r (n, {D}) (unwhitened)."))
         parts.append("")
-    parts.append(_wrapper_source("residual", "_residual_kernel", layouts, [("res", str(r))]))
+    res_twin = _numpy_source("_residual_numpy", res_prog, layouts,
+                             {"res": ("_res", lambda k: f"{k}")}, "_residual_kernel")
+    lin_twin = _numpy_source(
+        "_linearize_numpy", lin_prog, layouts,
+        {"res": ("_res", lambda k: f"{k}"),
+         "jac": ("_jac", lambda k: f"{k // D}, {k % D}" if D > 0 else "0")}, "_linearize_kernel")
+    for twin in (res_twin, lin_twin):
+        if twin is not None:
+            parts.append(twin)
+            parts.append("")
+    parts.append(_wrapper_source("residual", "_residual_kernel", layouts, [("res", str(r))],
+                                 "_residual_numpy" if res_twin is not None else None))
     parts.append("")
     parts.append(_wrapper_source("linearize", "_linearize_kernel", layouts,
-                                 [("res", str(r)), ("jac", f"{r}, {D}")]))
+                                 [("res", str(r)), ("jac", f"{r}, {D}")],
+                                 "_linearize_numpy" if lin_twin is not None else None))
     if hess_prog is not None:
         parts.append("")
         parts.append(_wrapper_source(
             "linearize_hessian", "_linearize_hessian_kernel", layouts,
             [("res", str(r)), ("jac", f"{r}, {D}"), ("hess", f"{D}, {D}"), ("rhs", str(D))]))
+    if clamp_prog is not None:
+        m = len(clamp_prog.outputs["clamp"])
+        parts.append("")
+        parts.append(_kernel_source(
+            "_clamp_kernel", clamp_prog, layouts, {"clamp": ("_clamp", lambda k: f"{k}")},
+            f"Writes _clamp (n, {m}): the arguments of the clamped functions in META['clamps'] "
+            "(checked after a solve, never in the solver's loop)."))
+        parts.append("")
+        parts.append(_wrapper_source("clamp_arguments", "_clamp_kernel", layouts,
+                                     [("clamp", str(m))]))
     return "\n".join(parts)
 
 

@@ -15,15 +15,79 @@ generated code never produces NaN there, without branches (SymForce paper, Sec. 
 
 Pass ``epsilon=0`` to get the raw function. ``epsilon`` itself is :data:`fgopt.symbolic.epsilon`.
 
+A clamp hides a start outside the domain (the value is constant there, the gradient zero, so a
+solver "converges" at once). While a factor is derived (:func:`recording_clamps`), every clamp of
+``sqrt``/``log``/``acos``/``asin`` is recorded with its argument, its bounds and the caller's
+file:line; generated kernels then carry a ``clamp_arguments`` function, and the solvers report
+factors whose final values sit on a clamp (``Result.clamps``). The kernels' hot path is unchanged.
+
 SymPy is imported on first call, not on import: modules that define factors may import these
 names freely and still load cached kernels without SymPy.
 """
 
 from __future__ import annotations
 
+import linecache
+import os
+import sys
+from dataclasses import dataclass
 from typing import Any
 
 _DEFAULT = object()  # "use the epsilon symbol"
+_HERE = os.path.dirname(os.path.abspath(__file__))
+
+
+@dataclass(frozen=True)
+class Clamp:
+    """One clamped argument met while deriving a factor: hit when ``arg < low`` or ``> high``."""
+
+    function: str
+    arg: Any       # SymPy expression of the argument before clamping
+    low: float
+    high: float
+    where: str     # the caller's "file:line"
+    code: str      # that line's source
+
+
+_RECORDING: list | None = None
+
+
+class recording_clamps:
+    """``with recording_clamps() as clamps:`` collects the :class:`Clamp` of every clamped
+    function called inside (used while a factor function is traced)."""
+
+    def __enter__(self) -> list:
+        global _RECORDING
+        self._previous, _RECORDING = _RECORDING, []
+        return _RECORDING
+
+    def __exit__(self, *exc: Any) -> None:
+        global _RECORDING
+        _RECORDING = self._previous
+
+
+def _caller() -> tuple[str, str]:
+    """("file:line", source) of the first frame outside fgopt.symbolic and SymPy (the factor's
+    code; matrices reach a clamp through SymPy's applyfunc)."""
+    skip = (_HERE + os.sep, os.path.dirname(os.path.abspath(_s().sp.__file__)) + os.sep)
+    f = sys._getframe(2)
+    while f is not None and os.path.abspath(f.f_code.co_filename).startswith(skip):
+        f = f.f_back
+    if f is None:
+        return "?", ""
+    name, line = f.f_code.co_filename, f.f_lineno
+    return f"{name}:{line}", linecache.getline(name, line).strip()
+
+
+def _note(function: str, a: Any, low: Any, high: Any) -> Any:
+    """Record the clamp of ``a`` to ``[low, high]`` (when recording); returns ``a``."""
+    if _RECORDING is not None:
+        s = _s()
+        bound = [float(s.as_expr(b).subs(s.epsilon, s.EPSILON_VALUE)) if b is not None else
+                 (-float("inf") if k == 0 else float("inf")) for k, b in enumerate((low, high))]
+        where, code = _caller()
+        _RECORDING.append(Clamp(function, a, bound[0], bound[1], where, code))
+    return a
 
 
 def _s():
@@ -98,7 +162,7 @@ def sqrt(x: Any, epsilon: Any = _DEFAULT):
     sp = _s().sp
     if e == 0:
         return _map1(sp.sqrt, x)
-    return _map1(lambda a: sp.sqrt(Max(a, e**2)), x)
+    return _map1(lambda a: sp.sqrt(Max(_note("sqrt", a, e**2, None), e**2)), x)
 
 
 def log(x: Any, epsilon: Any = _DEFAULT):
@@ -107,7 +171,7 @@ def log(x: Any, epsilon: Any = _DEFAULT):
     sp = _s().sp
     if e == 0:
         return _map1(sp.log, x)
-    return _map1(lambda a: sp.log(Max(a, e)), x)
+    return _map1(lambda a: sp.log(Max(_note("log", a, e, None), e)), x)
 
 
 def acos(x: Any, epsilon: Any = _DEFAULT):
@@ -115,7 +179,7 @@ def acos(x: Any, epsilon: Any = _DEFAULT):
     sp = _s().sp
     if _eps(epsilon) == 0:
         return _map1(sp.acos, x)
-    return _map1(lambda a: sp.acos(Max(-1, Min(1, a))), x)
+    return _map1(lambda a: sp.acos(Max(-1, Min(1, _note("acos", a, -1, 1)))), x)
 
 
 def asin(x: Any, epsilon: Any = _DEFAULT):
@@ -123,7 +187,7 @@ def asin(x: Any, epsilon: Any = _DEFAULT):
     sp = _s().sp
     if _eps(epsilon) == 0:
         return _map1(sp.asin, x)
-    return _map1(lambda a: sp.asin(Max(-1, Min(1, a))), x)
+    return _map1(lambda a: sp.asin(Max(-1, Min(1, _note("asin", a, -1, 1)))), x)
 
 
 def atan2(y: Any, x: Any, epsilon: Any = _DEFAULT):

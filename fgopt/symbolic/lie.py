@@ -21,6 +21,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from ..errors import DimensionMismatchError, ManifoldError
+
 
 def _s():
     from . import _sym
@@ -98,7 +100,8 @@ class LieGroupBase:
         if isinstance(other, type(self)):
             return self.compose(other)
         if isinstance(other, LieGroupBase):
-            raise TypeError(f"cannot compose {type(self).__name__} with {type(other).__name__}")
+            raise ManifoldError(f"cannot compose {type(self).__name__} with "
+                                f"{type(other).__name__}")
         return self.act(other)
 
     # ------------------------------------------------------------------ Lie group
@@ -158,6 +161,6 @@ def as_vector(v: Any, n: int, what: str):
 
     if isinstance(v, Matrix):
         if len(v) != n:
-            raise ValueError(f"{what}: expected a {n}-vector, got shape {v.shape}")
+            raise DimensionMismatchError(f"{what}: expected a {n}-vector, got shape {v.shape}")
         return v if v.SHAPE == (n, 1) else vector_type(n)(list(v))
     return vector_type(n)(v)

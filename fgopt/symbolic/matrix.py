@@ -17,6 +17,8 @@ from collections.abc import Iterator
 from functools import cache
 from typing import Any
 
+from ..errors import DimensionMismatchError, FgoptIndexError, ManifoldError
+
 
 def _s():
     from . import _sym
@@ -47,7 +49,8 @@ class Matrix:
             m = args[0]
         elif shape is None:
             if len(args) != 1:
-                raise TypeError("Matrix(rows) takes one nested sequence, e.g. Matrix([[a, b], [c, d]])")
+                raise ManifoldError("Matrix(rows) takes one nested sequence, e.g. "
+                                    "Matrix([[a, b], [c, d]])")
             data = _to_list(args[0])
             m = sp.Matrix(data) if len(data) > 0 else sp.zeros(0, 0)
         else:
@@ -57,11 +60,13 @@ class Matrix:
             else:
                 flat = _flatten(args[0] if len(args) == 1 and not _is_scalar(args[0]) else args)
                 if len(flat) != r * c:
-                    raise ValueError(f"{type(self).__name__} needs {r * c} entries, got {len(flat)}")
+                    raise DimensionMismatchError(
+                        f"{type(self).__name__} needs {r * c} entries, got {len(flat)}")
                 m = sp.Matrix(r, c, [_s().as_expr(v) for v in flat])
         m = sp.MutableDenseMatrix(m)
         if shape is not None and m.shape != shape:
-            raise ValueError(f"{type(self).__name__} has shape {shape}, got a {m.shape} matrix")
+            raise DimensionMismatchError(
+                f"{type(self).__name__} has shape {shape}, got a {m.shape} matrix")
         self.mat = m
 
     # ------------------------------------------------------------------ construction
@@ -108,7 +113,8 @@ class Matrix:
         r, c = _shape_arg(cls, None, None)
         flat = _flatten(data)
         if len(flat) != r * c:
-            raise ValueError(f"{cls.__name__}.from_storage needs {r * c} entries, got {len(flat)}")
+            raise DimensionMismatchError(
+                f"{cls.__name__}.from_storage needs {r * c} entries, got {len(flat)}")
         return _wrap(_s().sp.Matrix(r, c, [_s().as_expr(v) for v in flat]))
 
     def to_storage(self) -> list:
@@ -154,11 +160,19 @@ class Matrix:
             sp = _s().sp
             return _wrap(sp.Matrix(1, len(items), items) if self.mat.rows == 1
                          else sp.Matrix(len(items), 1, items))
-        out = self.mat[idx]
+        try:
+            out = self.mat[idx]
+        except IndexError:
+            raise FgoptIndexError(f"{type(self).__name__}{list(self.shape)}: index {idx!r} is out "
+                                  f"of range ({len(self.mat)} entries)") from None
         return _wrap(out) if isinstance(out, _s().sp.MatrixBase) else out
 
     def __setitem__(self, idx: Any, value: Any) -> None:
-        self.mat[idx] = value.mat if isinstance(value, Matrix) else value
+        try:
+            self.mat[idx] = value.mat if isinstance(value, Matrix) else value
+        except IndexError:
+            raise FgoptIndexError(f"{type(self).__name__}{list(self.shape)}: index {idx!r} is out "
+                                  f"of range ({len(self.mat)} entries)") from None
 
     def _component(i: int):
         return property(lambda self: self.mat[i], doc=f"entry {i}")
@@ -187,15 +201,16 @@ class Matrix:
 
     # ------------------------------------------------------------------ arithmetic
     def __add__(self, other: Any) -> Matrix:
-        return _wrap(self.mat + _as_matrix(other, self.shape).mat)
+        return _wrap(self.mat + _same_shape(self, other, "+").mat)
 
-    __radd__ = __add__
+    def __radd__(self, other: Any) -> Matrix:
+        return _wrap(_same_shape(self, other, "+", right=True).mat + self.mat)
 
     def __sub__(self, other: Any) -> Matrix:
-        return _wrap(self.mat - _as_matrix(other, self.shape).mat)
+        return _wrap(self.mat - _same_shape(self, other, "-").mat)
 
     def __rsub__(self, other: Any) -> Matrix:
-        return _wrap(_as_matrix(other, self.shape).mat - self.mat)
+        return _wrap(_same_shape(self, other, "-", right=True).mat - self.mat)
 
     def __neg__(self) -> Matrix:
         return _wrap(-self.mat)
@@ -204,7 +219,7 @@ class Matrix:
         if _is_scalar(other):
             return _wrap(self.mat * _s().as_expr(other))
         if isinstance(other, Matrix):
-            return _wrap(self.mat * other.mat)
+            return _wrap(self.mat * _inner(self, other, "*").mat)
         return NotImplemented
 
     def __rmul__(self, other: Any):
@@ -213,7 +228,7 @@ class Matrix:
         return NotImplemented
 
     def __matmul__(self, other: Any):
-        return _wrap(self.mat * _as_matrix(other, None).mat)
+        return _wrap(self.mat * _inner(self, _as_matrix(other, None), "@").mat)
 
     def __truediv__(self, other: Any) -> Matrix:
         if not _is_scalar(other):
@@ -221,13 +236,13 @@ class Matrix:
         return _wrap(self.mat / _s().as_expr(other))
 
     def dot(self, other: Any):
-        o = _as_matrix(other, self.shape)
+        o = _same_shape(self, other, "dot")
         return sum((a * b for a, b in zip(self.mat, o.mat)), _s().sp.S.Zero)
 
     def cross(self, other: Any) -> Matrix:
-        a, b = list(self.mat), list(_as_matrix(other, self.shape).mat)
+        a, b = list(self.mat), list(_as_matrix(other, None).mat)
         if len(a) != 3:
-            raise ValueError("cross needs 3-vectors")
+            raise DimensionMismatchError(f"cross needs 3-vectors, got {len(a)} and {len(b)} entries")
         return _wrap(_s().sp.Matrix([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2],
                                      a[0] * b[1] - a[1] * b[0]]))
 
@@ -294,7 +309,7 @@ class Scalar:
     def from_storage(cls, data: Any):
         flat = _flatten(data)
         if len(flat) != 1:
-            raise ValueError(f"Scalar.from_storage needs 1 entry, got {len(flat)}")
+            raise DimensionMismatchError(f"Scalar.from_storage needs 1 entry, got {len(flat)}")
         return _s().as_expr(flat[0])
 
 
@@ -324,8 +339,36 @@ def _shape_arg(cls: type, rows: int | None, cols: int | None) -> tuple[int, int]
     if rows is not None:
         return rows, (cols if cols is not None else 1)
     if cls.SHAPE is None:
-        raise TypeError(f"{cls.__name__} has no fixed shape: pass the shape or use Matrix.shaped")
+        raise ManifoldError(f"{cls.__name__} has no fixed shape: pass the shape or use "
+                            "Matrix.shaped")
     return cls.SHAPE
+
+
+def _same_shape(a: Matrix, other: Any, op: str, right: bool = False) -> Matrix:
+    """``other`` as a Matrix of ``a``'s shape, or a DimensionMismatchError naming both."""
+    try:
+        b = _as_matrix(other, a.shape)
+    except (ValueError, TypeError) as exc:  # SymPy: wrong number of entries for the shape
+        names = (type(other).__name__, type(a).__name__) if right else (
+            type(a).__name__, type(other).__name__)
+        raise DimensionMismatchError(
+            f"{names[0]} {op} {names[1]}: cannot read the {type(other).__name__} as a "
+            f"{a.shape[0]}x{a.shape[1]} matrix ({exc})") from None
+    if b.shape != a.shape:
+        x, y = (b, a) if right else (a, b)
+        raise DimensionMismatchError(
+            f"{type(x).__name__} {op} {type(y).__name__}: shapes {x.shape} and {y.shape} differ")
+    return b
+
+
+def _inner(a: Matrix, b: Matrix, op: str) -> Matrix:
+    """``b`` if the product ``a b`` is defined, else a DimensionMismatchError."""
+    if a.shape[1] != b.shape[0]:
+        raise DimensionMismatchError(
+            f"{type(a).__name__} {op} {type(b).__name__}: a {a.shape[0]}x{a.shape[1]} matrix "
+            f"times a {b.shape[0]}x{b.shape[1]} one (inner sizes {a.shape[1]} and {b.shape[0]} "
+            "differ)")
+    return b
 
 
 def _as_matrix(x: Any, shape: tuple[int, int] | None) -> Matrix:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from ..errors import ManifoldError
 from .declare.twin import DeclaredManifold
 from .lie import LieGroupBase
 from .matrix import Matrix, Scalar
@@ -22,6 +23,17 @@ def _s():
     from . import _sym
 
     return _sym
+
+
+#: Symbolic type -> numeric value class (with ``batch_kind()``) for types whose numeric twin
+#: lives above the symbolic layer (``fgopt.navigation.NavState``); the twin's package registers
+#: itself on import (:func:`register_numeric_twin`).
+NUMERIC_TWINS: dict = {}
+
+
+def register_numeric_twin(symbolic_type: type, numeric_cls: type) -> None:
+    """Variables of ``symbolic_type`` in ``@fgopt.factor`` hold ``numeric_cls`` values."""
+    NUMERIC_TWINS[symbolic_type] = numeric_cls
 
 
 def is_symbolic_type(tp: Any) -> bool:
@@ -42,9 +54,9 @@ def normalize_type(tp: Any) -> type:
         return Scalar
     if not is_symbolic_type(tp):
         name = getattr(tp, "__name__", repr(tp))
-        raise TypeError(
-            f"{name} is not a symbolic argument type: use Rot2, Rot3, Pose2, Pose3, V1..V9, "
-            "Matrix.shaped(r, c), Scalar or a manifold declared with @fgopt.manifold")
+        raise ManifoldError(
+            f"{name} is not a symbolic argument type: use Rot2, Rot3, Pose2, Pose3, NavState, "
+            "V1..V9, Matrix.shaped(r, c), Scalar or a manifold declared with @fgopt.manifold")
     return tp
 
 

@@ -129,3 +129,66 @@ def to_source(expr: Any) -> str:
     if getattr(expr, "is_Number", False):
         return repr(float(expr))
     return _PRINTER.doprint(expr)
+
+
+class NumpyPrinter(NumbaPrinter):
+    """Prints the same expressions for whole columns (NumPy arrays): selects as ``np.where``,
+    ``min`` / ``max`` / ``abs`` as their elementwise ufuncs; ``math.f`` becomes ``np.f`` by
+    :func:`to_numpy_source`."""
+
+    def _print_Heaviside(self, expr: Any) -> str:
+        x = self._print(expr.args[0])
+        h0 = float(expr.args[1]) if len(expr.args) > 1 else 0.5
+        return f"np.where({x} > 0.0, 1.0, np.where({x} == 0.0, {h0!r}, 0.0))"
+
+    def _print_Min(self, expr: Any) -> str:
+        out = self._print(expr.args[0])
+        for a in expr.args[1:]:
+            out = f"np.minimum({out}, {self._print(a)})"
+        return out
+
+    def _print_Max(self, expr: Any) -> str:
+        out = self._print(expr.args[0])
+        for a in expr.args[1:]:
+            out = f"np.maximum({out}, {self._print(a)})"
+        return out
+
+    def _print_Abs(self, expr: Any) -> str:
+        return f"np.abs({self._print(expr.args[0])})"
+
+
+#: ``math`` functions the printer emits and their NumPy ufuncs (same IEEE semantics).
+NUMPY_NAMES = {"sin": "sin", "cos": "cos", "tan": "tan", "sqrt": "sqrt", "cbrt": "cbrt",
+               "exp": "exp", "log": "log", "atan2": "arctan2", "atan": "arctan",
+               "asin": "arcsin", "acos": "arccos", "sinh": "sinh", "cosh": "cosh",
+               "tanh": "tanh", "copysign": "copysign", "floor": "floor", "ceil": "ceil",
+               "fabs": "abs", "log1p": "log1p", "expm1": "expm1", "hypot": "hypot",
+               "pi": "pi", "e": "e"}
+
+_NUMPY_PRINTER: NumpyPrinter | None = None
+
+
+def to_numpy_source(expr: Any) -> str | None:
+    """Source of one expression over NumPy columns, or ``None`` when it uses a function with no
+    NumPy ufunc (the module then keeps only its numba kernels)."""
+    import re
+
+    global _NUMPY_PRINTER
+    if isinstance(expr, (int, float)) or getattr(expr, "is_Number", False):
+        return repr(float(expr))
+    if _NUMPY_PRINTER is None:
+        _NUMPY_PRINTER = NumpyPrinter()
+    src = _NUMPY_PRINTER.doprint(expr)
+    missing = []
+
+    def sub(m: "re.Match") -> str:
+        name = NUMPY_NAMES.get(m.group(1))
+        if name is None:
+            missing.append(m.group(1))
+            return m.group(0)
+        return f"np.{name}"
+
+    src = re.sub(r"\bmath\.(\w+)", sub, src)
+    if missing or re.search(r"(?<![\w.])(min|max|abs)\(| if ", src):
+        return None
+    return src

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from ..errors import DimensionMismatchError
+
 from .lie import LieGroupBase, as_vector
 
 
@@ -30,7 +32,7 @@ def _flat(data: Any, n: int, what: str) -> list:
 
     flat = _flatten(data)
     if len(flat) != n:
-        raise ValueError(f"{what}: expected {n} storage entries, got {len(flat)}")
+        raise DimensionMismatchError(f"{what}: expected {n} storage entries, got {len(flat)}")
     return [_s().as_expr(v) for v in flat]
 
 

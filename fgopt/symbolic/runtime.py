@@ -9,6 +9,11 @@ import numpy as np
 
 from ..errors import DimensionMismatchError
 
+#: Batches up to this size run a generated kernel's NumPy twin (same program on whole columns):
+#: no numba compilation or cache load for small problems and new custom factors; larger batches
+#: run the numba kernel (compiled once, then loaded from numba's cache).
+NUMPY_MAX_BATCH = 1000
+
 
 def _as_kernel_array(a: Any) -> np.ndarray:
     """C-contiguous, writeable float64 (one numba signature for every caller)."""

@@ -7,9 +7,11 @@ from fgopt import _assembly as asm
 from fgopt.structure import build_pattern, fill_reducing_order, scatter_positions
 
 
+@pytest.mark.parametrize("m", [4, asm.WIDE_RESIDUAL + 3])
 @pytest.mark.parametrize("ordering", ["natural", "amd", "metis", "colamd"])
-def test_scatter_equals_dense_normal_equations(ordering):
-    """Random factors over mixed-size variables: scattered lower H equals the dense J^T J."""
+def test_scatter_equals_dense_normal_equations(ordering, m):
+    """Random factors over mixed-size variables: scattered lower H equals the dense J^T J, for
+    residuals below and above ``WIDE_RESIDUAL`` (fused and row-outer-product paths)."""
     rng = np.random.default_rng(0)
     var_dim = np.array([3, 6, 2, 6, 1, 3, 3, 6], dtype=np.int64)
     V = var_dim.shape[0]
@@ -25,15 +27,15 @@ def test_scatter_equals_dense_normal_equations(ordering):
     H_data = np.zeros(pattern.nnz)
     g = np.zeros(N)
     off = pattern.var_offset
-    for i, j in pairs:  # one 2-variable factor per pair, residual dim 4, both orders of args
+    for i, j in pairs:  # one 2-variable factor per pair, residual dim m, both orders of args
         for var_idx in (np.array([[i, j]]), np.array([[j, i]])):
             dims = var_dim[var_idx[0]]
             D = int(dims.sum())
-            res = rng.normal(size=(1, 4))
-            jac = rng.normal(size=(1, 4, D))
+            res = rng.normal(size=(1, m))
+            jac = rng.normal(size=(1, m, D))
             pos = scatter_positions(lookup, rank, var_idx)
             toff = off[var_idx]
-            cost = asm.scatter_batch(res, jac, np.eye(4)[None], True, 0, 0.0, 0.0, dims,
+            cost = asm.scatter_batch(res, jac, np.eye(m)[None], True, 0, 0.0, 0.0, dims,
                                      np.array([0, dims[0]]), toff, pos, pattern.col_shift,
                                      H_data, g, np.ones(1), 0.0)
             assert np.isclose(cost, 0.5 * res[0] @ res[0])
@@ -49,14 +51,16 @@ def test_scatter_equals_dense_normal_equations(ordering):
     assert np.allclose(np.tril(H_dense), L)
 
 
-def test_whitening_and_robust_weights():
-    """Whitened + Huber-weighted scatter equals w (RJ)^T (RJ) with w from the Huber loss."""
+@pytest.mark.parametrize("m", [2, asm.WIDE_RESIDUAL + 2])
+def test_whitening_and_robust_weights(m):
+    """Whitened + Huber-weighted scatter equals w (RJ)^T (RJ) with w from the Huber loss (both
+    scatter paths)."""
     rng = np.random.default_rng(1)
     var_dim = np.array([2], dtype=np.int64)
     pattern, lookup = build_pattern(var_dim, np.array([0]), np.zeros(0, int), np.zeros(0, int))
-    R = np.triu(rng.normal(size=(2, 2))) + 3 * np.eye(2)
-    e = np.array([[2.0, -1.0]])
-    J = rng.normal(size=(1, 2, 2))
+    R = np.triu(rng.normal(size=(m, m))) + 3 * np.eye(m)
+    e = np.linspace(2.0, -1.0, m)[None]
+    J = rng.normal(size=(1, m, 2))
     H_data, g, w = np.zeros(pattern.nnz), np.zeros(2), np.ones(1)
     pos = scatter_positions(lookup, np.array([0]), np.array([[0]]))
     k = 0.5

@@ -42,7 +42,7 @@ def test_instances_and_kernels():
     h = range_bearing(key("x", 1), np.array([1.0, 2.0]), np.array([4.0, 0.3]))
     assert h.kernel is not f.kernel and h.kernel.num_constants == 4
     src = range_bearing.source
-    assert "# total ops:" in src and "@numba.njit(cache=True" in src and "def _linearize_kernel" in src
+    assert "# total ops:" in src and "@njit(cache=True" in src and "def _linearize_kernel" in src
 
 
 def test_values_and_jacobians_match_numpy():
@@ -84,6 +84,25 @@ def test_scalar_arguments_as_variables_or_constants():
     res, jac = g.kernel.linearize(args, g.constants.reshape(1, -1))
     np.testing.assert_allclose(res[0], [2.5, 2.0])
     np.testing.assert_allclose(jac[0, :, 3], [-1.0, 0.0])
+
+
+def test_bare_int_is_refused_key_or_const_say_which():
+    """``b=1`` for a Scalar argument used to become the constant 1.0 silently (the user may have
+    meant the plain-int key 1): a bare int, bool or numpy integer is an FgoptError now; a Key
+    makes it a variable, a float or fgopt.const(...) a constant."""
+    with pytest.raises(FgoptError, match=r"argument 'x' \(Scalar\) got the int 1.*fgopt.const\(1\)"):
+        pose_prior_xy(key("x", 0), 1, 2.0)
+    for bad in (np.int64(3), True):
+        with pytest.raises(FgoptError, match="could be a key or a number"):
+            pose_prior_xy(key("x", 0), 1.0, bad)
+    f = pose_prior_xy(key("x", 0), fgopt.const(1), 2.0)
+    np.testing.assert_allclose(f.constants, [1.0, 2.0])
+    assert f.keys == (key("x", 0),)
+    g = pose_prior_xy(key("x", 0), fgopt.Key(7), 2.0)  # a plain-int key, explicitly
+    assert g.keys == (key("x", 0), 7) and g.kernel.arg_kinds[1] is fgopt.manifolds.SCALAR_KIND
+    with pytest.raises(FgoptError, match="a Key is a variable"):
+        fgopt.const(key("s", 1))
+    assert repr(fgopt.const(1)) == "fgopt.const(1)"
 
 
 def test_constants_accept_numeric_group_values():

@@ -1,322 +1,30 @@
-"""Fuzz the g2o and BAL readers with mutated lines (hypothesis).
+"""Fuzz the g2o, TORO and BAL readers with mutated lines, plain and ``.gz`` / ``.bz2`` (hypothesis).
 
 For every mutated file the reader must either raise an ``FgoptError`` or return exactly the
-graph that a slow, line-by-line reference parser (written here from the format description)
-builds: never another exception, never a hang, never a silently different graph.
+graph that a slow, line-by-line reference parser (``tests/io/_fuzz.py``, written from the format
+description) builds: never another exception, never a hang (hypothesis' deadline), never a
+silently different graph. A derandomized set runs here; ``benchmarks/fuzz_readers.py`` runs
+10,000+ inputs per format.
 """
 
 from __future__ import annotations
 
-import math
-import re
+import gzip
 
-import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from fgopt.errors import FgoptError
-from fgopt.io import read_bal, read_g2o
-from fgopt.key import key
+from fgopt.errors import FgoptError, FileFormatError
+from fgopt.io import read, read_bal, read_g2o
 
-POSE2 = """VERTEX_SE2 0 0 0 0
-VERTEX_SE2 1 1.0 0.1 0.2
-VERTEX_SE2 5 2 0.5 -0.3
-VERTEX_XY 9 1.5 1.5
-EDGE_SE2 0 1 1 0.1 0.2 100 2 0 50 0 400
-EDGE_SE2 1 5 1 0.3 -0.5 100 0 1 100 0 300
-EDGE_SE2 0 5 2 0.5 -0.3 10 0 0 10 0 10
-EDGE_SE2_XY 1 9 0.5 1.4 20 1 30
-FIX 0
-"""
-POSE3 = """VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1
-VERTEX_SE3:QUAT 1 1 0 0 0 0 0.0499792 0.99875
-VERTEX_TRACKXYZ 4 1 1 1
-EDGE_SE3:QUAT 0 1 1 0 0 0 0 0.0499792 0.99875 10 0 0 0 0 0 10 0 0 0 0 10 0 0 0 20 1 0 20 0 20
-EDGE_SE3_TRACKXYZ 1 4 0 0.1 1 1 1 0 0 2 0 3
-EDGE_SE3_TRACKXYZ 0 4 1 1 1 5 0 0 5 0 5
-"""
-BAL = """2 2 3
-0 0 -1.0 2.0
-1 0 3.5e+00 -4.0
-1 1 0.5 0.25
-0.01 -0.02 0.03 0.1 0.2 -5 500 1e-3 -2e-6
-0 0 0 0 0 -6 400 0 0
-1 2 3
--1 0.5 0.25
-"""
+from ._fuzz import (BAL, POSE2, POSE3, TORO, TORO_COV, check_bal, check_compressed,
+                    check_g2o, compressed, mutated, mutated_toro, reference_g2o)
 
-TOKENS = ["abc", "nan", "inf", "-inf", "1e400", "1e-400", "1_0", "0x1", "-", "1e", ".", "3.5",
-          "-7", "0", "1", "4", "99999999999999999999", "2.5e3", "#", "VERTEX_SE2", "EDGE_SE2",
-          "EDGE2", "VERTEX_XY", "FIX", "EQUIV", "EDGE_SE3:QUAT", "VERTEX_TRACKXYZ", "\u0661",
-          "1e+5", "-0", "+2", "0.0499792", "PARAMS_SE3OFFSET"]
-
-# ----------------------------------------------------------------------------- mutations
-
-
-@st.composite
-def mutated(draw, text: str) -> str:
-    lines = text.split("\n")
-    for _ in range(draw(st.integers(1, 2))):
-        i = draw(st.integers(0, len(lines) - 1))
-        toks = lines[i].split(" ")
-        kind = draw(st.sampled_from(["replace", "delete", "insert", "dup_token", "truncate",
-                                     "del_line", "dup_line", "swap_lines", "garbage", "number"]))
-        j = draw(st.integers(0, max(len(toks) - 1, 0)))
-        if kind == "replace":
-            toks[j] = draw(st.sampled_from(TOKENS))
-        elif kind == "delete" and toks:
-            del toks[j]
-        elif kind == "insert":
-            toks.insert(j, draw(st.sampled_from(TOKENS)))
-        elif kind == "dup_token" and toks:
-            toks.insert(j, toks[j])
-        elif kind == "truncate":
-            lines[i] = lines[i][:draw(st.integers(0, len(lines[i])))]
-            continue
-        elif kind == "del_line":
-            del lines[i]
-            if not lines:
-                lines = [""]
-            continue
-        elif kind == "dup_line":
-            lines.insert(i, lines[i])
-            continue
-        elif kind == "swap_lines":
-            k = draw(st.integers(0, len(lines) - 1))
-            lines[i], lines[k] = lines[k], lines[i]
-            continue
-        elif kind == "garbage":
-            toks.insert(j, draw(st.text(st.characters(min_codepoint=1, max_codepoint=300),
-                                        min_size=1, max_size=6)))
-        elif kind == "number":
-            toks[j] = repr(draw(st.floats(allow_nan=False, allow_infinity=False, width=64)))
-        lines[i] = " ".join(toks)
-    return "\n".join(lines)
-
-
-# ----------------------------------------------------------------------------- reference
-
-
-class Invalid(Exception):
-    pass
-
-
-def _num(t: str) -> float:
-    if "_" in t or any(ord(c) > 127 for c in t):
-        raise Invalid(t)
-    try:
-        v = float(t)
-    except ValueError:
-        raise Invalid(t) from None
-    if not math.isfinite(v):
-        raise Invalid(t)
-    return v
-
-
-def _id(v: float) -> int:
-    if v != math.floor(v) or v < 0 or v >= 2 ** 53:
-        raise Invalid(v)
-    return int(v)
-
-
-def _sym(packed, d):
-    M = np.zeros((d, d))
-    iu = np.triu_indices(d)
-    M[iu] = packed
-    M[(iu[1], iu[0])] = packed
-    try:
-        np.linalg.cholesky(M)
-    except np.linalg.LinAlgError:
-        raise Invalid("not PD") from None
-    return M
-
-
-def _quat(q):
-    n = math.sqrt(sum(x * x for x in q))
-    if abs(n - 1) > 1e-3:
-        raise Invalid("quaternion")
-    return [x / n for x in q]
-
-
-G2O_COUNTS = {"VERTEX_SE2": (4,), "VERTEX_XY": (3,), "EDGE_SE2": (11,), "EDGE2": (11,),
-              "VERTEX2": (4,), "EDGE_SE2_XY": (7,), "VERTEX_SE3:QUAT": (8,),
-              "VERTEX_TRACKXYZ": (4,), "EDGE_SE3:QUAT": (30,), "EDGE_SE3_TRACKXYZ": (11, 12),
-              "PARAMS_SE3OFFSET": (8,), "EQUIV": (2,), "FIX": None}
-DIM = {"VERTEX_SE2": 2, "VERTEX2": 2, "VERTEX_XY": 2, "EDGE_SE2": 2, "EDGE2": 2,
-       "EDGE_SE2_XY": 2, "VERTEX_SE3:QUAT": 3, "VERTEX_TRACKXYZ": 3, "EDGE_SE3:QUAT": 3,
-       "EDGE_SE3_TRACKXYZ": 3, "PARAMS_SE3OFFSET": 3}
-
-
-def reference_g2o(text: str):
-    """-> (vertices {key: storage}, edges [(line, kind, keys, consts, info)], fixed keys) or
-    raises Invalid; ``None`` for edges-only files (not compared)."""
-    recs = []
-    for n, line in enumerate(text.split("\n"), 1):
-        toks = [t for t in re.split(r"[ \t\r\v\f]+", line.split("#")[0]) if t]
-        if not toks:
-            continue
-        tag = toks[0]
-        if tag not in G2O_COUNTS:
-            raise Invalid(tag)
-        counts = G2O_COUNTS[tag]
-        if (counts is not None and len(toks) - 1 not in counts) or len(toks) < 2:
-            raise Invalid("count")
-        recs.append((n, tag, [_num(t) for t in toks[1:]]))
-    if not recs:
-        raise Invalid("empty")
-    dims = {DIM[t] for _, t, _ in recs if t in DIM}
-    if len(dims) != 1:
-        raise Invalid("dims")
-    verts, is_point = {}, {}
-    params = {}
-    for _n, tag, v in recs:
-        if tag.startswith("VERTEX"):
-            i = _id(v[0])
-            if i in verts:
-                raise Invalid("dup")
-            if tag in ("VERTEX_SE2", "VERTEX2"):
-                verts[i] = [math.cos(v[3]), math.sin(v[3]), v[1], v[2]]
-            elif tag == "VERTEX_SE3:QUAT":
-                verts[i] = _quat(v[4:8]) + v[1:4]
-            else:
-                verts[i] = v[1:]
-            is_point[i] = tag in ("VERTEX_XY", "VERTEX_TRACKXYZ")
-        elif tag == "PARAMS_SE3OFFSET":
-            if max(abs(abs(a) - b) for a, b in zip(v[1:], [0, 0, 0, 0, 0, 0, 1])) > 1e-9:
-                raise Invalid("offset")
-            params[_id(v[0])] = True
-    edges = []
-    for n, tag, v in recs:
-        if not tag.startswith("EDGE"):
-            continue
-        i, j = _id(v[0]), _id(v[1])
-        if i == j:
-            raise Invalid("loop")
-        point = tag in ("EDGE_SE2_XY", "EDGE_SE3_TRACKXYZ")
-        if verts and (i not in verts or j not in verts or is_point[i]
-                      or is_point[j] != point):
-            raise Invalid("endpoint")
-        xb, lb = int(key("x", 0)), int(key("l", 0))
-        keys = [xb + i, (lb if point else xb) + j]
-        if tag == "EDGE_SE2":
-            meas = [math.cos(v[4]), math.sin(v[4]), v[2], v[3]]
-            M = _sym(v[5:11], 3)[[2, 0, 1]][:, [2, 0, 1]]
-        elif tag == "EDGE2":
-            t = v[5:11]
-            meas = [math.cos(v[4]), math.sin(v[4]), v[2], v[3]]
-            M = _sym([t[0], t[1], t[4], t[2], t[5], t[3]], 3)[[2, 0, 1]][:, [2, 0, 1]]
-        elif tag == "EDGE_SE2_XY":
-            meas, M = v[2:4], _sym(v[4:7], 2)
-        elif tag == "EDGE_SE3:QUAT":
-            meas = _quat(v[5:9]) + v[2:5]
-            p = [3, 4, 5, 0, 1, 2]
-            M = _sym(v[9:30], 6)[p][:, p]
-        else:
-            off = 3 if len(v) == 12 else 2
-            if off == 3:
-                pid = _id(v[2])
-                if params and pid not in params:
-                    raise Invalid("param")
-            meas, M = v[off:off + 3], _sym(v[off + 3:off + 9], 3)
-        edges.append((n, point, keys, meas, M))
-    fixed = set()
-    for _n, tag, v in recs:
-        if tag == "FIX":
-            for x in v:
-                i = _id(x)
-                if verts and i not in verts:
-                    raise Invalid("fix")
-                fixed.add((int(key("l", 0)) if is_point.get(i) else int(key("x", 0))) + i)
-    if not verts:
-        return None
-    keyed = {(int(key("l", 0)) if is_point[i] else int(key("x", 0))) + i: np.array(s)
-             for i, s in verts.items()}
-    return keyed, edges, fixed
-
-
-def check_g2o(text: str) -> None:
-    try:
-        expected = reference_g2o(text)
-    except Invalid:
-        expected = "invalid"
-    try:
-        graph, values = read_g2o("fuzz.g2o", data=text.encode("utf-8"))
-    except FgoptError:
-        assert expected == "invalid", f"reader refused a valid file:\n{text}"
-        return
-    assert expected != "invalid", f"reader accepted an invalid file:\n{text}"
-    if expected is None:  # edges only: the reader made up a guess; check it is complete
-        assert all(k in values for b in graph.batches for k in b.keys.reshape(-1).tolist())
-        return
-    verts, edges, fixed = expected
-    assert sorted(values.keys()) == sorted(verts)
-    for k, s in verts.items():
-        x = values.at(k)
-        got = x.to_storage() if hasattr(x, "to_storage") else x
-        assert np.allclose(got, s, rtol=1e-12, atol=1e-12)
-    got_edges, got_fixed = [], set()
-    for b in graph.batches:
-        if b.kernel.name.startswith("prior"):
-            got_fixed |= set(b.keys[:, 0].tolist())
-            continue
-        for r in range(len(b)):
-            line = int(b._where(r).rsplit(":", 1)[1])
-            got_edges.append((line, b.kernel.name.startswith("pose_point"), b.keys[r].tolist(),
-                              b.constants[r], b.sqrt_information[r].T @ b.sqrt_information[r]))
-    got_edges.sort(key=lambda e: e[0])
-    assert len(got_edges) == len(edges)
-    for g, e in zip(got_edges, edges):
-        assert g[0] == e[0] and g[1] == e[1] and g[2] == e[2]
-        assert np.allclose(g[3], e[3], rtol=1e-12, atol=1e-12)
-        assert np.allclose(g[4], e[4], rtol=1e-9, atol=1e-9 * np.abs(e[4]).max())
-    assert got_fixed == fixed
-
-
-def reference_bal(text: str):
-    lines = [(n, [t for t in re.split(r"[ \t\r\v\f]+", line) if t])
-             for n, line in enumerate(text.split("\n"), 1)]
-    lines = [(n, t) for n, t in lines if t]
-    if not lines or len(lines[0][1]) != 3:
-        raise Invalid("header")
-    head = [_num(t) for t in lines[0][1]]
-    if any(h != math.floor(h) or h < 1 or h >= 2 ** 40 for h in head):
-        raise Invalid("header")
-    nc, npt, nobs = (int(h) for h in head)
-    if len(lines) < 1 + nobs:
-        raise Invalid("obs")
-    obs = []
-    for _n, toks in lines[1:1 + nobs]:
-        if len(toks) != 4:
-            raise Invalid("obs")
-        c, p, x, y = (_num(t) for t in toks)
-        if c != math.floor(c) or not 0 <= c < nc or p != math.floor(p) or not 0 <= p < npt:
-            raise Invalid("index")
-        obs.append((int(c), int(p), x, y))
-    rest = [_num(t) for _, toks in lines[1 + nobs:] for t in toks]
-    if len(rest) != 9 * nc + 3 * npt:
-        raise Invalid("params")
-    return obs, np.array(rest[:9 * nc]).reshape(nc, 9), np.array(rest[9 * nc:]).reshape(npt, 3)
-
-
-def check_bal(text: str) -> None:
-    try:
-        expected = reference_bal(text)
-    except Invalid:
-        expected = None
-    try:
-        graph, values = read_bal("fuzz.txt", data=text.encode("utf-8"))
-    except FgoptError:
-        assert expected is None, f"reader refused a valid file:\n{text}"
-        return
-    assert expected is not None, f"reader accepted an invalid file:\n{text}"
-    obs, cams, pts = expected
-    (b,) = graph.batches
-    cb, pb = int(key("c", 0)), int(key("p", 0))
-    assert b.keys.tolist() == [[cb + c, pb + p] for c, p, _, _ in obs]
-    assert np.array_equal(b.constants, np.array([[x, y] for _, _, x, y in obs]))
-    assert all(np.array_equal(values.at(cb + i), cams[i]) for i in range(len(cams)))
-    assert all(np.array_equal(values.at(pb + j), pts[j]) for j in range(len(pts)))
+@pytest.fixture(scope="module", autouse=True)
+def _compiled_readers():
+    """Read each base once first: numba compiles the scanner outside hypothesis' deadline."""
+    check_g2o(POSE2), check_g2o(POSE3), check_bal(BAL)
 
 
 FUZZ = settings(max_examples=150, deadline=3000, derandomize=True,
@@ -336,9 +44,47 @@ def test_fuzz_g2o_3d(text):
 
 
 @FUZZ
+@given(mutated_toro())
+def test_fuzz_toro(text):
+    """TORO (VERTEX2 / EDGE2 in TORO's information order or GTSAM's covariance layout, EQUIV)
+    against the reference."""
+    check_g2o(text)
+
+
+@FUZZ
 @given(mutated(BAL))
 def test_fuzz_bal(text):
     check_bal(text)
+
+
+@pytest.fixture(scope="module")
+def fuzz_dir(tmp_path_factory):
+    return tmp_path_factory.mktemp("fuzz")
+
+
+@pytest.mark.parametrize("codec", ["gz", "bz2"])
+def test_fuzz_compressed(codec, fuzz_dir):
+    """Compressed g2o / TORO / BAL files, mutated and / or damaged after compression, read
+    through ``fgopt.io.read`` (decompression, format detection, reader)."""
+
+    @FUZZ
+    @given(compressed(codec))
+    def run(case):
+        _name, fname, blob = case
+        check_compressed(fuzz_dir / fname, codec, blob)
+
+    run()
+
+
+def test_damaged_deflate_stream_is_a_file_format_error(tmp_path):
+    """A .gz file whose deflate data is damaged (zlib.error, not an OSError, from Python's gzip)
+    is a FileFormatError naming the file (found by the fuzzer)."""
+    blob = bytearray(gzip.compress(POSE2.encode(), mtime=0))
+    blob[10] |= 0x06  # first deflate block: reserved block type 3
+    path = tmp_path / "damaged.g2o.gz"
+    path.write_bytes(bytes(blob))
+    with pytest.raises(FileFormatError, match="damaged.g2o.gz: cannot read: .*invalid block"):
+        read(path)
 
 
 @settings(max_examples=100, deadline=3000, derandomize=True)
@@ -351,7 +97,11 @@ def test_fuzz_random_bytes(data):
             pass
 
 
-@pytest.mark.parametrize("text", [POSE2, POSE3])
+@pytest.mark.parametrize("text", [POSE2, POSE3, TORO, TORO_COV])
 def test_unmutated_bases_are_valid(text):
     assert reference_g2o(text) is not None
-    check_g2o(text)
+    assert check_g2o(text)
+
+
+def test_unmutated_bal_is_valid():
+    assert check_bal(BAL)

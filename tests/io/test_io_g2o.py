@@ -72,6 +72,23 @@ def test_read_3d_with_trackxyz_and_fix(tmp_path):
     assert graph.error(values) < 1e-20
 
 
+@pytest.mark.parametrize("with_param_line", [False, True])
+def test_trackxyz_without_parameter_id_takes_a_fractional_measurement(tmp_path,
+                                                                       with_param_line):
+    """EDGE_SE3_TRACKXYZ without a parameter id (11 numbers) reads its measurement from column 2,
+    alone or next to lines with an id (found by the fuzzer: column 2 was checked as an integer
+    id on every line, so a valid file was refused)."""
+    lines = POSE3.replace("EDGE_SE3_TRACKXYZ 1 5 0 0.0998", "EDGE_SE3_TRACKXYZ 1 5 0.0998")
+    if with_param_line:
+        lines += "EDGE_SE3_TRACKXYZ 0 5 0 1 1 1 5 0 0 5 0 5\n"
+    graph, values = read_g2o(_write(tmp_path, lines))
+    (point,) = [b for b in graph.batches if b.kernel.name == "pose_point_se3"]
+    assert np.allclose(point.constants[0], [0.09983341664682815, 0.9950041652780258, 1])
+    if with_param_line:
+        assert np.allclose(point.constants[1], [1, 1, 1])
+        assert np.allclose(point.sqrt_information[1], np.sqrt(5) * np.eye(3))
+
+
 def test_toro_information_order(tmp_path):
     text = "VERTEX2 0 0 0 0\nVERTEX2 1 1 0 0\nEDGE2 0 1 1 0 0 11 12 22 33 13 23\nEQUIV 0 1\n"
     graph, _ = read_g2o(_write(tmp_path, text, "t.graph"))

@@ -203,6 +203,33 @@ def test_second_process_loads_from_cache(compiled):
     assert abs(float(cost) - fp.optimize(init).final_cost) <= 1e-9 * float(cost)
 
 
+def test_tampered_cached_module_is_regenerated(compiled, tmp_path):
+    """A statement planted in the fixed formulation's cached module never runs: the next
+    compile discards the entry (one CacheWarning naming it), regenerates a verified entry and
+    reaches the same optimum. (The regenerated text may order instructions differently: the
+    derivation's order depends on the process's string hash seed.)"""
+    from pathlib import Path
+
+    from fgopt.solvers.fixed import formulation
+    from fgopt.symbolic import cache
+    from fgopt.symbolic.cache import CacheWarning
+
+    graph, init, fp = compiled
+    path = Path(fp.module.__file__)
+    original = path.read_bytes()
+    marker = tmp_path / "planted-ran"
+    path.write_bytes(original + f"\nopen({str(marker)!r}, 'w').close()\n".encode())
+    formulation._MODULES.pop(fp.structure_key)
+    sys.modules.pop(path.stem)
+    with pytest.warns(CacheWarning, match=path.stem):
+        again = fx.compile_fixed(graph, init)
+    assert again.generation["source"] == "derived"
+    assert not marker.exists()
+    assert cache.verify(path) is None and b"planted-ran" not in path.read_bytes()
+    assert again.source == path.read_text()
+    assert abs(again.optimize(init).final_cost - fp.optimize(init).final_cost) <= 1e-12
+
+
 def test_bal_reader_batches_run_in_the_fixed_formulation(data_file):
     """A BAL file's reprojection batch (graph.add_batch rows, not factor instances) is traced back
     to the generated bal_reprojection factor type: the fixed formulation reaches the same

@@ -42,7 +42,7 @@ def test_gauge_free_graph_is_reported():
 
 
 def test_matches_gtsam_pose2():
-    gtsam = pytest.importorskip("gtsam", reason="gtsam is an optional [bench] dependency")
+    gtsam = pytest.importorskip("gtsam", reason="gtsam (the [test] extra) is not installed")
     g, v = _case.minisam_loop()
     r = fgopt.optimize(g, v)
     gg = gtsam.NonlinearFactorGraph()
@@ -70,7 +70,7 @@ def test_matches_gtsam_pose2():
 
 
 def test_matches_gtsam_pose3():
-    gtsam = pytest.importorskip("gtsam", reason="gtsam is an optional [bench] dependency")
+    gtsam = pytest.importorskip("gtsam", reason="gtsam (the [test] extra) is not installed")
     rng = np.random.default_rng(3)
     sig = np.array([0.05, 0.05, 0.05, 0.2, 0.2, 0.2])
     g, v = FactorGraph(), Variables()

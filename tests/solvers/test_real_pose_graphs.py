@@ -35,7 +35,7 @@ def test_lm_reaches_gtsam_cost(relpath, data_file):
 
 
 def test_reference_matches_live_gtsam(data_file):
-    gtsam = pytest.importorskip("gtsam", reason="gtsam is an optional [bench] dependency")
+    gtsam = pytest.importorskip("gtsam", reason="gtsam (the [test] extra) is not installed")
     path = data_file("pose2d/input_M3500_g2o.g2o")
     graph, initial = gtsam.readG2o(str(path), False)
     edges = gtsam.NonlinearFactorGraph(graph)

@@ -24,7 +24,7 @@ import math
 from functools import lru_cache
 
 import numpy as np
-from numba import njit
+from ..._jit import njit
 
 from ...errors import DimensionMismatchError
 from ...manifolds.base import vector_kind

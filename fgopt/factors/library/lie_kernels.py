@@ -23,7 +23,7 @@ from __future__ import annotations
 from functools import cache
 
 import numpy as np
-from numba import njit
+from ..._jit import njit
 
 from ...errors import DimensionMismatchError, ManifoldError
 from ...manifolds._kernels import (

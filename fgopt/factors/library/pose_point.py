@@ -22,7 +22,7 @@ from functools import lru_cache
 from typing import Any
 
 import numpy as np
-from numba import njit
+from ..._jit import njit
 
 from ...errors import DimensionMismatchError
 from ...manifolds.base import vector_kind

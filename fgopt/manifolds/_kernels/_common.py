@@ -6,7 +6,7 @@ Part of :mod:`fgopt.manifolds._kernels` (conventions in its docstring).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from ..._jit import njit
 
 
 SO2_ID, SE2_ID, SO3_ID, SE3_ID, SIM3_ID = 0, 1, 2, 3, 4

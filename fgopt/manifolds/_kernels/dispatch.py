@@ -5,8 +5,10 @@ Part of :mod:`fgopt.manifolds._kernels` (conventions in its docstring).
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
-from numba import njit
+from ..._jit import njit
 
 from ._common import (
     GROUP_NAMES, MAX_STORAGE_DIM, SE2_ID, SE3_ID, SO2_ID, SO3_ID, storage_dim, tangent_dim,
@@ -205,10 +207,18 @@ def batch_local(gid, a, b):
     return out
 
 
+#: Batches of at most this many rows run the loops as plain Python while numba is not in use in
+#: the process (a small problem's retract then needs no numba import or cache load).
+PYTHON_MAX_ROWS = 64
+
+
 def _entry(loop, gid: int, name: str):
     def run(a, b):
-        return loop(gid, np.ascontiguousarray(a, dtype=np.float64),
-                    np.ascontiguousarray(b, dtype=np.float64))
+        a = np.ascontiguousarray(a, dtype=np.float64)
+        b = np.ascontiguousarray(b, dtype=np.float64)
+        if a.shape[0] <= PYTHON_MAX_ROWS and "numba" not in sys.modules:
+            return loop.python(gid, a, b)
+        return loop(gid, a, b)
 
     run.__name__ = run.__qualname__ = name
     run.__doc__ = f"Batched {name.split('_')[1]} of {GROUP_NAMES[gid]} over (n, storage) rows."

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
+from ..._jit import njit
 
 from .so2 import so2_compose
 from .so3 import so3_coeffs

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
+from ..._jit import njit
 
 from ._common import _cross, copy_block3, fill_block, matmul_block3, skew_poly3, skew_poly_apply
 from .so3 import (

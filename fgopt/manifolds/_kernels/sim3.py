@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from ..._jit import njit
 
 from ._common import fill_block, invert, jr_from_ad, skew_poly_apply
 from .so3 import quat_rotate, so3_compose, so3_exp, so3_log

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
+from ..._jit import njit
 
 from ._common import _cross, skew_poly3
 

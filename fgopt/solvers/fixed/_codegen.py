@@ -29,7 +29,7 @@ from typing import Any
 from ...symbolic.cse import Program, optimize, prune, total_ops
 
 #: Bumped when the emitted source changes meaning (part of the cache key).
-FIXED_CODEGEN_VERSION = "3"
+FIXED_CODEGEN_VERSION = "4"
 
 
 @dataclass(frozen=True)
@@ -62,18 +62,21 @@ def _sym():
 
 
 def _type_program(ftype: Any, pattern: tuple) -> tuple:
-    """(generic variable storage symbols per arg, generic constant symbols, program)."""
+    """(generic variable storage symbols per arg, generic constant symbols, program, number of
+    clamped function calls)."""
     from ...symbolic.derive import residual_of
+    from ...symbolic.functions import recording_clamps
     from ...symbolic.linearize import linearization_program
     from ...symbolic.ops import storage_of, symbolic_value
 
     args = [symbolic_value(tp, f"_a{i}") for i, (_, tp) in enumerate(ftype.params)]
-    res, _ = residual_of(ftype, args)
+    with recording_clamps() as clamps:
+        res, _ = residual_of(ftype, args)
     var_args = [a for a, v in zip(args, pattern) if v]
     prog = linearization_program(res, var_args, method=ftype.method, engine=ftype.engine)
     var_syms = [tuple(storage_of(a)) for a, v in zip(args, pattern) if v]
     const_syms = [s for a, v in zip(args, pattern) if not v for s in storage_of(a)]
-    return var_syms, const_syms, prog
+    return var_syms, const_syms, prog, len(clamps)
 
 
 class _Builder:
@@ -121,7 +124,7 @@ def build_program(variables: list, factors: list, log: dict | None = None) -> tu
     cost_terms: list = []
     const_syms: set = set()
     for i, f in enumerate(factors):
-        var_syms, csyms, prog = types[(id(f.ftype), f.pattern)]
+        var_syms, csyms, prog, _ = types[(id(f.ftype), f.pattern)]
         m: dict = {}
         for gen, v in zip(var_syms, f.var_idx):
             m.update(zip(gen, xsyms[v]))
@@ -172,6 +175,9 @@ def build_program(variables: list, factors: list, log: dict | None = None) -> tu
     if log is not None:
         log.update({"derive_types": t1 - t0, "instantiate": t2 - t1, "cse": t3 - t2,
                     "num_types": len(types)})
+        # factor types with clamped functions: checked per factor after a solve
+        log["clamp_ftypes"] = list({id(f.ftype): f.ftype for f in factors
+                                    if types[(id(f.ftype), f.pattern)][3] > 0}.values())
     return prog, const_syms
 
 
@@ -283,7 +289,8 @@ def _copy2(src, dst):
 
 
 @numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
-def _record(hist, row, cost, cand, rel, lam, step, grad, acc):
+def _record(hist, row, cost, cand, rel, lam, step, grad, acc, pred):
+    hist[row, 7] = pred
     hist[row, 0] = cost
     hist[row, 1] = cand
     hist[row, 2] = rel
@@ -302,8 +309,8 @@ def _lm(x0, aux, prm, hist, H, g):
     prm: max_iterations, relative_tolerance, absolute_tolerance, gradient_tolerance,
     step_tolerance, initial_lambda, min_lambda, max_lambda, min_diagonal, max_diagonal,
     min_relative_decrease, identity damping (1/0), lambda by factor (1/0), lambda_factor.
-    hist (max_iterations, 7): cost, candidate cost, relative decrease,
-    lambda, |step|, |grad|, accepted. H, g (out): the linearization at the returned x.
+    hist (max_iterations, 8): cost, candidate cost, relative decrease,
+    lambda, |step|, |grad|, accepted, predicted decrease. H, g (out): the linearization at the returned x.
     Returns (x, status, message, value, iterations, cost, initial cost); status 0 converged,
     1 max iterations, 2 failed, -1 non-finite at the initial values.
     """
@@ -334,7 +341,7 @@ def _lm(x0, aux, prm, hist, H, g):
         new_cost = _lin(xc, aux, Hc, gc)
         if first:
             first = False
-            if not (math.isfinite(new_cost) and _all_finite(gc)):
+            if not (math.isfinite(new_cost) and _all_finite(gc) and _all_finite2(Hc)):
                 return x, -1, 0, 0.0, 0, new_cost, new_cost
             _copy2(Hc, H)
             _copy(gc, g)
@@ -364,7 +371,7 @@ def _lm(x0, aux, prm, hist, H, g):
                     lam = max(min_lam, lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3))
                 nu = 2.0
                 gn = _absmax(g)
-                _record(hist, row, cost, new_cost, rel, lam, step_norm, gn, 1.0)
+                _record(hist, row, cost, new_cost, rel, lam, step_norm, gn, 1.0, predicted)
                 dec = old - new_cost
                 if dec < atol:
                     return x, 0, 2, dec, it, cost, init
@@ -373,7 +380,7 @@ def _lm(x0, aux, prm, hist, H, g):
                 if gn <= gtol:
                     return x, 0, 1, gn, it, cost, init
             else:
-                _record(hist, row, cost, new_cost, rel, lam, step_norm, _absmax(g), 0.0)
+                _record(hist, row, cost, new_cost, rel, lam, step_norm, _absmax(g), 0.0, predicted)
                 if by_factor:
                     lam = lam * lam_factor
                 else:
@@ -402,7 +409,7 @@ def _lm(x0, aux, prm, hist, H, g):
                 ok = _all_finite(delta)
             if ok:
                 break
-            _record(hist, it - 1, cost, np.nan, np.nan, lam, np.nan, _absmax(g), 0.0)
+            _record(hist, it - 1, cost, np.nan, np.nan, lam, np.nan, _absmax(g), 0.0, np.inf)
             lam = lam * nu
             nu = nu * 2.0
             if lam > max_lam:

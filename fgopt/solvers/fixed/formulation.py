@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import math
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -46,7 +47,8 @@ import numpy as np
 from ...errors import FgoptError, NonFiniteError
 from ...key import Key, key_str
 from ..params import LMParams
-from ..result import IterationRecord, Result, Status
+from ..diagnostics import fixed_clamp_hits, warn_clamps, warn_unused
+from ..result import IterationRecord, Result, Status, stall_status
 from ...variables import Variables
 from ...symbolic import cache as _cache
 from ._codegen import FIXED_CODEGEN_VERSION, FactorSpec, VarSpec
@@ -121,6 +123,7 @@ class _Collected:
     consts: np.ndarray
     wvals: np.ndarray
     key: str
+    sources: list  # the factors, in ``factors`` order
 
 
 def _collect(graph: Any, values: Variables) -> _Collected:
@@ -213,10 +216,15 @@ def _collect(graph: Any, values: Variables) -> _Collected:
     h.update(FIXED_CODEGEN_VERSION.encode())
     return _Collected(keys, kinds, variables, specs,
                       np.concatenate(consts) if consts else np.zeros(0),
-                      np.concatenate(wvals) if wvals else np.zeros(0), h.hexdigest()[:20])
+                      np.concatenate(wvals) if wvals else np.zeros(0), h.hexdigest()[:20],
+                      factors)
 
 
 # ------------------------------------------------------------------------------------ module
+#: What FixedProblem uses of a generated module (a cached entry without them is regenerated).
+_REQUIRED = ("N", "S", "NUM_AUX", "META", "_precompute", "_lm")
+
+
 def _module(col: _Collected, use_cache: bool, info: dict) -> Any:
     m = _MODULES.get(col.key)
     if m is not None:
@@ -224,7 +232,7 @@ def _module(col: _Collected, use_cache: bool, info: dict) -> Any:
         info["source"] = "memo"
         return m
     name = f"fixed_{len(col.variables)}v_{len(col.factors)}f"
-    m = _cache.load(name, col.key) if use_cache else None
+    m = _cache.load(name, col.key, required=_REQUIRED) if use_cache else None
     if m is not None:
         STATS["loaded"] += 1
         info["source"] = "disk"
@@ -236,7 +244,9 @@ def _module(col: _Collected, use_cache: bool, info: dict) -> Any:
         types = sorted({f.ftype.name for f in col.factors})
         summary = (f"{len(col.variables)} variables, {len(col.factors)} factors "
                    f"({', '.join(types)})")
-        source, _ = module_source(col.variables, prog, const_syms, {"summary": summary})
+        clamp_types = sorted(_fingerprint(ft) for ft in info.pop("clamp_ftypes", []))
+        source, _ = module_source(col.variables, prog, const_syms,
+                                  {"summary": summary, "clamp_types": clamp_types})
         info["derive_total"] = time.perf_counter() - t0
         key = col.key if use_cache else "nocache_" + hashlib.sha256(source.encode()).hexdigest()[:16]
         m = _cache.store(name, key, source)
@@ -258,6 +268,7 @@ class FixedProblem:
     def __init__(self, col: _Collected, values: Variables, module: Any, generation: dict):
         self._col = col
         self.keys = col.keys
+        self._key_set = set(col.keys)
         self.kinds = col.kinds
         self.module = module
         self.size = int(module.N)
@@ -274,8 +285,7 @@ class FixedProblem:
 
     @property
     def source(self) -> str:
-        with open(self.module.__file__) as fh:
-            return fh.read()
+        return self.module.__fgopt_source__  # the text that was verified and run
 
     @property
     def ops(self) -> dict:
@@ -326,7 +336,7 @@ class FixedProblem:
         H = np.zeros((self.size, self.size))
         g = np.zeros(self.size)
         prm = np.array([0.0, 0, 0, -1.0, 0, 1e-5, 1e-12, 1e12, 1e-6, 1e32, 1e-3, 0, 0, 10.0])
-        _, status, _, _, _, cost, _ = self.module._lm(x, self._aux, prm, np.empty((1, 7)), H, g)
+        _, status, _, _, _, cost, _ = self.module._lm(x, self._aux, prm, np.empty((1, 8)), H, g)
         if status == -1:
             H[:], g[:] = np.nan, np.nan
         return float(cost), H, g
@@ -340,6 +350,10 @@ class FixedProblem:
         t0 = time.perf_counter()
         p = _params(params, options)
         x0 = self._x0 if values is None else self.flatten(values)
+        given = self._values if values is None else values
+        unused = [k for k in given.keys() if k not in self._key_set] if len(given) > len(
+            self.keys) else []
+        warn_unused(unused)
         identity, by_factor = self._damping(p)
         rel_tol = p.relative_tolerance if p.relative_tolerance is not None else (
             1e-5 if identity else 1e-6)  # as LevenbergMarquardt resolves the defaults
@@ -348,7 +362,7 @@ class FixedProblem:
                         p.gradient_tolerance, p.step_tolerance, lam0, p.min_lambda,
                         p.max_lambda, p.min_diagonal, p.max_diagonal, p.min_relative_decrease,
                         float(identity), float(by_factor), getattr(p, "lambda_factor", 10.0)])
-        hist = np.empty((max(p.max_iterations, 1), 7))
+        hist = np.empty((max(p.max_iterations, 1), 8))
         self.H = np.zeros((self.size, self.size))
         self.g = np.zeros(self.size)
         t1 = time.perf_counter()
@@ -356,35 +370,74 @@ class FixedProblem:
                                                                self.g)
         t2 = time.perf_counter()
         if status == -1:
-            raise NonFiniteError("fixed formulation: the cost or gradient at the initial values "
-                                 "is not finite: check the measurements and variables")
+            raise NonFiniteError("fixed formulation: " + self._locate_nonfinite(x0))
         records = [IterationRecord(i + 1, float(hist[i, 0]), float(hist[i, 1]),
                                    float(hist[i, 2]), float(hist[i, 3]), float(hist[i, 4]),
                                    float(hist[i, 5]), bool(hist[i, 6] > 0.5), float("nan"))
                    for i in range(its)]
         costs = [float(init)] + [r.cost for r in records if r.accepted]
         st = {0: Status.CONVERGED, 1: Status.MAX_ITERATIONS, 2: Status.FAILED}[int(status)]
+        since, gain = None, 0.0  # the trailing run of rejected steps, as Run tracks it
+        for i in range(its - 1, -1, -1):
+            if hist[i, 6] > 0.5:
+                break
+            since = i + 1
+            g = float(hist[i, 7]) if math.isfinite(hist[i, 1]) else math.inf
+            gain = max(gain, g if g == g else math.inf)
+        st, message = stall_status(st, _message(int(msg), float(val), p), float(cost), since,
+                                   gain)
         timing = {"setup": t1 - t0, "lm": t2 - t1, "total": time.perf_counter() - t0}
+        clamps, num_clamped = fixed_clamp_hits(self, x)
+        warn_clamps(clamps, num_clamped)
         if p.verbose:
             print(IterationRecord.HEADER)
             for r in records:
                 print(r.row())
-        return Result(None, status=st, message=_message(int(msg), float(val), p),
+        return Result(None, status=st, message=message,
                       iterations=len(records), initial_cost=float(init), final_cost=float(cost),
                       cost_history=costs, iteration_records=records, timing=timing,
                       method="lm (fixed)", linear_solver="dense cholesky", problem=self,
-                      state=x)
+                      state=x, unused_keys=tuple(unused), clamps=tuple(clamps),
+                      num_clamped=num_clamped)
+
+    def _locate_nonfinite(self, x: np.ndarray) -> str:
+        """Name the first factor whose residual or Jacobian is not finite at storage ``x``."""
+        values = self.values(x)
+        hits, total = fixed_clamp_hits(self, x)
+        clamped = (f"; at the initial values {total} clamped call(s) are outside their domain, "
+                   f"e.g. {hits[0]}" if total > 0 else "")
+        for f in self._col.sources:
+            try:
+                f.checked_error(values)
+                f.checked_jacobians(values)
+            except NonFiniteError as e:
+                return str(e) + clamped
+        return "the cost, gradient or H at the initial values is not finite" + clamped
 
     def _damping(self, p: LMParams) -> tuple:
         """(identity damping, lambda by factor) as LevenbergMarquardt resolves them."""
-        from ...manifolds.base import is_vector_kind
+        from ..lm import auto_policy, problem_class_for
 
-        damping = getattr(p, "damping", "diagonal")
-        policy = getattr(p, "lambda_policy", "nielsen")
-        identity = damping == "identity" or (
-            damping == "auto" and not any(is_vector_kind(k) for k in self.kinds))
-        by_factor = policy == "factor" or (policy == "auto" and identity)
-        return identity, by_factor
+        return auto_policy(problem_class_for(self.kinds, False, self._pattern), p)
+
+    def _pattern(self):
+        """The block pattern of H (natural order; only its variable kinds and couplings matter
+        for the damping choice)."""
+        from ...structure import build_pattern
+
+        pi, pj = [], []
+        for f in self._col.factors:
+            vs = list(f.var_idx)
+            for a in range(len(vs)):
+                for b in range(a + 1, len(vs)):
+                    pi.append(vs[a])
+                    pj.append(vs[b])
+        dims = np.array([k.dim for k in self.kinds], dtype=np.int64)
+        pattern, _ = build_pattern(dims, np.arange(len(self.keys)),
+                                   np.array(pi, dtype=np.int64), np.array(pj, dtype=np.int64))
+        ids = {id(k): i for i, k in enumerate(dict.fromkeys(self.kinds))}
+        pattern.var_kind = np.array([ids[id(k)] for k in self.kinds], dtype=np.int64)
+        return pattern
 
     def __repr__(self) -> str:
         o = self.ops

@@ -9,7 +9,7 @@ supernodes, relaxed amalgamation), at block granularity: one block column per va
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from ..._jit import njit
 
 
 @njit(cache=True)

@@ -30,7 +30,7 @@ Blocks of ``S`` are addressed by column bases: entry ``(a, b)`` of block ``blk``
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from ..._jit import njit
 
 _FM = {"contract"}  # let LLVM fuse multiply-adds (no reassociation)
 

@@ -38,7 +38,9 @@ def choose_linear_solver(pattern: HessianPattern | None) -> str:
     (``benchmarks/factorization.py``); BA-shaped problems go to the Schur complement.
     """
     if pattern is None:
-        return "cholmod"
+        from ...errors import have_extra
+
+        return "cholmod" if have_extra("sksparse") else "block"
     if pattern.size <= DENSE_MAX_SIZE:
         return "dense"
     from .schur import is_ba_shaped

@@ -1,4 +1,4 @@
-"""Sparse Cholesky with CHOLMOD (scikit-sparse): symbolic analysis once, numeric each step.
+"""Sparse Cholesky with CHOLMOD (scikit-sparse, the optional ``fgopt[cholmod]`` extra): symbolic analysis once, numeric each step.
 
 The problem already orders variables with a fill-reducing order of the block graph, so CHOLMOD
 is told ``ordering_method="natural"`` by default; ``"amd"``, ``"metis"``... let CHOLMOD order the
@@ -14,7 +14,7 @@ import warnings
 
 import numpy as np
 
-from ...errors import BackendUnavailableError, NotPositiveDefiniteError
+from ...errors import NotPositiveDefiniteError, have_extra, missing_extra
 from ...structure import HessianPattern
 
 
@@ -22,12 +22,8 @@ class CholmodSolver:
     name = "cholmod"
 
     def __init__(self, mode: str = "auto", ordering_method: str = "natural"):
-        try:
-            from sksparse import cholmod  # noqa: F401
-        except ImportError as e:  # pragma: no cover - depends on the install
-            raise BackendUnavailableError(
-                "linear_solver='cholmod' needs scikit-sparse (and libsuitesparse-dev): "
-                "run `make test` to set it up, or choose linear_solver='ldlt'") from e
+        if not have_extra("sksparse"):
+            raise missing_extra("sksparse", "linear_solver='cholmod'")
         self.mode = mode
         self.ordering_method = ordering_method
         self._factor = None

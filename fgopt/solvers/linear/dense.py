@@ -1,9 +1,8 @@
-"""Dense Cholesky (LAPACK) for small problems."""
+"""Dense Cholesky (LAPACK through numpy) for small problems."""
 
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg
 
 from ...errors import NotPositiveDefiniteError
 from ...structure import HessianPattern
@@ -23,11 +22,14 @@ class DenseCholeskySolver:
         H = np.zeros((n, n))
         H[self._rows, self._cols] = H_data
         try:
-            self._cho = scipy.linalg.cho_factor(H, lower=True, check_finite=False)
+            L = np.linalg.cholesky(H)  # reads the lower triangle (numpy: no scipy import)
         except np.linalg.LinAlgError:
             raise NotPositiveDefiniteError("dense Cholesky: H is not positive definite") from None
-        if not np.all(np.diag(self._cho[0]) > 0):
+        if not np.all(np.diag(L) > 0):
             raise NotPositiveDefiniteError("dense Cholesky: H is not positive definite")
+        self._L = L
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
-        return scipy.linalg.cho_solve(self._cho, rhs, check_finite=False)
+        # L L^T x = rhs; numpy has no triangular solver, and its general solve (LU; no pivoting
+        # happens on a triangular matrix with a positive diagonal) costs little at <= 300 unknowns
+        return np.linalg.solve(self._L.T, np.linalg.solve(self._L, rhs))

@@ -186,6 +186,8 @@ class SchurSolver:
             self._S = np.zeros((nS, nS), order="F")
             self._S_flat = self._S.reshape(-1, order="F")  # a view (Fortran-contiguous)
         elif mode == "sparse":
+            from ...errors import have_extra
+            from .block_cholesky import BlockCholeskySolver
             from .cholmod import CholmodSolver
 
             all_i = np.concatenate([pk["ci"], pk["fi"]])
@@ -196,7 +198,9 @@ class SchurSolver:
             if self._pk_dst.shape[0] != spat.nnz:
                 raise AssertionError("Schur: packed blocks do not cover the reduced pattern")
             self._S_flat = np.zeros(spat.nnz)
-            self._chol = CholmodSolver(mode="supernodal", ordering_method="natural")
+            # CHOLMOD when the fgopt[cholmod] extra is installed, else fgopt's block Cholesky
+            self._chol = (CholmodSolver(mode="supernodal", ordering_method="natural")
+                          if have_extra("sksparse") else BlockCholeskySolver())
             self._chol.analyze(spat)
         else:  # explicit PCG: products with the packed blocks
             br, bc, pk_off = pk["br"], pk["bc"], pk["pk_off"]

@@ -1,0 +1,128 @@
+"""Deferred numba: ``@njit`` kernels that import and compile numba only when first called.
+
+``import numba`` costs 0.25-0.4 s and its first compile or cache load initializes numba's
+target context (another 0.2-0.3 s), so fgopt's modules must not touch numba at import time.
+:func:`njit` has numba's ``njit`` signature but returns a :class:`LazyKernel`: a proxy that
+builds the real dispatcher (``numba.njit(**options)(py_func)``) on its first call. Inside other
+jitted code the proxy types as that dispatcher (numba reads ``_numba_type_``), so kernels call
+kernels exactly as before, and ``cache=True`` keeps working: numba's cache is keyed on the
+function's source file and qualified name, which the proxy does not change.
+
+:func:`prange` is ``numba.prange`` for kernels compiled with ``parallel=True``: numba recognizes
+it by identity, so a module that uses it resolves the name when the kernel is built (the proxy
+re-binds ``prange`` in the kernel's globals before compiling).
+
+Small inputs can skip numba altogether: :meth:`LazyKernel.python` (or :func:`python_mode`)
+runs the same function as plain Python, calls to other kernels included. Callers use it where
+the work is tiny (a 5-pose retract, the per-value group operations of a script's first values),
+where numba's 0.5 s of import and initialization per process would dominate.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+from collections.abc import Callable
+from contextlib import contextmanager
+from typing import Any
+
+_lock = threading.RLock()
+_mode = threading.local()
+
+
+@contextmanager
+def python_mode():
+    """Inside, every :class:`LazyKernel` runs its pure-Python function (nested kernel calls
+    too): small inputs then need no numba import, compilation or cache load."""
+    previous = getattr(_mode, "python", False)
+    _mode.python = True
+    try:
+        yield
+    finally:
+        _mode.python = previous
+
+
+def _numba_prange(*args: int) -> range:
+    """Plain ``range`` until numba compiles the kernel (see the module docstring)."""
+    return range(*args)
+
+
+prange = _numba_prange
+
+
+class LazyKernel:
+    """A numba kernel compiled (or loaded from numba's cache) on first use."""
+
+    def __init__(self, py_func: Callable, options: dict):
+        self.py_func = py_func
+        self.options = options
+        self._dispatcher = None
+        self.__name__ = py_func.__name__
+        self.__qualname__ = py_func.__qualname__
+        self.__doc__ = py_func.__doc__
+        self.__module__ = py_func.__module__
+        self.__wrapped__ = py_func
+
+    @property
+    def dispatcher(self) -> Any:
+        """The real ``numba`` dispatcher (built on first access)."""
+        d = self._dispatcher
+        if d is None:
+            with _lock:
+                d = self._dispatcher
+                if d is None:
+                    import numba
+
+                    g = self.py_func.__globals__
+                    if g.get("prange") is _numba_prange:
+                        g["prange"] = numba.prange
+                    d = numba.njit(**self.options)(self.py_func)
+                    self._dispatcher = d
+        return d
+
+    @property
+    def compiled(self) -> bool:
+        """True once numba has built the dispatcher (not necessarily any specialization)."""
+        return self._dispatcher is not None
+
+    @property
+    def _numba_type_(self) -> Any:
+        return self.dispatcher._numba_type_
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        if getattr(_mode, "python", False):
+            return self.py_func(*args, **kwargs)
+        d = self._dispatcher
+        if d is None:
+            d = self.dispatcher
+        return d(*args, **kwargs)
+
+    def python(self, *args: Any, **kwargs: Any) -> Any:
+        """Run the pure-Python function (nested kernels too); see :func:`python_mode`."""
+        with python_mode():
+            return self.py_func(*args, **kwargs)
+
+    def __getattr__(self, name: str) -> Any:  # signatures, overloads, inspect_types, ...
+        return getattr(self.dispatcher, name)
+
+    def __repr__(self) -> str:
+        state = "built" if self._dispatcher is not None else "not built yet"
+        return f"<fgopt lazy numba kernel {self.__module__}.{self.__qualname__} ({state})>"
+
+
+def njit(*args: Any, **options: Any) -> Any:
+    """``numba.njit`` without importing numba: ``@njit`` or ``@njit(cache=True, ...)``."""
+    if len(args) == 1 and callable(args[0]) and not options:
+        return LazyKernel(args[0], {})
+    if args:
+        raise TypeError("fgopt._jit.njit takes keyword options only (no explicit signatures)")
+
+    def wrap(fn: Callable) -> LazyKernel:
+        return LazyKernel(fn, options)
+
+    return wrap
+
+
+def is_numba_loaded() -> bool:
+    """Whether numba has been imported in this process."""
+    return "numba" in sys.modules

@@ -1,0 +1,102 @@
+"""One Bayes-tree update in as few numba calls as possible (the per-update overhead matters:
+most updates of an online problem re-eliminate a handful of variables).
+
+``tree_update`` removes the top for the marked variables, assigns ordering groups, builds the
+top's graph and, when the top is small enough for the bitset minimum degree, orders it and
+calls ``tree_finish`` (re-eliminate, commit, mark the top for back-substitution) itself. A
+larger top returns ``NEED_ORDER`` with its graph; the caller orders it (CHOLMOD AMD) and calls
+``tree_finish``. A non-positive pivot returns ``FAILED`` before anything is committed.
+
+``info`` (int64): ``[t, nnz change, new cliques, (unused), batch, failed variable]``.
+Back-substitution is deferred to the next read of the estimate, as in iSAM2
+(:func:`._solve.solve_pending`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._jit import njit
+from ._eliminate import eliminate
+from ._ordering import min_degree
+from ._state import M_STAMP, unpack_vs
+from ._top import commit, panel_entries, remove_top, top_graph
+
+OK, NEED_ORDER, FAILED = 0, 1, 2
+I_T, I_NNZ, I_NEW, _, I_BATCH, I_FAIL = range(6)
+
+
+@njit(cache=True)
+def tree_update(vs, fs, cs, meta, cvpool, cnpool, hpool, marked, unused, new_facs, removed,
+                observed, first, n_live, batch_frac, tol, iw, fw, bitset_limit):
+    """See the module docstring. ``first``: variables ordered before all others (group 0)."""
+    V_ = unpack_vs(vs)
+    var_mark, var_changed = V_[2], V_[6]
+    T, R, O, FL, batch, s = remove_top(vs, fs, cs, cvpool, meta, marked, new_facs, removed,
+                                       batch_frac, n_live)
+    if unused.shape[0]:
+        meta[M_STAMP] += 1
+        su = meta[M_STAMP]
+        for v in unused:
+            var_changed[v] = su
+            var_mark[v] = 0
+        keep = np.empty(T.shape[0], np.int64)
+        n = 0
+        for v in T:
+            if var_changed[v] != su:
+                keep[n] = v
+                n += 1
+        T = keep[:n].copy()
+    t = T.shape[0]
+    meta[M_STAMP] += 1
+    so = meta[M_STAMP]
+    for v in observed:
+        var_changed[v] = so
+    meta[M_STAMP] += 1
+    sf = meta[M_STAMP]
+    for v in first:
+        var_changed[v] = sf
+    nobs = 0
+    for v in T:
+        if var_changed[v] == so:
+            nobs += 1
+    group = np.ones(t, np.int64)
+    for i in range(t):
+        c = var_changed[T[i]]
+        if c == sf:
+            group[i] = 0
+        elif c == so and nobs < t:
+            group[i] = 2
+    ap, ai = top_graph(vs, fs, cs, cvpool, T, FL, O)
+    info = np.zeros(6, np.int64)
+    info[I_T] = t
+    info[I_BATCH] = batch
+    if t > bitset_limit:
+        return NEED_ORDER, T, R, O, FL, ap, ai, group, info, cvpool, cnpool
+    order = min_degree(t, ap, ai, group)
+    return tree_finish(vs, fs, cs, meta, cvpool, cnpool, hpool, T, R, O, FL, ap, ai, group,
+                       order, new_facs, removed, tol, iw, fw, info)
+
+
+@njit(cache=True)
+def tree_finish(vs, fs, cs, meta, cvpool, cnpool, hpool, T, R, O, FL, ap, ai, group, order,
+                new_facs, removed, tol, iw, fw, info):
+    """Re-eliminate the ordered top and commit it (see the module docstring)."""
+    if T.shape[0] == 0:
+        newcl = np.zeros(0, np.int64)
+        commit(vs, fs, cs, meta, cvpool, cnpool, hpool, R, newcl, O, newcl, T, newcl, removed,
+               new_facs)
+        return OK, T, R, O, FL, ap, ai, group, info, cvpool, cnpool
+    status, newcl, oparent, T_clique, cvpool, cnpool = eliminate(
+        vs, fs, cs, meta, cvpool, cnpool, hpool, T, order, group, ap, ai, FL, O, tol, iw, fw)
+    if status >= 0:
+        info[I_FAIL] = status
+        return FAILED, T, R, O, FL, ap, ai, group, info, cvpool, cnpool
+    info[I_NNZ] = panel_entries(cs, newcl) - panel_entries(cs, R)
+    commit(vs, fs, cs, meta, cvpool, cnpool, hpool, R, newcl, O, oparent, T, T_clique, removed,
+           new_facs)
+    var_repl = unpack_vs(vs)[10]
+    for v in T:
+        var_repl[v] = 1
+    info[I_NEW] = newcl.shape[0]
+    return OK, T, R, O, FL, ap, ai, group, info, cvpool, cnpool

@@ -1,0 +1,260 @@
+"""Variables of the incremental smoother: keys -> slots, linearization points, estimates.
+
+Each variable has a slot (reused after removal). Values of a batch kind (SE2, SE3, R^n ...)
+keep their linearization point ``theta`` in one ``(capacity, storage_dim)`` array per kind,
+indexed by slot, so factor kernels gather them without Python per variable; duck-typed
+manifolds keep Python objects. The tangent update ``delta`` and the relinearization
+thresholds live in the tree state (``TreeState.delta`` / ``thr``), so the estimate is
+``theta (+) delta``, retracted per kind in one batched call.
+
+Changes made during an update are logged so a failed update can be rolled back exactly.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..errors import FgoptError, KeyNotFoundError
+from ..key import Key, key_char, key_str
+from ..manifolds.base import BatchKind, ops_for
+from ..variables import Variables
+from ._state import TreeState
+
+
+class VariableStore:
+    def __init__(self, tree: TreeState, thresholds: Any):
+        self.tree = tree
+        self.slot_of: dict[Key, int] = {}
+        self.key_of = np.zeros(16, np.int64)
+        self.kind_of = np.full(16, -2, np.int64)       # kind id, -1 Python manifold, -2 free
+        self.kinds: list[BatchKind] = []
+        self._kind_id: dict[int, int] = {}
+        self.theta: list[np.ndarray] = []
+        self.objects: dict[int, Any] = {}
+        self.free: list[int] = []
+        self.hwm = 0
+        self._thresholds = thresholds
+        self._thr_rows: dict = {}
+        self._live: np.ndarray | None = None
+        self._log: list | None = None
+
+    # ------------------------------------------------------------------ transactions
+    def begin(self) -> None:
+        self._log = []
+
+    def rollback(self) -> None:
+        for entry in reversed(self._log):
+            what = entry[0]
+            if what == "add":
+                _, k, slot, hwm, reused = entry
+                del self.slot_of[k]
+                self.kind_of[slot] = -2
+                self.tree.var_live[slot] = 0
+                self.objects.pop(slot, None)
+                if reused:
+                    self.free.append(slot)
+                else:
+                    self.hwm = hwm
+            elif what == "delta":
+                _, slots, rows = entry
+                self.tree.delta[slots] = rows
+            elif what == "theta":
+                _, kid, slots, rows = entry
+                self.theta[kid][slots] = rows
+            elif what == "object":
+                _, slot, value = entry
+                self.objects[slot] = value
+        self._log = None
+        self._live = None
+
+    def end(self) -> None:
+        self._log = None
+
+    # ------------------------------------------------------------------ adding / removing
+    def __len__(self) -> int:
+        return len(self.slot_of)
+
+    def __contains__(self, k: object) -> bool:
+        return k in self.slot_of
+
+    def add(self, k: Key, value: Any) -> int:
+        ops = ops_for(value)
+        kind = ops.batch_kind(value)
+        hwm = self.hwm
+        reused = bool(self.free)
+        if reused:
+            slot = self.free.pop()
+        else:
+            slot = self.hwm
+            self.hwm += 1
+        if slot >= self.key_of.shape[0]:
+            n = max(2 * self.key_of.shape[0], slot + 1)
+            self.key_of = np.resize(self.key_of, n)
+            kinds = np.full(n, -2, np.int64)
+            kinds[:self.kind_of.shape[0]] = self.kind_of
+            self.kind_of = kinds
+        if self._log is not None:
+            self._log.append(("add", k, slot, hwm, reused))
+        if kind is None:
+            kid = -1
+            dim = int(ops.dim(value))
+            self.objects[slot] = value
+        else:
+            kid = self._kind_id.get(id(kind))
+            if kid is None:
+                kid = self._kind_id[id(kind)] = len(self.kinds)
+                self.kinds.append(kind)
+                self.theta.append(np.zeros((max(16, self.key_of.shape[0]), kind.storage_dim)))
+            th = self.theta[kid]
+            if slot >= th.shape[0]:
+                grown = np.zeros((max(2 * th.shape[0], slot + 1), kind.storage_dim))
+                grown[:th.shape[0]] = th
+                self.theta[kid] = th = grown
+            th[slot] = kind.to_storage(value)
+            dim = kind.dim
+        self.slot_of[k] = slot
+        self.key_of[slot] = k
+        self.kind_of[slot] = kid
+        tree = self.tree
+        tree.ensure_vars(slot + 1, dim)
+        # VI rows: dim, clique, mark, loc, pos, fhead, changed, live, repl (see _state)
+        tree.VI[:, slot] = (dim, -1, 0, 0, 0, -1, 0, 1, 0)
+        tree.delta[slot] = 0.0
+        ck = (key_char(k), id(kind), dim, tree.maxd)
+        row = self._thr_rows.get(ck)
+        if row is None:
+            row = self._thr_rows[ck] = self._threshold_row(k, kind, dim, tree.maxd)
+        tree.thr[slot] = row
+        self._live = None
+        return slot
+
+    def remove(self, slots: np.ndarray) -> None:
+        """Forget variables (after commit: they are in no clique and no factor)."""
+        tree = self.tree
+        for v in slots.tolist():
+            k = Key(int(self.key_of[v]))
+            del self.slot_of[k]
+            self.kind_of[v] = -2
+            self.objects.pop(v, None)
+            tree.var_clique[v] = -1
+            tree.var_fhead[v] = -1
+            tree.var_live[v] = 0
+            tree.delta[v] = 0.0
+            self.free.append(v)
+        self._live = None
+
+    def _threshold_row(self, k: Key, kind: BatchKind | None, dim: int, width: int) -> np.ndarray:
+        thr = self._thresholds
+        row = np.full(width, np.inf)
+        if isinstance(thr, dict):
+            value = thr.get(key_char(k)) if key_char(k) in thr else None
+            if value is None and kind is not None:
+                value = thr.get(kind.name)
+            if value is None:
+                value = thr.get("default", np.inf)
+        else:
+            value = thr
+        value = np.broadcast_to(np.asarray(value, dtype=float), (dim,)) if np.ndim(value) == 0 \
+            else np.asarray(value, dtype=float)
+        if value.shape != (dim,):
+            raise FgoptError(f"relinearize_threshold for {key_str(k)} has {value.shape[0]} "
+                             f"entries, the variable has tangent dim {dim}")
+        row[:dim] = value
+        return row
+
+    # ------------------------------------------------------------------ reading
+    def slot(self, k: Any) -> int:
+        try:
+            return self.slot_of[k]
+        except (KeyError, TypeError):
+            raise KeyNotFoundError(f"{key_str(k) if isinstance(k, int) else k!r} is not a "
+                                   "variable of the smoother") from None
+
+    def live_slots(self) -> np.ndarray:
+        if self._live is None:
+            self._live = np.fromiter(self.slot_of.values(), np.int64, len(self.slot_of))
+            self._live.sort()
+        return self._live
+
+    def theta_value(self, slot: int) -> Any:
+        kid = int(self.kind_of[slot])
+        if kid < 0:
+            return self.objects[slot]
+        return self.kinds[kid].from_storage(self.theta[kid][slot])
+
+    def estimate_value(self, slot: int) -> Any:
+        kid = int(self.kind_of[slot])
+        d = self.tree.var_dim[slot]
+        if kid < 0:
+            x = self.objects[slot]
+            return ops_for(x).retract(x, self.tree.delta[slot, :d].copy())
+        kind = self.kinds[kid]
+        row = kind.retract(self.theta[kid][slot:slot + 1], self.tree.delta[slot:slot + 1, :d])[0]
+        # retract's output is a fresh row on the manifold: wrap it without re-normalizing
+        return kind.wrap(row) if kind.wrap is not None else kind.from_storage(row)
+
+    def estimate_storages(self, delta: np.ndarray) -> tuple[list[np.ndarray], dict[int, Any]]:
+        """``theta (+) delta`` of every live variable: one array per kind (indexed by slot),
+        and the Python-manifold values."""
+        live = self.live_slots()
+        kinds = self.kind_of[live]
+        out = []
+        for kid, kind in enumerate(self.kinds):
+            rows = live[kinds == kid]
+            est = np.zeros_like(self.theta[kid])
+            if rows.shape[0]:
+                est[rows] = kind.retract(np.ascontiguousarray(self.theta[kid][rows]),
+                                         np.ascontiguousarray(delta[rows, :kind.dim]))
+            out.append(est)
+        objects = {}
+        for v in live[kinds < 0].tolist():
+            x = self.objects[v]
+            objects[v] = ops_for(x).retract(x, delta[v, :self.tree.var_dim[v]].copy())
+        return out, objects
+
+    def estimate(self, delta: np.ndarray) -> Variables:
+        storages, objects = self.estimate_storages(delta)
+        out = Variables()
+        values = out._values
+        live = self.live_slots()
+        kinds = self.kind_of[live]
+        keys = self.key_of
+        for kid, kind in enumerate(self.kinds):
+            make = kind.wrap if kind.wrap is not None else kind.from_storage
+            rows = live[kinds == kid]
+            S = storages[kid][rows]
+            S.flags.writeable = False
+            for v, row in zip(rows.tolist(), S):
+                values[Key(int(keys[v]))] = make(row) if kind.wrap is not None else \
+                    kind.from_storage(row)
+        for v, x in objects.items():
+            values[Key(int(keys[v]))] = x
+        return out
+
+    # ------------------------------------------------------------------ relinearization
+    def relinearize(self, slots: np.ndarray) -> None:
+        """``theta <- theta (+) delta``, ``delta <- 0`` for ``slots`` (logged)."""
+        tree = self.tree
+        kinds = self.kind_of[slots]
+        for kid, kind in enumerate(self.kinds):
+            rows = slots[kinds == kid]
+            if rows.shape[0] == 0:
+                continue
+            old = self.theta[kid][rows].copy()
+            if self._log is not None:
+                self._log.append(("theta", kid, rows, old))
+            self.theta[kid][rows] = kind.retract(old, np.ascontiguousarray(
+                tree.delta[rows, :kind.dim]))
+        for v in slots[kinds < 0].tolist():
+            x = self.objects[v]
+            if self._log is not None:
+                self._log.append(("object", v, x))
+            self.objects[v] = ops_for(x).retract(x, tree.delta[v, :tree.var_dim[v]].copy())
+        if self._log is not None:
+            self._log.append(("delta", slots, tree.delta[slots].copy()))
+        tree.delta[slots] = 0.0
+
+    def describe(self, slot: int) -> str:
+        return key_str(int(self.key_of[slot]))
