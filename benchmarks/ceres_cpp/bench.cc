@@ -300,10 +300,11 @@ int main(int argc, char** argv) {
          "\"samples\": [", load_s, load_cpu_s, med, cpu_med);
   for (size_t k = 0; k < samples.size(); ++k) printf("%s%.9g", k ? ", " : "", samples[k]);
   printf("], \"iterations\": %d, \"initial_cost\": %.17g, \"final_cost\": %.17g, "
-         "\"termination\": \"%s\", \"linear_solver_s\": %.9g, \"ceres\": \"%s\", "
-         "\"repaired_information\": %d}\n",
+         "\"termination\": \"%s\", \"linear_solver_s\": %.9g, \"preprocessor_s\": %.9g, "
+         "\"minimizer_s\": %.9g, \"ceres\": \"%s\", \"repaired_information\": %d}\n",
          s.num_successful_steps + s.num_unsuccessful_steps - 1, s.initial_cost, s.final_cost,
          ceres::TerminationTypeToString(s.termination_type), s.linear_solver_time_in_seconds,
-         CERES_VERSION_STRING, g_repaired);
+         s.preprocessor_time_in_seconds, s.minimizer_time_in_seconds, CERES_VERSION_STRING,
+         g_repaired);
   return 0;
 }
