@@ -140,8 +140,11 @@ class _StateView:
 
 #: Batches are linearized in slices of this many factors (threads: this many per thread).
 CHUNK = 1 << 14
-#: Trial steps are linearized into a second H while H's data takes at most this many bytes.
-SPARE_MAX_BYTES = 256 << 20
+#: Trial steps are linearized into a second H while H's data takes at most this many bytes;
+#: larger problems linearize them into H itself and re-linearize after a rejected step (the
+#: same numbers: memory of one H saved, one linearization more per rejection). 100k-pose 3D
+#: grid: H 50 MB; 5M BA observations: 1.1 GB.
+SPARE_MAX_BYTES = 32 << 20
 
 
 class Problem:

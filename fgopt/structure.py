@@ -56,12 +56,20 @@ class HessianPattern:
 
     @property
     def indices(self) -> np.ndarray:
-        """``(nnz,)`` int64 row indices, sorted within each column."""
-        if self._indices is None:
-            rows = _block_rows.python if _small(int(self.indptr[-1])) else _block_rows
-            self._indices = rows(self.block_codes, self.var_offset.shape[0], self.order,
-                                 self.var_dim, self.var_offset, self.indptr)
-        return self._indices
+        """``(nnz,)`` int64 row indices, sorted within each column (built once, then kept)."""
+        return self.row_indices(cache=True)
+
+    def row_indices(self, cache: bool = True) -> np.ndarray:
+        """The row indices; ``cache=False`` does not keep them when they were not built yet
+        (a solver that needs them only for its analysis)."""
+        if self._indices is not None:
+            return self._indices
+        rows = _block_rows.python if _small(int(self.indptr[-1])) else _block_rows
+        out = rows(self.block_codes, self.var_offset.shape[0], self.order, self.var_dim,
+                   self.var_offset, self.indptr)
+        if cache:
+            self._indices = out
+        return out
 
     def blocks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(row var, column var, p00)`` of every stored block, diagonal blocks included."""
