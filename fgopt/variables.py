@@ -205,6 +205,13 @@ class Variables:
     def keys(self) -> list[Key]:
         return list(self._values.keys())
 
+    def keys_of_kinds(self, kinds) -> np.ndarray:
+        """Keys (int64) whose values have a batch kind in ``kinds``; bulk rows are judged by
+        their block's kind, without turning them into per-key values (``keys()`` would)."""
+        out = [blk.keys for blk in self._pending if blk.kind in kinds]
+        per_key = [int(k) for k, x in self._dict.items() if ops_for(x).batch_kind(x) in kinds]
+        return np.concatenate(out + [np.array(per_key, dtype=np.int64)])
+
     def values(self) -> list[Any]:
         return list(self._values.values())
 
