@@ -32,9 +32,9 @@ import os
 import zlib
 from dataclasses import dataclass
 
-from .._jit import njit
 import numpy as np
 
+from .._jit import njit
 from ..errors import FileFormatError
 
 _FNV_OFFSET = np.uint64(0xCBF29CE484222325)
@@ -344,7 +344,7 @@ class Scan:
     def error(self, message: str, line: int | None) -> FileFormatError:
         return FileFormatError(message, self.path, None if line is None else int(line))
 
-    def check_values(self, which: "np.ndarray | slice | None" = None) -> None:
+    def check_values(self, which: np.ndarray | slice | None = None) -> None:
         """Raise for the first non-number token (among ``which`` value indices or a slice of
         them, default all)."""
         which = _as_index(which, self.values.shape[0])
@@ -353,7 +353,7 @@ class Scan:
             v = _nth(which, int(np.argmax(bad)))
             raise self.error(f"{self.token(v)!r} is not a number", self.line_of_value(v))
 
-    def check_finite(self, which: "np.ndarray | slice | None" = None) -> None:
+    def check_finite(self, which: np.ndarray | slice | None = None) -> None:
         """Raise for the first NaN / inf value among value indices ``which`` (or a slice)."""
         which = _as_index(which, self.values.shape[0])
         fin = _first_nonfinite(np.ascontiguousarray(self.values[which]).reshape(-1))

@@ -10,8 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from numba import njit
-
+from ..._jit import njit
 from ...errors import FgoptError
 from ...structure import HessianPattern, ranges
 from . import _schur_kernels as K
