@@ -16,6 +16,9 @@ import os
 
 for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
     os.environ[_v] = "1"
+# Warm-process figures: small batches on the compiled kernels from the first timed call (a
+# process reaches this after 0.5 s of NumPy-twin work; see fgopt/_jit.py).
+os.environ.setdefault("FGOPT_NUMPY_BUDGET", "0")
 
 import argparse  # noqa: E402
 import datetime as dt  # noqa: E402

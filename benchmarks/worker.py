@@ -16,6 +16,9 @@ THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NU
                "VECLIB_MAXIMUM_THREADS", "BLIS_NUM_THREADS")
 for _v in THREAD_VARS:
     os.environ[_v] = "1"
+# Warm-process figures: small batches on the compiled kernels from the first timed call (a
+# process reaches this after 0.5 s of NumPy-twin work; see fgopt/_jit.py).
+os.environ.setdefault("FGOPT_NUMPY_BUDGET", "0")
 
 import argparse  # noqa: E402
 import json  # noqa: E402

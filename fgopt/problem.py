@@ -36,19 +36,21 @@ from .manifolds.base import SCALAR_KIND, BatchKind, is_vector_kind, ops_for
 from .structure import (DENSE_MAX_SIZE, HessianPattern, ba_shaped_kind, build_pattern,
                         fill_reducing_order, independent_kinds, kinds_by_count, schur_order,
                         scatter_positions, unique_int)
+from ._jit import charge_numpy, numpy_budget_left
 from ._threads import PARALLEL_MIN_BATCH, linearize_batch_threaded
 from .variables import Variables
 
 
 
-#: Batches up to this size are assembled by the NumPy twins (no numba import or cache load);
-#: the same threshold as generated kernels' NumPy twins.
+#: Batches up to this size are assembled by the NumPy twins (no numba import or cache load)
+#: while the process's twin budget lasts; the same rule as generated kernels' NumPy twins.
 NUMPY_MAX_BATCH = 1000
 
 
 def _asm(n: int):
-    """The assembly kernels for a batch of ``n`` instances: NumPy when small, else numba."""
-    return asm_np if n <= NUMPY_MAX_BATCH else asm
+    """The assembly kernels for a batch of ``n`` instances: NumPy when small and the process's
+    twin budget lasts (``fgopt._jit.numpy_budget_left``), else numba."""
+    return asm_np if n <= NUMPY_MAX_BATCH and numpy_budget_left() else asm
 
 
 def _all_finite(a: np.ndarray) -> bool:
@@ -466,10 +468,12 @@ class Problem:
         t0 = time.perf_counter()
         total = 0.0
         for b in self.batches:
-            if len(b.source) <= NUMPY_MAX_BATCH:  # NumPy twins: no numba for small batches
+            if _asm(len(b.source)) is asm_np:  # NumPy twins: small batch, budget left
                 res = b.kernel.residual(b.gather(state), b.source.constants)
+                t1 = time.perf_counter()
                 total += asm_np.batch_cost(res, b.sqrt_info, b.unit, b.source.loss_code,
                                            b.source.loss_param, b.source.loss_shape)
+                charge_numpy(time.perf_counter() - t1)
                 continue
             cost = 0.0
             for lo, hi in b.chunks(CHUNK):
@@ -558,7 +562,7 @@ class Problem:
                     total += linearize_batch_threaded(self, b, state, H, g, lo, hi)
                 t_lin += time.perf_counter() - t0
                 continue
-            if len(b.source) <= NUMPY_MAX_BATCH:  # NumPy twins: no numba for small batches
+            if _asm(len(b.source)) is asm_np:  # NumPy twins: small batch, budget left
                 t0 = time.perf_counter()
                 res, jac = b.kernel.linearize(b.gather(state), b.source.constants)
                 t1 = time.perf_counter()
@@ -566,8 +570,10 @@ class Problem:
                     res, jac, b.sqrt_info, b.unit, b.source.loss_code, b.source.loss_param,
                     b.source.loss_shape, b.arg_dims, b.arg_local_off, b.toff, b.pos, shift, H, g,
                     b.weights)
+                t2 = time.perf_counter()
+                charge_numpy(t2 - t1)
                 t_lin += t1 - t0
-                t_asm += time.perf_counter() - t1
+                t_asm += t2 - t1
                 continue
             # in slices: the kernels' residual / Jacobian / gathered arguments stay a few MB
             # instead of ~300 bytes per factor at once (1.5 GB for 5M BA observations)

@@ -16,6 +16,7 @@ kernel adds the factor's dense ``D x D`` Hessian block through it).
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -64,9 +65,9 @@ class HessianPattern:
         (a solver that needs them only for its analysis)."""
         if self._indices is not None:
             return self._indices
-        rows = _block_rows.python if _small(int(self.indptr[-1])) else _block_rows
-        out = rows(self.block_codes, self.var_offset.shape[0], self.order, self.var_dim,
-                   self.var_offset, self.indptr)
+        args = (self.block_codes, self.var_offset.shape[0], self.order, self.var_dim,
+                self.var_offset, self.indptr)
+        out = _charged(_block_rows, *args) if _small(int(self.indptr[-1])) else _block_rows(*args)
         if cache:
             self._indices = out
         return out
@@ -254,8 +255,9 @@ def build_pattern(var_dim: np.ndarray, order: np.ndarray, pairs_i: np.ndarray,
                             np.arange(V, dtype=np.int64) * (V + 1)])
     del ri, rj, keep
     codes = unique_int(codes)
-    layout = _block_layout.python if _small(codes.shape[0] * 4) else _block_layout
-    indptr, p00 = layout(codes, V, order, var_dim, var_offset, N)
+    args = (codes, V, order, var_dim, var_offset, N)
+    indptr, p00 = (_charged(_block_layout, *args) if _small(codes.shape[0] * 4)
+                   else _block_layout(*args))
     diag_pos = indptr[:-1].copy()  # diagonal entry is the first of each lower column
     pattern = HessianPattern(N, indptr, diag_pos, var_offset, var_dim, codes, p00, order)
     col_ptr = np.searchsorted(codes, np.arange(V + 1, dtype=np.int64) * V)
@@ -298,13 +300,24 @@ def ranges(lengths: np.ndarray) -> np.ndarray:
     return np.arange(total, dtype=np.int64) - starts
 
 
-from ._jit import is_numba_loaded, njit  # noqa: E402  (numba kernels below)
+from ._jit import (charge_numpy, is_numba_loaded, njit,  # noqa: E402  (numba kernels below)
+                   numpy_budget_left)
 
 
 def _small(work: int) -> bool:
-    """Loops of about ``work`` steps run as plain Python while numba is not in use yet: its
-    import, initialization and cache loads (~0.5 s) would cost more."""
-    return work <= 20000 and not is_numba_loaded()
+    """Loops of about ``work`` steps run as plain Python while the process still rents
+    (``fgopt._jit.numpy_budget_left``): numba's import, initialization and cache loads (~0.5 s)
+    would cost more. Callers charge the time to the budget (:func:`_charged`)."""
+    return work <= 20000 and numpy_budget_left()
+
+
+def _charged(kernel, *args):
+    """``kernel.python(*args)``, its time counted towards the switch to numba."""
+    t0 = time.perf_counter()
+    try:
+        return kernel.python(*args)
+    finally:
+        charge_numpy(time.perf_counter() - t0)
 
 
 @njit(cache=True)
@@ -375,7 +388,8 @@ def scatter_positions(lookup: dict, var_rank: np.ndarray, var_idx: np.ndarray) -
     """
     n, k = var_idx.shape
     # small problems before numba is in use: the same loop as plain Python (no numba import)
-    run = _scatter_positions.python if _small(n * k * k) else _scatter_positions
+    run = (_scatter_positions.python if n * k * k <= 20000 and not is_numba_loaded()
+           else _scatter_positions)
     return run(np.ascontiguousarray(lookup["codes"], dtype=np.int64),
                np.ascontiguousarray(lookup["col_ptr"], dtype=np.int64),
                np.ascontiguousarray(lookup["p00"], dtype=np.int64),

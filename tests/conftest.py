@@ -74,3 +74,13 @@ def _data_file(relpath: str) -> Path:
 def data_file():
     """``data_file("pose2d/intel.g2o")`` -> path, or skip the test with a reason."""
     return _data_file
+
+
+@pytest.fixture(autouse=True)
+def fresh_numpy_budget():
+    """Each test starts with a new process's NumPy-twin budget (``fgopt._jit``): small batches
+    run their twins as in a fresh script, whatever the tests before it solved."""
+    from fgopt import _jit
+
+    _jit._numpy_seconds[0] = 0.0
+    yield

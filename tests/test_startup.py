@@ -73,3 +73,4 @@ def test_parallel_kernel_uses_numba_prange():
     import numba
 
     assert _parallel_double.py_func.__globals__["prange"] is numba.prange
+

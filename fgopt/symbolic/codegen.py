@@ -9,8 +9,10 @@ One module per factor type and variable pattern. It holds
   :func:`fgopt._jit.njit` (numba is imported and the kernel compiled or loaded on first call);
 * ``_residual_numpy`` / ``_linearize_numpy``: NumPy twins, the same CSE'd program on whole
   columns (``a_0 = _a[:, 0]``...), when every expression has a NumPy form. Batches of at most
-  ``fgopt.symbolic.runtime.NUMPY_MAX_BATCH`` instances run the twin, so a small problem or a
-  new custom factor needs no numba compilation (3-8 s for a Pose3 factor) and no cache load;
+  ``fgopt.symbolic.runtime.NUMPY_MAX_BATCH`` instances run the twin while the process's twin
+  budget lasts (:func:`fgopt._jit.numpy_budget_left`), so a small problem or a new custom
+  factor needs no numba compilation (3-8 s for a Pose3 factor) and no cache load, and a
+  process that keeps solving switches to the faster compiled kernels;
 * Python wrappers ``residual(args, consts)`` / ``linearize(args, consts)`` with the
   :class:`~fgopt.factors.kernel.FactorKernel` signature (they check shapes, allocate outputs and
   make one kernel call per batch, twin or numba kernel by batch size);
@@ -139,9 +141,11 @@ def _wrapper_source(fn_name: str, kernel: str, layouts: Sequence[ArgLayout],
         lines.append(f"    {arr} = np.empty((n, {shape}))")
     call_args = ", ".join(var_names + ["consts"] + [arr for arr, _ in outs])
     if twin is not None:
-        lines.append("    if n <= NUMPY_MAX_BATCH:")
+        lines.append("    if n <= NUMPY_MAX_BATCH and numpy_budget_left():")
+        lines.append("        t0 = perf_counter()")
         lines.append("        with np.errstate(all='ignore'):  # as numba's error_model='numpy'")
         lines.append(f"            {twin}({call_args})")
+        lines.append("        charge_numpy(perf_counter() - t0)")
         lines.append("    else:")
         lines.append(f"        {kernel}({call_args})")
     else:
@@ -180,11 +184,13 @@ def module_source(name: str, signature: str, origin: str, layouts: Sequence[ArgL
         f'"""Generated batched kernels of ``{name}`` (residual dim {r}, tangent dim {D})."""',
         "",
         "import math",
+        "from time import perf_counter",
         "",
         "import numpy as np",
         "",
         "from fgopt._jit import njit",
-        "from fgopt.symbolic.runtime import NUMPY_MAX_BATCH, prepare",
+        "from fgopt.symbolic.runtime import NUMPY_MAX_BATCH, charge_numpy, numpy_budget_left, "
+        "prepare",
         "",
         f"EPSILON = {EPSILON_VALUE!r}",
         f"NAME = {name!r}",

@@ -7,11 +7,16 @@ from typing import Any
 
 import numpy as np
 
+from .._jit import charge_numpy, numpy_budget_left
 from ..errors import DimensionMismatchError
 
-#: Batches up to this size run a generated kernel's NumPy twin (same program on whole columns):
-#: no numba compilation or cache load for small problems and new custom factors; larger batches
-#: run the numba kernel (compiled once, then loaded from numba's cache).
+__all__ = ["NUMPY_MAX_BATCH", "charge_numpy", "numpy_budget_left", "prepare"]
+
+#: Batches up to this size run a generated kernel's NumPy twin (same program on whole columns)
+#: while the process's twin budget lasts (``fgopt._jit.numpy_budget_left``): no numba
+#: compilation or cache load for small problems and new custom factors; larger batches, and
+#: every batch once the budget is spent, run the numba kernel (compiled once, then loaded from
+#: numba's cache).
 NUMPY_MAX_BATCH = 1000
 
 

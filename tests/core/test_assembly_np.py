@@ -2,6 +2,7 @@
 weights of real batches (every robust loss, unit and full noise), batched retracts of each group,
 per-value group operations, and a small solve that never imports numba."""
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -97,19 +98,66 @@ def test_value_operations_in_python_mode_equal_numba():
             assert np.allclose(r, g, rtol=1e-12, atol=1e-14)
 
 
+#: The README's 2-pose example as a script; prints whether it solved and whether numba loaded.
+TWO_POSE_SCRIPT = ("import sys, fgopt\n"
+                   "from fgopt import key, SE2, PriorFactor, BetweenFactor\n"
+                   "from fgopt.noise import Diagonal\n"
+                   "g, v = fgopt.FactorGraph(), fgopt.Variables()\n"
+                   "n = Diagonal.sigmas([0.1, 0.5, 0.5])\n"
+                   "g.add(PriorFactor(key('x', 1), SE2.from_xytheta(0, 0, 0), n))\n"
+                   "g.add(BetweenFactor(key('x', 1), key('x', 2), SE2.from_xytheta(5, 0, 0), n))\n"
+                   "v.add(key('x', 1), SE2.from_xytheta(0.2, -0.3, 0.2))\n"
+                   "v.add(key('x', 2), SE2.from_xytheta(5.1, 0.3, -0.1))\n"
+                   "r = fgopt.optimize(g, v)\n"
+                   "print(r.final_cost < 1e-12, 'numba' in sys.modules)\n")
+
+
+def _run_two_pose(**env: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", TWO_POSE_SCRIPT], capture_output=True,
+                          text=True, cwd=REPO, env={**os.environ, **env})
+
+
 def test_small_solve_imports_no_numba():
     """The README's 2-pose example, in a new process, solves without importing numba."""
-    code = ("import sys, fgopt\n"
-            "from fgopt import key, SE2, PriorFactor, BetweenFactor\n"
-            "from fgopt.noise import Diagonal\n"
-            "g, v = fgopt.FactorGraph(), fgopt.Variables()\n"
-            "n = Diagonal.sigmas([0.1, 0.5, 0.5])\n"
-            "g.add(PriorFactor(key('x', 1), SE2.from_xytheta(0, 0, 0), n))\n"
-            "g.add(BetweenFactor(key('x', 1), key('x', 2), SE2.from_xytheta(5, 0, 0), n))\n"
-            "v.add(key('x', 1), SE2.from_xytheta(0.2, -0.3, 0.2))\n"
-            "v.add(key('x', 2), SE2.from_xytheta(5.1, 0.3, -0.1))\n"
-            "r = fgopt.optimize(g, v)\n"
-            "print(r.final_cost < 1e-12, 'numba' in sys.modules)\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         cwd=REPO, check=True)
+    out = _run_two_pose()
     assert out.stdout.split() == ["True", "False"], out.stdout + out.stderr
+
+
+def test_numpy_budget_environment_variable():
+    """``FGOPT_NUMPY_BUDGET=0`` runs even the 2-pose solve on numba (what warm-process
+    benchmarks set); a value that is not seconds >= 0 is an FgoptError naming the variable."""
+    out = _run_two_pose(FGOPT_NUMPY_BUDGET="0")
+    assert out.stdout.split() == ["True", "True"], out.stdout + out.stderr
+    out = _run_two_pose(FGOPT_NUMPY_BUDGET="-1")
+    assert out.returncode != 0 and "FgoptError: FGOPT_NUMPY_BUDGET='-1'" in out.stderr
+
+
+def test_small_batches_switch_to_numba_once_the_twin_budget_is_spent(monkeypatch):
+    """Rent or buy: while the process's NumPy budget lasts a small problem runs the twins (the
+    generated kernel stays uncompiled); once the twins have used it up, the same solve runs the
+    numba kernels, with the same iterates."""
+    from fgopt import _jit
+    from fgopt.factors.library import generated
+
+    def solve():
+        g, v = fgopt.FactorGraph(), fgopt.Variables()
+        n = fgopt.noise.Diagonal.sigmas([0.1, 0.5, 0.5])
+        g.add(fgopt.PriorFactor(fgopt.key("x", 0), fgopt.SE2(), n))
+        for i in range(20):
+            g.add(fgopt.BetweenFactor(fgopt.key("x", i), fgopt.key("x", i + 1),
+                                      fgopt.SE2.from_xytheta(1.0, 0.0, 0.1), n))
+            v.add(fgopt.key("x", i), fgopt.SE2.from_xytheta(i * 1.1, 0.2, 0.1 * i + 0.05))
+        v.add(fgopt.key("x", 20), fgopt.SE2.from_xytheta(22.0, 0.3, 2.1))
+        return fgopt.optimize(g, v)
+
+    monkeypatch.setattr(_jit, "NUMPY_BUDGET_SECONDS", 1e9)
+    twin = solve()
+    assert _jit._numpy_seconds[0] > 0.0
+    monkeypatch.setattr(_jit, "NUMPY_BUDGET_SECONDS", _jit._numpy_seconds[0])
+    assert not _jit.numpy_budget_left()
+    spent = _jit._numpy_seconds[0]
+    compiled = solve()
+    assert _jit._numpy_seconds[0] == spent  # nothing ran on the twins
+    assert generated.between_pose2.generated_module(("a", "b"))._linearize_kernel.compiled
+    assert compiled.iterations == twin.iterations
+    assert abs(compiled.final_cost - twin.final_cost) <= 1e-12 * max(1.0, twin.final_cost)

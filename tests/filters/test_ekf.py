@@ -92,6 +92,20 @@ def _unchanged(ekf, snap):
 
 
 # ---------------------------------------------------------------------- against GTSAM
+def _gtsam_navstate_ekf(gtsam, rng):
+    """A random NavState, a random SPD 9x9 covariance, and GTSAM's NavStateImuEKF started there
+    (Z-up gravity; gyroscope / integration / accelerometer covariances 1e-4 / 1e-5 / 1e-3)."""
+    R0, p0, v0 = SO3.random(rng), rng.normal(size=3), rng.normal(size=3) * 3
+    A = rng.normal(size=(9, 9))
+    P0 = A @ A.T * 0.01 + np.eye(9) * 0.01
+    params = gtsam.PreintegrationParams.MakeSharedU(GRAVITY)
+    params.setGyroscopeCovariance(np.eye(3) * 1e-4)
+    params.setIntegrationCovariance(np.eye(3) * 1e-5)
+    params.setAccelerometerCovariance(np.eye(3) * 1e-3)
+    theirs = gtsam.NavStateImuEKF(gtsam.NavState(gtsam.Rot3(R0.matrix()), p0, v0), P0, params)
+    return R0, p0, v0, P0, theirs
+
+
 def test_matches_gtsam_navstate_imu_ekf():
     """Same dynamics, inputs, noise and GPS fix as GTSAM's NavStateImuEKF: equal state and
     covariance (to rounding) after 8 predicts and an update.
@@ -108,14 +122,7 @@ def test_matches_gtsam_navstate_imu_ekf():
     if not hasattr(gtsam, "NavStateImuEKF"):
         pytest.skip("this GTSAM has no NavStateImuEKF")
     rng = np.random.default_rng(0)
-    R0, p0, v0 = SO3.random(rng), rng.normal(size=3), rng.normal(size=3) * 3
-    A = rng.normal(size=(9, 9))
-    P0 = A @ A.T * 0.01 + np.eye(9) * 0.01
-    params = gtsam.PreintegrationParams.MakeSharedU(GRAVITY)
-    params.setGyroscopeCovariance(np.eye(3) * 1e-4)
-    params.setIntegrationCovariance(np.eye(3) * 1e-5)
-    params.setAccelerometerCovariance(np.eye(3) * 1e-3)
-    theirs = gtsam.NavStateImuEKF(gtsam.NavState(gtsam.Rot3(R0.matrix()), p0, v0), P0, params)
+    R0, p0, v0, P0, theirs = _gtsam_navstate_ekf(gtsam, rng)
 
     def M(R):
         out = np.eye(9)
@@ -167,14 +174,7 @@ def test_navstate_state_matches_gtsam_over_predict_update_cycles():
         return X.position()
 
     rng = np.random.default_rng(8)
-    R0, p0, v0 = SO3.random(rng), rng.normal(size=3), rng.normal(size=3) * 3
-    A = rng.normal(size=(9, 9))
-    P0 = A @ A.T * 0.01 + np.eye(9) * 0.01
-    params = gtsam.PreintegrationParams.MakeSharedU(GRAVITY)
-    params.setGyroscopeCovariance(np.eye(3) * 1e-4)
-    params.setIntegrationCovariance(np.eye(3) * 1e-5)
-    params.setAccelerometerCovariance(np.eye(3) * 1e-3)
-    theirs = gtsam.NavStateImuEKF(gtsam.NavState(gtsam.Rot3(R0.matrix()), p0, v0), P0, params)
+    R0, p0, v0, P0, theirs = _gtsam_navstate_ekf(gtsam, rng)
     ours = ManifoldEKF(imu_step, [nav_gps], x0=[NavState(R0, p0, v0)], P0=P0, reset=False)
     dt, R_gps = 0.01, np.eye(3) * 0.3
     Q_state = np.diag([1e-4] * 3 + [1e-5] * 3 + [1e-3] * 3) * dt
