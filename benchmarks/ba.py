@@ -1,6 +1,7 @@
 """Bundle-adjustment benchmark: fgopt's Schur solvers vs Ceres (C++ and pyceres) and GTSAM.
 
-    .venv/bin/python -m benchmarks.ba [--problems ladybug,dubrovnik3,dubrovnik1] [--rounds 3]
+    .venv/bin/python -m benchmarks.ba [--problems ladybug,dubrovnik3,synthetic:21x11315]
+        [--rounds 3]
         [--peers fgopt,ceres_cpp,pyceres,gtsam] [--profile] [--json out.json]
 
 Per problem and configuration it reports, from the same interleaved rounds (the machine drifts;
@@ -301,10 +302,34 @@ def profile_iteration(graph, values, config: str = "schur_dense", reps: int = 15
 
 
 # ------------------------------------------------------------------------------------ driver
+def synthetic_path(name: str) -> Path:
+    """``synthetic:CxP[:K]`` -> a BAL file of ``fgopt.datasets.bal_synthetic(C, P, K)`` (seed 0)
+    in the temp folder: BAL problems of Ladybug's size beyond the one shared file, readable by
+    every peer."""
+    from fgopt.datasets import bal_synthetic
+    from fgopt.io.bal import write_bal_arrays
+
+    spec = name.split(":", 1)[1]
+    size, _, k = spec.partition(":")
+    c, p = (int(x) for x in size.split("x"))
+    path = Path(tempfile.gettempdir()) / f"fgopt-bal-synthetic-{c}x{p}x{k or 5}.txt"
+    if not path.exists():
+        d = bal_synthetic(c, p, int(k or 5), seed=0)
+        write_bal_arrays(path, d.camera_index, d.point_index, d.observations, d.cameras,
+                         d.points)
+    return path
+
+
+def problem_path(name: str) -> Path:
+    if name.startswith("synthetic:"):
+        return synthetic_path(name)
+    return problems.data_dir() / BAL_PROBLEMS[name]
+
+
 def run_problem(name: str, peers: list[str], rounds: int, kernel: str, configs: list[str],
                 slow_rounds: int) -> dict:
-    path = problems.data_dir() / BAL_PROBLEMS[name]
-    spec = problems.ProblemSpec(name, "bal", BAL_PROBLEMS[name], name)
+    path = problem_path(name)
+    spec = problems.ProblemSpec(name, "bal", str(path), name)
     bal = problems.read_bal(path, name)
     graph, values = fgopt_load(path, kernel)
     print(f"\n== {name}: {len(bal.cameras)} cameras, {len(bal.points)} points, "
@@ -421,7 +446,9 @@ def summary_lines(res: dict) -> list[str]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--problems", default="ladybug,dubrovnik3,dubrovnik1")
+    ap.add_argument("--problems", default="ladybug,dubrovnik3,dubrovnik1",
+                    help="names of shared files and synthetic:CxP[:K] (fgopt.datasets."
+                         "bal_synthetic, C cameras, P points, K observations per point)")
     ap.add_argument("--peers", default="fgopt,ceres_cpp,pyceres,gtsam")
     ap.add_argument("--configs", default="schur_dense,schur_sparse,schur_pcg,cholmod",
                     help=f"fgopt linear solvers among {', '.join(FGOPT_CONFIGS)}")
@@ -437,12 +464,12 @@ def main(argv=None) -> int:
     configs = [c for c in a.configs.split(",") if c]
     results, lines = [], []
     for name in a.problems.split(","):
-        if not (problems.data_dir() / BAL_PROBLEMS[name]).exists():
+        if not problem_path(name).exists():
             print(f"skip {name}: data file missing", file=sys.stderr)
             continue
         res = run_problem(name, peers, a.rounds, a.kernel, configs, a.slow_rounds)
         if a.profile:
-            g, v = fgopt_load(problems.data_dir() / BAL_PROBLEMS[name], a.kernel)
+            g, v = fgopt_load(problem_path(name), a.kernel)
             res["profile"] = profile_iteration(g, v)
         results.append(res)
         lines += summary_lines(res) + [""]

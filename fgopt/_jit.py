@@ -52,7 +52,7 @@ def python_mode():
 
 
 def _budget_from_environment(default: float = 0.5) -> float:
-    """``FGOPT_NUMPY_BUDGET`` (seconds; ``0``: always numba, ``inf``: small batches always NumPy)."""
+    """``FGOPT_NUMPY_BUDGET`` seconds (``0``: always numba; ``inf``: small batches always NumPy)."""
     text = os.environ.get("FGOPT_NUMPY_BUDGET", "").strip()
     if not text:
         return default
@@ -83,6 +83,24 @@ def numpy_budget_left() -> bool:
 def charge_numpy(seconds: float) -> None:
     """Record ``seconds`` spent in NumPy twins (towards :data:`NUMPY_BUDGET_SECONDS`)."""
     _numpy_seconds[0] += seconds
+
+
+@contextmanager
+def numpy_mode():
+    """Inside, fgopt's kernels that have a NumPy form use it for every batch size (generated
+    factor kernels' NumPy twins, the NumPy assembly, vectorized retracts, the NumPy reader):
+    a solve that needs no numba import, compilation or cache load (see ``Problem(backend=)``)."""
+    previous = getattr(_mode, "numpy", False)
+    _mode.numpy = True
+    try:
+        yield
+    finally:
+        _mode.numpy = previous
+
+
+def numpy_only() -> bool:
+    """Whether this thread is inside :func:`numpy_mode`."""
+    return getattr(_mode, "numpy", False)
 
 
 def _numba_prange(*args: int) -> range:

@@ -88,6 +88,14 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--solver", choices=["auto", "cholmod", "ldlt", "pcg", "dense"],
                    default="auto", help="linear solver (default: chosen from the problem)")
     s.add_argument("--max-iterations", type=_positive_int, default=100)
+    s.add_argument("--backend", choices=["auto", "numba", "numpy"], default="auto",
+                   help="kernels: numba, or NumPy with a no-numba linear solver (CHOLMOD / "
+                   "qdldl); auto: NumPy for problems of tangent dimension <= 30000 in a new "
+                   "process (no numba import, compilation or cache load)")
+    s.add_argument("--init", choices=["auto", "given", "chordal"], default="auto",
+                   help="start: auto (the file's guess; also the chordal relaxation when the "
+                   "result fails a chi-square test against the noise models, keeping the "
+                   "lower cost), given (the file's guess only), chordal")
     s.add_argument("--robust", type=_robust, default=None, metavar="LOSS[:K]",
                    help="robust loss on the file's edges: huber, cauchy, tukey, geman_mcclure, "
                    "barron (e.g. huber:1.345; barron:K:ALPHA, e.g. barron:1:0.5)")
@@ -223,15 +231,20 @@ def cmd_solve(args: argparse.Namespace) -> int:
     from .solvers.result import IterationRecord
 
     say(IterationRecord.HEADER)
+    extra = {} if args.backend == "auto" else {"backend": args.backend}
     result = optimize(problem, initial, method=args.method, linear_solver=args.solver,
-                      max_iterations=args.max_iterations,
-                      callback=lambda rec: say(rec.row()))
+                      max_iterations=args.max_iterations, initialization=args.init,
+                      callback=lambda rec: say(rec.row()), **extra)
     cost1 = graph.error(result.values)
+    reason = result.info.get("initialization_reason")
+    say(f"initialization: {result.info.get('initialization', 'given')}"
+        + (f" ({reason})" if reason else ""))
     t = result.timing
     status = result.status.value
     print(f"{status} after {result.iterations} iterations ({result.message}): cost "
           f"{cost0:.6e} -> {cost1:.6e} on the file's edges, {t.get('total', 0.0):.3f} s "
-          f"({result.method}/{result.linear_solver})", flush=True)
+          f"({result.method}/{result.linear_solver}, {result.info.get('backend', 'numba')} "
+          "kernels)", flush=True)
     if not args.quiet and t:
         say("time: " + ", ".join(f"{k} {v:.3f} s" for k, v in t.items()))
     if args.out is not None and fmt == "bundler":

@@ -19,12 +19,14 @@ from __future__ import annotations
 
 import functools
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from . import _assembly as asm
+from . import _jit
 from . import _assembly_np as asm_np
 from .batch import FactorBatch, batch_from_factors
 from .errors import (DimensionMismatchError, EmptyProblemError, FgoptError, KeyNotFoundError,
@@ -37,10 +39,12 @@ from .structure import (DENSE_MAX_SIZE, HessianPattern, ba_shaped_kind, build_pa
                         fill_reducing_order, independent_kinds, kinds_by_count, schur_order,
                         scatter_positions, unique_int)
 from ._jit import charge_numpy, numpy_budget_left
+from ._scatter_fixed import specialize as specialized_scatter
 from ._threads import PARALLEL_MIN_BATCH, linearize_batch_threaded
 from .variables import Variables
 
 
+_UNSET = object()
 
 #: Batches up to this size are assembled by the NumPy twins (no numba import or cache load)
 #: while the process's twin budget lasts; the same rule as generated kernels' NumPy twins.
@@ -48,16 +52,36 @@ NUMPY_MAX_BATCH = 1000
 
 
 def _asm(n: int):
-    """The assembly kernels for a batch of ``n`` instances: NumPy when small and the process's
-    twin budget lasts (``fgopt._jit.numpy_budget_left``), else numba."""
-    return asm_np if n <= NUMPY_MAX_BATCH and numpy_budget_left() else asm
+    """The assembly kernels for a batch of ``n`` instances: NumPy on the NumPy backend
+    (:func:`fgopt._jit.numpy_mode`) and for small batches while the process's twin budget lasts
+    (:func:`fgopt._jit.numpy_budget_left`), else numba."""
+    return asm_np if _jit.numpy_only() or (n <= NUMPY_MAX_BATCH and numpy_budget_left()) \
+        else asm
+
+
+BACKENDS = ("auto", "numba", "numpy")
+
+#: ``backend="auto"`` runs a problem of at most this tangent dimension on the NumPy backend when
+#: numba is not in use in the process yet (and every kernel and manifold has a NumPy form): in a
+#: new process, numba's import, initialization and cache loads (0.7-1 s warm; 20-60 s of
+#: compilation with an empty cache) cost more than the NumPy path's slower iterations
+#: (measured: README, start-up section).
+NUMPY_BACKEND_MAX_SIZE = 30000
+
+
+def numpy_backend_supported(kernels, kinds) -> bool:
+    """Whether every kernel has NumPy twins and every manifold kind a NumPy retract."""
+    return (all(getattr(k, "numpy_twin", False) for k in kernels)
+            and all(getattr(kd.retract, "numpy", False) for kd in kinds))
 
 
 def _all_finite(a: np.ndarray) -> bool:
     """No NaN / inf in the 1-D array ``a``: numba for large arrays (no temporary mask: H of 5M
     BA observations is 1.1 GB), NumPy for small ones (no numba import)."""
-    if a.shape[0] <= 1 << 16:
-        return bool(np.isfinite(a).all())
+    if a.shape[0] <= 1 << 16 or _jit.numpy_only() or not _jit.is_numba_loaded():
+        # NumPy (backend, or numba not in use): in slices, the mask stays small
+        step = 1 << 16
+        return all(bool(np.isfinite(a[lo:lo + step]).all()) for lo in range(0, a.shape[0], step))
     return bool(asm.all_finite(a))
 
 @dataclass(eq=False)
@@ -84,6 +108,8 @@ class _Batch:
     weights: np.ndarray = field(default=None)
     sqrt_info0: np.ndarray = field(default=None)  # the factors' own noise (before GNC weights)
     unit0: bool = True
+    plan: tuple | None = field(default=None)     # NumPy assembly's scatter plan (made on use)
+    fixed: dict = field(default_factory=dict)  # unit flag -> specialized scatter (or None)
 
     def gather(self, state: State, lo: int = 0, hi: int | None = None) -> tuple:
         """Storage rows of the arguments of instances ``lo:hi`` (default: all)."""
@@ -153,22 +179,56 @@ class Problem:
     """A graph compiled against initial values; see the module docstring."""
 
     def __init__(self, graph: Any, values: Variables, ordering: str | None = "amd",
-                 build_structure: bool = True, threads: int = 1,
+                 build_structure: bool = True, threads: int = 1, backend: str = "auto",
                  linear_solver: Any = None):
         """``linear_solver``: the name of the solver that will factor H, when known: with a
         Schur-complement solver (a ``"schur..."`` name, or ``"auto"`` on a BA-shaped problem) the
         eliminated variables come first in H and no fill-reducing order is computed
-        (:func:`fgopt.structure.schur_order`); otherwise ``ordering`` orders H."""
+        (:func:`fgopt.structure.schur_order`); otherwise ``ordering`` orders H. ``backend``:
+        see :meth:`choose_backend`."""
         if len(graph) == 0:
             raise EmptyProblemError("the factor graph is empty: add factors before optimizing")
+        if backend not in BACKENDS:
+            raise FgoptError(f"unknown backend {backend!r}: choose 'auto', 'numba' or 'numpy'")
         self.timing = {"linearize": 0.0, "assemble": 0.0, "retract": 0.0, "cost": 0.0}
         #: Threads for linearization (1 = serial). See :mod:`fgopt._threads`.
         self.threads = max(1, int(threads))
         self._collect_variables(graph, values)
         self._collect_factors(graph)
+        #: ``"numpy"``: kernels' NumPy twins, NumPy assembly and retracts for every batch size
+        #: (no numba in the solve); ``"numba"``: numba kernels for batches above
+        #: ``NUMPY_MAX_BATCH``. See :meth:`choose_backend`.
+        self.backend = self.choose_backend(backend)
         self.pattern: HessianPattern | None = None
         if build_structure:
-            self._build_structure(ordering or "natural", linear_solver)
+            with self.kernel_mode():
+                self._build_structure(ordering or "natural", linear_solver)
+
+    def choose_backend(self, backend: str = "auto") -> str:
+        """``backend`` resolved: ``"auto"`` is ``"numpy"`` when numba is not loaded in the
+        process yet, its twin budget is not spent (``fgopt._jit``), the problem's tangent
+        dimension is at most ``NUMPY_BACKEND_MAX_SIZE``, linearization is serial and every
+        kernel / manifold has a NumPy form; else ``"numba"``.
+        ``"numpy"`` where some kernel has no NumPy form raises."""
+        ok = numpy_backend_supported([b.kernel for b in self.batches], self.kinds)
+        if backend == "numpy":
+            if not ok:
+                bad = [b.kernel.name for b in self.batches if not b.kernel.numpy_twin]
+                raise FgoptError("backend='numpy': not every kernel or manifold of this problem "
+                                 f"has a NumPy form ({', '.join(bad) or 'a manifold retract'}); "
+                                 "use backend='numba'")
+            return "numpy"
+        if backend == "numba":
+            return "numba"
+        if (ok and self.threads == 1 and not _jit.is_numba_loaded() and numpy_budget_left()
+                and int(self.var_dim.sum()) <= NUMPY_BACKEND_MAX_SIZE):
+            return "numpy"
+        return "numba"
+
+    def kernel_mode(self):
+        """Context in which this problem's kernels run (:func:`fgopt._jit.numpy_mode` on the
+        NumPy backend)."""
+        return _jit.numpy_mode() if self.backend == "numpy" else nullcontext()
 
     # ----------------------------------------------------------------- compile: variables
     def _collect_variables(self, graph: Any, values: Variables) -> None:
@@ -288,6 +348,12 @@ class Problem:
         """``(n, storage_dim)`` storage of a kind's values (vector values stacked directly)."""
         if is_vector_kind(kind) and kind is not SCALAR_KIND:
             return np.array(xs, dtype=float).reshape(len(xs), kind.storage_dim)
+        if kind.wrap is not None:  # Lie groups and declared manifolds keep their row as _data
+            try:
+                return np.array([x._data for x in xs], dtype=float).reshape(
+                    len(xs), kind.storage_dim)
+            except AttributeError:
+                pass
         return np.array([kind.to_storage(x) for x in xs], dtype=float).reshape(
             len(xs), kind.storage_dim)
 
@@ -405,6 +471,7 @@ class Problem:
         for b in self.batches:
             b.toff = np.ascontiguousarray(off[b.var_idx])
             b.pos = scatter_positions(lookup, rank, b.var_idx)
+            b.plan = None
         for s in self._slow:
             s.toff = off[s.var_idx][None]
             s.pos = scatter_positions(lookup, rank, s.var_idx[None])
@@ -465,6 +532,10 @@ class Problem:
         (also when a value of ``state`` is not finite)."""
         if not self.state_is_finite(state):
             return float("nan")
+        with self.kernel_mode():
+            return self._cost(state)
+
+    def _cost(self, state: State) -> float:
         t0 = time.perf_counter()
         total = 0.0
         for b in self.batches:
@@ -550,43 +621,62 @@ class Problem:
             self._holds_candidate = False
 
     def _linearize_into(self, state: State, H: np.ndarray, g: np.ndarray) -> float:
+        with self.kernel_mode():
+            return self._linearize_batches(state, H, g)
+
+    def _linearize_batches(self, state: State, H: np.ndarray, g: np.ndarray) -> float:
         H[:] = 0.0
         g[:] = 0.0
         total = 0.0
         t_lin = t_asm = 0.0
         shift = self.pattern.col_shift
         for b in self.batches:
-            if self.threads > 1 and len(b.source) >= PARALLEL_MIN_BATCH:
+            if (self.threads > 1 and len(b.source) >= PARALLEL_MIN_BATCH
+                    and self.backend == "numba"):
                 t0 = time.perf_counter()
                 for lo, hi in b.chunks(CHUNK * self.threads):
                     total += linearize_batch_threaded(self, b, state, H, g, lo, hi)
                 t_lin += time.perf_counter() - t0
                 continue
-            if _asm(len(b.source)) is asm_np:  # NumPy twins: small batch, budget left
-                t0 = time.perf_counter()
-                res, jac = b.kernel.linearize(b.gather(state), b.source.constants)
-                t1 = time.perf_counter()
-                total += asm_np.scatter_batch(
-                    res, jac, b.sqrt_info, b.unit, b.source.loss_code, b.source.loss_param,
-                    b.source.loss_shape, b.arg_dims, b.arg_local_off, b.toff, b.pos, shift, H, g,
-                    b.weights)
-                t2 = time.perf_counter()
-                charge_numpy(t2 - t1)
-                t_lin += t1 - t0
-                t_asm += t2 - t1
-                continue
             # in slices: the kernels' residual / Jacobian / gathered arguments stay a few MB
             # instead of ~300 bytes per factor at once (1.5 GB for 5M BA observations)
+            chunks = b.chunks(CHUNK)
+            kernels = _asm(len(b.source))
+            if kernels is asm_np:
+                # NumPy backend, or a small batch while the twin budget lasts: bincount assembly
+                # with a scatter plan per slice (made on first use, kept)
+                if b.plan is None:
+                    b.plan = [None] * len(chunks)
+                fixed = None
+            else:
+                # numba: the shape-specialized kernel where one applies
+                fixed = b.fixed.get(b.unit, _UNSET)
+                if fixed is _UNSET:
+                    fixed = b.fixed[b.unit] = specialized_scatter(b)
             cost = 0.0
-            for lo, hi in b.chunks(CHUNK):
+            for c, (lo, hi) in enumerate(chunks):
                 t0 = time.perf_counter()
                 res, jac = b.kernel.linearize(b.gather(state, lo, hi), b.source.constants[lo:hi])
                 t1 = time.perf_counter()
-                cost = asm.scatter_batch(res, jac, b.sqrt_info_of(lo, hi), b.unit,
-                                         b.source.loss_code, b.source.loss_param,
-                                         b.source.loss_shape, b.arg_dims, b.arg_local_off,
-                                         b.toff[lo:hi], b.pos[lo:hi], shift, H, g,
-                                         b.weights[lo:hi], cost)
+                toff, pos = b.toff[lo:hi], b.pos[lo:hi]
+                if kernels is asm_np:
+                    if b.plan[c] is None:
+                        b.plan[c] = asm_np.scatter_plan(b.arg_dims, b.arg_local_off, toff, pos,
+                                                        shift, H.shape[0])
+                    cost = asm_np.scatter_batch(
+                        res, jac, b.sqrt_info_of(lo, hi), b.unit, b.source.loss_code,
+                        b.source.loss_param, b.source.loss_shape, b.arg_dims, b.arg_local_off,
+                        toff, pos, shift, H, g, b.weights[lo:hi], cost, b.plan[c])
+                    charge_numpy(time.perf_counter() - t1)
+                elif fixed is not None:
+                    cost = fixed(res, jac, b.sqrt_info_of(lo, hi), b.source.loss_code,
+                                 b.source.loss_param, b.source.loss_shape, toff, pos, shift, H,
+                                 g, b.weights[lo:hi], cost)
+                else:
+                    cost = asm.scatter_batch(res, jac, b.sqrt_info_of(lo, hi), b.unit,
+                                             b.source.loss_code, b.source.loss_param,
+                                             b.source.loss_shape, b.arg_dims, b.arg_local_off,
+                                             toff, pos, shift, H, g, b.weights[lo:hi], cost)
                 t_lin += t1 - t0
                 t_asm += time.perf_counter() - t1
             total += cost
@@ -610,9 +700,10 @@ class Problem:
         """A new state ``x (+) delta`` (delta in the problem's tangent order)."""
         t0 = time.perf_counter()
         storages = []
-        for kid, kind in enumerate(self.kinds):
-            d = np.ascontiguousarray(delta[self._kind_tangent[kid]])
-            storages.append(kind.retract(state.storages[kid], d))
+        with self.kernel_mode():
+            for kid, kind in enumerate(self.kinds):
+                d = np.ascontiguousarray(delta[self._kind_tangent[kid]])
+                storages.append(kind.retract(state.storages[kid], d))
         objects = {}
         off = self.pattern.var_offset
         for v, x in state.objects.items():
@@ -623,10 +714,19 @@ class Problem:
     def values(self, state: State) -> Variables:
         """The state as a new ``Variables`` (keys the graph does not use are copied unchanged)."""
         out = self._extra.copy()
+        values = out._values  # holds every key already: assignments keep its Key objects
         for kid, kind in enumerate(self.kinds):
+            vars_ = self._kind_vars[kid]
+            keys = self.var_keys[vars_].tolist()
             S = state.storages[kid]
-            for v in self._kind_vars[kid]:
-                out._values[Key(int(self.var_keys[v]))] = kind.from_storage(S[self.var_row[v]])
+            if kind.wrap is None:
+                values.update(zip(keys, map(kind.from_storage, S[self.var_row[vars_]])))
+                continue
+            # retract keeps rows on the manifold, so they need no normalization: an owned,
+            # read-only copy wrapped row by row (as Variables.add_rows does)
+            rows = np.array(S[self.var_row[vars_]], dtype=float)
+            rows.flags.writeable = False
+            values.update(zip(keys, map(kind.wrap, rows)))
         for v, x in state.objects.items():
             out._values[Key(int(self.var_keys[v]))] = x
         return out
@@ -635,9 +735,15 @@ class Problem:
         """Name the first factor whose residual or Jacobian is not finite."""
         for b in self.batches:
             for lo, hi in b.chunks(CHUNK):
-                res, jac = b.kernel.linearize(b.gather(state, lo, hi), b.source.constants[lo:hi])
+                with self.kernel_mode():
+                    res, jac = b.kernel.linearize(b.gather(state, lo, hi),
+                                                  b.source.constants[lo:hi])
                 for arr, what in ((res, "residual"), (jac, "Jacobian")):
-                    row = asm.first_nonfinite_row(arr)
+                    if self.backend == "numpy":
+                        bad = ~np.isfinite(arr.reshape(arr.shape[0], -1)).all(axis=1)
+                        row = int(np.argmax(bad)) if bad.any() else -1
+                    else:
+                        row = asm.first_nonfinite_row(arr)
                     if row < 0:
                         continue
                     row += lo
@@ -664,9 +770,11 @@ class Problem:
         for b in self.batches:
             parts = []
             for lo, hi in b.chunks(CHUNK):
-                res = b.kernel.residual(b.gather(state, lo, hi), b.source.constants[lo:hi])
-                parts.append(asm.row_squared_norms(
-                    res, b.sqrt_info0 if b.unit0 else b.sqrt_info0[lo:hi], b.unit0))
+                with self.kernel_mode():
+                    res = b.kernel.residual(b.gather(state, lo, hi), b.source.constants[lo:hi])
+                R0 = b.sqrt_info0 if b.unit0 else b.sqrt_info0[lo:hi]
+                norms = asm_np if self.backend == "numpy" else asm
+                parts.append(norms.row_squared_norms(res, R0, b.unit0))
             out.append(np.concatenate(parts))
         view = _StateView(self, state)
         slow = [float(np.sum(s.factor.whitened_error(view) ** 2)) for s in self._slow]

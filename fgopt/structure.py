@@ -67,7 +67,7 @@ class HessianPattern:
             return self._indices
         args = (self.block_codes, self.var_offset.shape[0], self.order, self.var_dim,
                 self.var_offset, self.indptr)
-        out = _charged(_block_rows, *args) if _small(int(self.indptr[-1])) else _block_rows(*args)
+        out = _layout_kernel(_block_rows, _block_rows_np, int(self.indptr[-1]), *args)
         if cache:
             self._indices = out
         return out
@@ -198,6 +198,8 @@ def ba_shaped_kind(var_kind: np.ndarray, var_dim: np.ndarray,
         return None
     mask = var_kind == by_count[0]
     n_e = int(mask.sum())
+    if n_e == mask.shape[0]:  # one kind only (pose graphs): nothing would be left to reduce to
+        return None
     if n_e < 2 * (mask.shape[0] - n_e) or 2 * int(var_dim[mask].sum()) < int(var_dim.sum()):
         return None
     return by_count[0]
@@ -256,8 +258,7 @@ def build_pattern(var_dim: np.ndarray, order: np.ndarray, pairs_i: np.ndarray,
     del ri, rj, keep
     codes = unique_int(codes)
     args = (codes, V, order, var_dim, var_offset, N)
-    indptr, p00 = (_charged(_block_layout, *args) if _small(codes.shape[0] * 4)
-                   else _block_layout(*args))
+    indptr, p00 = _layout_kernel(_block_layout, _block_layout_np, codes.shape[0] * 4, *args)
     diag_pos = indptr[:-1].copy()  # diagonal entry is the first of each lower column
     pattern = HessianPattern(N, indptr, diag_pos, var_offset, var_dim, codes, p00, order)
     col_ptr = np.searchsorted(codes, np.arange(V + 1, dtype=np.int64) * V)
@@ -301,7 +302,80 @@ def ranges(lengths: np.ndarray) -> np.ndarray:
 
 
 from ._jit import (charge_numpy, is_numba_loaded, njit,  # noqa: E402  (numba kernels below)
-                   numpy_budget_left)
+                   numpy_budget_left, numpy_only)
+
+
+def _block_layout_np(codes, V, order, var_dim, var_offset, N):
+    """:func:`_block_layout` vectorized (NumPy backend and small problems)."""
+    c, r = order[codes // V], order[codes % V]
+    dr = var_dim[r]
+    grp = codes // V                                   # column rank of each block
+    rows = np.bincount(grp, weights=dr, minlength=V).astype(np.int64)  # rows in column 0
+    dims = var_dim[order]
+    col_len = np.repeat(rows[:dims.shape[0]], dims) - ranges(dims)   # diagonal: triangular
+    indptr = np.zeros(N + 1, dtype=np.int64)
+    np.cumsum(col_len, out=indptr[1:])
+    # within its column, a block starts after the rows of the blocks before it
+    csum = np.cumsum(dr) - dr
+    first = np.searchsorted(grp, grp, side="left")
+    p00 = indptr[var_offset[c]] + csum - csum[first] if codes.shape[0] else \
+        np.zeros(0, dtype=np.int64)
+    p00 = np.where(var_dim[c] > 0, p00, 0)
+    return indptr, p00.astype(np.int64)
+
+
+def _block_rows_np(codes, V, order, var_dim, var_offset, indptr):
+    """:func:`_block_rows` vectorized: one entry per (block, column of the block)."""
+    c, r = order[codes // V], order[codes % V]
+    _, p00 = _block_layout_np(codes, V, order, var_dim, var_offset, indptr.shape[0] - 1)
+    shift = column_shift(indptr, var_offset, var_dim)
+    dc = var_dim[c]
+    b = np.repeat(np.arange(codes.shape[0], dtype=np.int64), dc)   # block of each entry
+    cb = ranges(dc)                                                  # column within the block
+    a0 = np.where((c == r)[b], cb, 0)                                # first stored row
+    length = var_dim[r][b] - a0
+    start = p00[b] + shift[var_offset[c][b] + cb] + a0
+    indices = np.empty(int(indptr[-1]), dtype=np.int64)
+    within = ranges(length)
+    indices[np.repeat(start, length) + within] = np.repeat(var_offset[r][b] + a0, length) + within
+    return indices
+
+
+def _scatter_positions_np(codes, col_ptr, p00, V, var_rank, var_idx):
+    """:func:`_scatter_positions` vectorized over instances (one pass per argument pair)."""
+    n, k = var_idx.shape
+    pos = np.full((n, k, k), -1, dtype=np.int64)
+    rank = var_rank[var_idx]
+    for p in range(k):
+        for q in range(k):
+            ok = rank[:, p] >= rank[:, q] if p == q else rank[:, p] > rank[:, q]
+            rows = np.nonzero(ok)[0]
+            if rows.shape[0] == 0:
+                continue
+            at = np.searchsorted(codes, rank[rows, q] * V + rank[rows, p])
+            pos[rows, p, q] = p00[at]
+    return pos
+
+
+#: Layout work up to this size runs vectorized while numba is not in use in the process (the
+#: NumPy backend's solvers analyze the pattern outside its kernel mode; its arrays take ~10
+#: words per entry).
+NUMPY_LAYOUT_MAX = 1 << 22
+
+
+def _layout_kernel(kernel, twin, work: int, *args):
+    """``twin(*args)`` (NumPy, vectorized) on the NumPy backend, while numba is not in use (up to
+    ``NUMPY_LAYOUT_MAX``), or for about ``work`` steps while the process still rents
+    (:func:`_small`, time charged); else the numba ``kernel``."""
+    if numpy_only() or (work <= NUMPY_LAYOUT_MAX and not is_numba_loaded()):
+        return twin(*args)
+    if _small(work):
+        t0 = time.perf_counter()
+        try:
+            return twin(*args)
+        finally:
+            charge_numpy(time.perf_counter() - t0)
+    return kernel(*args)
 
 
 def _small(work: int) -> bool:
@@ -387,9 +461,9 @@ def scatter_positions(lookup: dict, var_rank: np.ndarray, var_idx: np.ndarray) -
     (:func:`column_shift`).
     """
     n, k = var_idx.shape
-    # small problems before numba is in use: the same loop as plain Python (no numba import)
-    run = (_scatter_positions.python if n * k * k <= 20000 and not is_numba_loaded()
-           else _scatter_positions)
+    # NumPy backend, or small problems before numba is in use: vectorized (no numba import)
+    small = numpy_only() or (n * k * k <= 20000 and not is_numba_loaded())
+    run = _scatter_positions_np if small else _scatter_positions
     return run(np.ascontiguousarray(lookup["codes"], dtype=np.int64),
                np.ascontiguousarray(lookup["col_ptr"], dtype=np.int64),
                np.ascontiguousarray(lookup["p00"], dtype=np.int64),

@@ -39,6 +39,7 @@ def test_solve_prints_table_and_summary_and_writes_outputs(small, tmp_path, caps
     assert "    1 " in text
     assert "gauge: tight prior on x0" in text
     assert "converged after" in text and "on the file's edges" in text
+    assert "initialization: given (given values: the final cost is consistent" in text
     graph, values = read_g2o(out)
     assert graph.error(values) < 1e-12  # consistent measurements: optimum has zero cost
     assert len(graph) == 5  # the gauge prior is not written back
@@ -51,6 +52,13 @@ def test_methods_and_solvers(small, capsys, method, solver):
     assert main(["solve", str(small), "--method", method, "--solver", solver, "--quiet"]) == 0
     text = capsys.readouterr().out
     assert text.startswith("converged") and "rel.decr" not in text and len(text.splitlines()) == 1
+
+
+def test_init_chordal_is_reported(small, capsys):
+    """``--init chordal`` starts from the chordal relaxation and says so."""
+    assert main(["solve", str(small), "--init", "chordal"]) == 0
+    text = capsys.readouterr().out
+    assert "initialization: chordal" in text and "converged after" in text
 
 
 def test_not_converged_exits_1_with_reason(small, capsys):

@@ -405,4 +405,6 @@ def _kernel_from_module(module: Any, params: tuple, pattern: tuple, name: str,
                         num_constants=module.NUM_CONSTANTS, residual=module.residual,
                         linearize=module.linearize, source=source, recipe=recipe,
                         clamps=tuple(meta.get("clamps", ())),
-                        clamp_arguments=getattr(module, "clamp_arguments", None))
+                        clamp_arguments=getattr(module, "clamp_arguments", None),
+                        numpy_twin=all(hasattr(module, a) for a in
+                                       ("use_numpy", "_residual_numpy", "_linearize_numpy")))

@@ -59,6 +59,10 @@ class FactorKernel:
     #: ``clamp_arguments(args, consts) -> (n, len(clamps))`` evaluating their arguments.
     clamps: tuple = field(default=(), repr=False)
     clamp_arguments: ResidualFn | None = field(default=None, repr=False)
+    #: True when ``residual`` / ``linearize`` evaluate every batch with NumPy (no numba) inside
+    #: :func:`fgopt._jit.numpy_mode`: generated kernels with NumPy twins. A problem runs on the
+    #: NumPy backend only when all its kernels have this (``Problem(backend=)``).
+    numpy_twin: bool = field(default=False, repr=False)
 
     def __reduce__(self):
         if self.recipe is None:

@@ -34,11 +34,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._jit import njit
+from .._jit import is_numba_loaded, njit, numpy_only
 from ..errors import FileFormatError
+from ._scan_np import _FNV_OFFSET, _FNV_PRIME, _scan_np
 
-_FNV_OFFSET = np.uint64(0xCBF29CE484222325)
-_FNV_PRIME = np.uint64(0x100000001B3)
 _MAX_MANTISSA = 1 << 53
 
 
@@ -356,7 +355,9 @@ class Scan:
     def check_finite(self, which: np.ndarray | slice | None = None) -> None:
         """Raise for the first NaN / inf value among value indices ``which`` (or a slice)."""
         which = _as_index(which, self.values.shape[0])
-        fin = _first_nonfinite(np.ascontiguousarray(self.values[which]).reshape(-1))
+        a = np.ascontiguousarray(self.values[which]).reshape(-1)
+        fin = (_first_nonfinite_np(a) if numpy_only() or not is_numba_loaded()
+               else _first_nonfinite(a))
         if fin >= 0:
             v = _nth(which, fin)
             raise self.error(f"{self.token(v)!r} is not a finite number", self.line_of_value(v))
@@ -371,6 +372,15 @@ def _nth(which, i: int) -> int:
     if isinstance(which, slice):
         return (which.start or 0) + i * (which.step or 1)
     return int(which[i])
+
+
+def _first_nonfinite_np(a, step: int = 1 << 20) -> int:
+    """:func:`_first_nonfinite` in NumPy (no numba import), in slices: the mask stays 1 MB."""
+    for lo in range(0, a.shape[0], step):
+        bad = ~np.isfinite(a[lo:lo + step])
+        if bad.any():
+            return lo + int(np.argmax(bad))
+    return -1
 
 
 @njit(cache=True)
@@ -418,6 +428,11 @@ def write_text(path: str | os.PathLike, text: str) -> None:
 #: Files are scanned in slices of this many bytes (progress is reported between slices).
 SCAN_SLICE = 1 << 24
 
+#: Files up to this many bytes are scanned by :func:`_scan_np` while numba is not in use in the
+#: process (its arrays take ~40 bytes per input byte; numba's scan needs its import, and 4.5 s of
+#: compilation with an empty cache).
+NUMPY_SCAN_MAX_BYTES = 32 << 20
+
 
 def scan(path: str | os.PathLike, data: bytes | None = None, has_tag: bool = True,
          comment: str | None = "#", progress: bool = True) -> Scan:
@@ -430,6 +445,25 @@ def scan(path: str | os.PathLike, data: bytes | None = None, has_tag: bool = Tru
     if data is None:
         data = read_bytes(p)
     buf = np.frombuffer(data, dtype=np.uint8)
+    cm = -1 if comment is None else ord(comment)
+    n = buf.shape[0]
+    if numpy_only() or (n <= NUMPY_SCAN_MAX_BYTES and not is_numba_loaded()):
+        # NumPy backend, or a small file while numba is not in use: no numba import
+        values, bad, vstart, _, line, first, count, tag_hash, tag_start, tag_end = \
+            _scan_np(buf, has_tag, cm)
+        if not has_tag:
+            tag_hash = np.zeros(0, dtype=np.uint64)
+            tag_start = tag_end = np.zeros(0, dtype=np.int64)
+        return Scan(p, buf, values, bad, vstart, line, first, count, tag_hash, tag_start,
+                    tag_end, comment=cm)
+    out = _scan_numba(buf, has_tag, cm, _progress_bar(n, p) if progress and n > SCAN_SLICE
+                      else None)
+    return Scan(p, buf, *out, comment=cm)
+
+
+def _scan_numba(buf: np.ndarray, has_tag: bool, cm: int, bar=None) -> tuple:
+    """The numba scan in slices of ``SCAN_SLICE`` bytes (``bar``: a progress bar, closed here):
+    ``(values, bad, tok_start, line, first, count, tag_hash, tag_start, tag_end)``."""
     n = buf.shape[0]
     lines, toks = _count(buf)  # exact-size outputs: no over-allocation, no copies
     values = np.empty(toks)
@@ -440,9 +474,7 @@ def scan(path: str | os.PathLike, data: bytes | None = None, has_tag: bool = Tru
              np.zeros(lines, dtype=np.int64)] if has_tag
             else [np.zeros(0, dtype=np.uint64), np.zeros(0, dtype=np.int64),
                   np.zeros(0, dtype=np.int64)])
-    cm = -1 if comment is None else ord(comment)
     state = np.array([0, 0, 0, 1], dtype=np.int64)
-    bar = _progress_bar(n, p) if progress and n > SCAN_SLICE else None
     try:
         while state[0] <= n:
             done = int(state[0])
@@ -464,8 +496,8 @@ def scan(path: str | os.PathLike, data: bytes | None = None, has_tag: bool = Tru
         values[idx], bad[idx] = _parse_slow(buf, starts, _token_ends(buf, starts, cm))
     if has_tag:
         tags = [t[:nr] for t in tags]
-    return Scan(p, buf, values, bad, tok_start, rec[0][:nr], rec[1][:nr], rec[2][:nr],
-                tags[0], tags[1], tags[2], comment=cm)
+    return (values, bad, tok_start, rec[0][:nr], rec[1][:nr], rec[2][:nr], tags[0], tags[1],
+            tags[2])
 
 
 def _progress_bar(total: int, path: str):

@@ -122,6 +122,9 @@ def _vector_retract(x, delta):
     return np.asarray(x, dtype=np.float64) + delta
 
 
+_vector_retract.numpy = True  # no numba: the NumPy backend can use it
+
+
 def _vector_local(a, b):
     """``b - a`` row-wise."""
     return np.asarray(b, dtype=np.float64) - a

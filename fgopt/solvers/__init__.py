@@ -11,6 +11,8 @@ from .dogleg import Dogleg as Dogleg
 from .gnc import GNC as GNC
 from .gnc import GNCParams as GNCParams
 from .gauss_newton import GaussNewton as GaussNewton
+from .initialization import check as check_initialization
+from .initialization import for_chordal_start, optimize_auto
 from .jacobian_check import JacobianReport as JacobianReport
 from .jacobian_check import check_jacobians as check_jacobians
 from .linear.base import LinearSolver as LinearSolver
@@ -46,7 +48,7 @@ _METHODS = {"lm": (LevenbergMarquardt, LMParams), "gn": (GaussNewton, GaussNewto
 
 def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = "auto",
              max_iterations: int | None = None, verbose: bool | None = None, callback: Any = None,
-             params: Any = None, formulation: str = "dynamic", initialization: str = "given",
+             params: Any = None, formulation: str = "dynamic", initialization: str = "auto",
              **options: Any) -> Result:
     """Minimize ``graph.error`` from ``initial``; returns a :class:`Result` (``initial`` untouched).
 
@@ -66,13 +68,16 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
             (LM only: one generated function linearizes the whole problem into a dense H, the
             SymForce paper's fixed formulation; for small problems of symbolic/built-in factors,
             where it is ~10x faster; see :mod:`fgopt.solvers.fixed`).
-        initialization: where to start. ``"given"``: ``initial``. ``"chordal"``: the chordal
-            relaxation of a pose graph (:func:`chordal_initialization`; ``initial`` only names
-            the keys and anchors the gauge), which on hard graphs lands in a better basin than
-            an odometry-like guess (torus3D: 12,118 vs 29,954 from the file's guess, see
-            ``benchmarks/initialization.py``). ``"auto"``: the chordal estimate when ``graph``
-            is a pose graph and it costs less than ``initial``, else ``initial``.
-            ``result.info["initialization"]`` says which start was used.
+        initialization: where to start (:mod:`fgopt.solvers.initialization`). ``"auto"``
+            (default): from ``initial``; then, if the final cost is above what the noise models
+            allow at an optimum (a chi-square test) and ``graph`` is a pose graph, also from
+            the chordal relaxation, keeping the lower cost (torus3D: 12,118 instead of 29,954;
+            nothing changes, and nothing is spent, where the test passes). ``"given"``: from
+            ``initial`` only (GTSAM's behaviour). ``"chordal"``: from the chordal relaxation
+            only (:func:`chordal_initialization`; ``initial`` names the keys and anchors the
+            gauge). ``result.info["initialization"]`` says which start the result comes from,
+            ``result.info["initialization_reason"]`` why. Methods ``"gnc"`` (which starts its
+            rounds from chordal estimates itself) always start from ``initial``.
     """
     if method not in _METHODS:
         raise FgoptError(f"unknown method {method!r}: choose one of {', '.join(_METHODS)}")
@@ -95,26 +100,23 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
     else:
         solver_obj = linear_solver
     params = dataclasses.replace(params, **overrides)
-    start, used = _starting_point(graph, initial, initialization)
-    result = _optimize_from(graph, start, cls, params, solver_obj, formulation, method, callback)
-    result.info["initialization"] = used
-    return result
+    check_initialization(initialization)
 
+    def run(start: Any, run_params: Any) -> Result:
+        return _optimize_from(graph, start, cls, run_params, solver_obj, formulation, method,
+                              callback)
 
-def _starting_point(graph: Any, initial: Any, initialization: str) -> tuple[Any, str]:
-    if initialization == "given":
-        return initial, "given"
-    if initialization not in ("chordal", "auto"):
-        raise FgoptError(f"unknown initialization {initialization!r}: 'given', 'chordal' or "
-                         "'auto'")
+    if method == "gnc" or initialization == "given":
+        result = run(initial, params)
+        result.info.setdefault("initialization", "given")
+        return result
     if initialization == "chordal":
-        return chordal_initialization(graph, initial), "chordal"
-    try:
-        chordal = chordal_initialization(graph, initial)
-    except FgoptError:  # not a pose graph: nothing to relax
-        return initial, "given"
-    return (chordal, "chordal") if graph.error(chordal) < graph.error(initial) \
-        else (initial, "given")
+        from .chordal import chordal_initialization
+
+        result = run(chordal_initialization(graph, initial), for_chordal_start(params))
+        result.info["initialization"] = "chordal"
+        return result
+    return optimize_auto(graph, initial, params, run)
 
 
 def _optimize_from(graph: Any, initial: Any, cls: Any, params: Any, solver_obj: Any,

@@ -17,6 +17,24 @@ from .result import IterationRecord, Result, Status, stall_status
 
 Callback = Callable[[IterationRecord], "bool | None"]
 
+#: A solve that started on the NumPy backend (``backend="auto"``) moves to numba after this many
+#: seconds when numba's cache holds its kernels (:mod:`fgopt.solvers._warmup`): numba's ~0.7 s of
+#: import and cache loads then pay for themselves (torus3D, 73 iterations: 5.2 s on numba vs
+#: 11.5 s on NumPy; sphere2500, 5 iterations: equal).
+SWITCH_AFTER_SECONDS = 1.0
+#: A NumPy-backend solve longer than this, whose kernels are not in numba's cache, starts a
+#: background process that puts them there (for the next process: see ``SWITCH_AFTER_SECONDS``).
+WARMUP_AFTER_SECONDS = 3.0
+
+
+def _needs_numba(pattern: Any) -> bool:
+    """BA-shaped problems (many small point blocks): their solver is the numba Schur complement."""
+    if pattern.size <= 300:
+        return False
+    from .linear.schur import is_ba_shaped
+
+    return is_ba_shaped(pattern)
+
 
 class Run:
     """One optimization: the compiled problem, linear solver, current iterate and history."""
@@ -36,18 +54,28 @@ class Run:
         #: True when this run compiled its own problem (a user's call, not a GNC round): only
         #: then does it warn about unused keys and clamp hits.
         self.top_level = problem is None
+        self._graph, self._initial = graph, initial
+        self._may_switch = False
         if problem is None:
             if not isinstance(initial, Variables):
                 raise FgoptError(
                     f"initial values must be fgopt.Variables, got {type(initial).__name__}")
+            backend = getattr(params, "backend", "auto")
             problem = Problem(graph, initial, ordering=params.ordering,
-                              threads=getattr(params, "threads", 1), linear_solver=choice)
+                              threads=getattr(params, "threads", 1), backend=backend,
+                              linear_solver=choice)
             warn_unused(problem.unused_keys)
+            if backend == "auto" and problem.backend == "numpy" and _needs_numba(problem.pattern):
+                problem.backend = "numba"  # BA-shaped: the Schur complement solver is numba's
+            self._may_switch = backend == "auto" and problem.backend == "numpy"
         self.problem = problem
         if solver is None:
-            solver = make_linear_solver(choice, pattern=problem.pattern)
+            solver = make_linear_solver(choice, pattern=problem.pattern,
+                                        backend=problem.backend)
             solver.analyze(problem.pattern)
         self.solver = solver
+        self._linear_choice = linear_solver if linear_solver is not None else params.linear_solver
+        self._warm: bool | None = None
         self.t_setup = time.perf_counter() - self.t0
         self.t_solve = 0.0
         self.state: State = state if state is not None else problem.initial_state()
@@ -98,6 +126,25 @@ class Run:
         finally:
             H[diag_pos] = undamped
 
+    def maybe_switch(self) -> None:
+        """Move a long NumPy-backend solve to numba when numba's cache is warm for it (see
+        ``SWITCH_AFTER_SECONDS``): the problem's kernels and, for ``linear_solver="auto"``,
+        the linear solver. Only the evaluation changes: the iterate, damping and history go on."""
+        if not self._may_switch or time.perf_counter() - self.t0 < SWITCH_AFTER_SECONDS:
+            return
+        self._may_switch = False
+        from . import _warmup
+
+        self._warm = _warmup.is_warm(self.problem)
+        if not self._warm:
+            return
+        self.problem.backend = "numba"
+        if isinstance(self._linear_choice, str) and self._linear_choice == "auto":
+            solver = make_linear_solver("auto", pattern=self.problem.pattern, backend="numba")
+            solver.analyze(self.problem.pattern)
+            self.solver = solver
+        self.switched_at = len(self.records)
+
     def state_norm(self) -> float:
         return math.sqrt(sum(float(np.sum(s * s)) for s in self.state.storages))
 
@@ -127,6 +174,7 @@ class Run:
             self.history.append(self.cost)
         if self.verbose:
             print(rec.row(), flush=True)
+        self.maybe_switch()
         if self.callback is not None:
             return bool(self.callback(rec))
         return False
@@ -168,11 +216,32 @@ class Run:
         if self.verbose:
             print(f"{status.value}: {message}; cost {self.initial_cost:.6e} -> {self.cost:.6e} "
                   f"in {len(self.records)} iterations, {total:.3f} s")
-        return Result(None, status=status, message=message,
-                      iterations=len(self.records), initial_cost=self.initial_cost,
-                      final_cost=self.cost, cost_history=self.history,
-                      iteration_records=self.records, timing=timing, method=self.method,
-                      linear_solver=getattr(self.solver, "name", type(self.solver).__name__),
-                      problem=self.problem, state=self.state,
-                      unused_keys=tuple(self.problem.unused_keys), clamps=tuple(clamps),
-                      num_clamped=num_clamped)
+        result = Result(None, status=status, message=message,
+                        iterations=len(self.records), initial_cost=self.initial_cost,
+                        final_cost=self.cost, cost_history=self.history,
+                        iteration_records=self.records, timing=timing, method=self.method,
+                        linear_solver=getattr(self.solver, "name", type(self.solver).__name__),
+                        problem=self.problem, state=self.state,
+                        unused_keys=tuple(self.problem.unused_keys), clamps=tuple(clamps),
+                        num_clamped=num_clamped)
+        result.info["backend"] = getattr(self.problem, "backend", "numba")
+        if getattr(self, "switched_at", None) is not None:
+            result.info["backend"] = f"numpy for {self.switched_at} iterations, then numba"
+        if self.top_level:
+            self._after(total)
+        return result
+
+    def _after(self, total: float) -> None:
+        """numba's cache bookkeeping (:mod:`fgopt.solvers._warmup`): a numba-backend solve marks
+        the problem's kernels warm; a long NumPy one whose kernels are cold warms them in a
+        background process, for the next process."""
+        from . import _warmup
+
+        if self.problem.backend == "numba":
+            if self._warm is None or not self._warm:
+                _warmup.mark_warm(self.problem)
+        elif total > WARMUP_AFTER_SECONDS and self._graph is not None:
+            if self._warm is None:
+                self._warm = _warmup.is_warm(self.problem)
+            if not self._warm:
+                _warmup.warm_in_background(self._graph, self._initial, self.problem)

@@ -11,11 +11,13 @@ residual, ``c_i^2`` the inlier threshold = chi-square quantile of the factor's d
   ``sqrt(mu (mu + 1) / s) - mu``; ``mu`` starts at ``1 / (2 max s - 1)`` and is multiplied by
   ``mu_step`` until the weights are binary.
 
-Each round re-solves the weighted problem with Levenberg-Marquardt on the same compiled problem
-and linear-solver analysis (only the weights change). Known inliers (by default: priors and
-odometry, i.e. between factors of consecutive indices) keep weight 1.
+Each round re-solves the weighted problem with Levenberg-Marquardt on the factors whose weight
+is at least ``active_weight`` (:mod:`fgopt.solvers._subproblem`: a near-rejected wrong loop
+closure would only add Cholesky fill; every factor's residual is still evaluated each round).
+Known inliers (by default: priors and odometry, i.e. between factors of consecutive indices)
+keep weight 1.
 
-Three differences from GTSAM, each measured on M3500 with 10 % random wrong loop closures
+Four differences from GTSAM, each measured on M3500 with wrong loop closures
 (``benchmarks/gnc.py``), where GTSAM-style GNC ends 85-90 m off:
 
 1. GNC's guarantees assume each weighted least squares is solved globally (Yang et al. use
@@ -24,11 +26,15 @@ Three differences from GTSAM, each measured on M3500 with 10 % random wrong loop
 2. ``finalize``: classify each factor by its own threshold, drop the outliers and re-solve, so
    the result is exactly the inliers' least-squares solution, not one still pulled by
    down-weighted (GM) outliers.
-3. ``verify``: even so GNC can end in a local minimum that accepts a few outliers and bends the
-   estimate to fit them (2-5 on M3500, 40-90 m error). A leave-one-out check
-   (:mod:`fgopt.solvers.influence`) finds accepted factors the rest of the graph contradicts and
-   rejects them while that lowers the truncated-least-squares objective (:class:`_Verifier`).
-   With it GNC-GM and GNC-TLS flag exactly the 545 added factors (error 3e-5 m).
+3. ``estimate_scale`` (default): where the noise models overstate the errors (M3500's optimum
+   is ~1/50 of the chi-square expectation), bending the graph to fit an outlier costs less than
+   its truncated cost, so even the global truncated-least-squares optimum accepts some. The
+   consistency step (:meth:`fgopt.solvers._gnc_check._Verifier.consistency`) tests each
+   factor's leave-one-out residual against the accepted factors' real noise scale (Baarda's
+   data snooping) and re-solves until the classification is stable.
+4. ``verify`` (off by default): a leave-one-out check that rejects accepted factors one at a
+   time while that lowers the truncated-least-squares objective (slower; what 3 does in
+   passes).
 """
 
 from __future__ import annotations
@@ -44,8 +50,9 @@ from ..errors import FgoptError
 from ..key import key_char, key_index
 from ..problem import Problem
 from ..variables import Variables
+from ._gnc_check import _thresholds, _Verifier
+from ._subproblem import Restricted
 from .diagnostics import clamp_hits, warn_clamps, warn_unused
-from .linear.base import make_linear_solver
 from .lm import LevenbergMarquardt
 from .params import LMParams
 from .result import Result, Status
@@ -76,11 +83,38 @@ class GNCParams:
     verbose: bool = False
     max_iterations: int = 100
     """Inner LM iteration limit per round."""
-    verify: bool = True
-    """Check GNC's classification by leave-one-out residuals and reject accepted factors the
-    rest of the graph contradicts (see :class:`_Verifier`); implies ``finalize``."""
+    verify: bool = False
+    """After the scale step, also try rejecting accepted factors one at a time by their
+    leave-one-out cost drop, keeping a rejection only if the truncated objective falls
+    (:meth:`_Verifier.verify`; slow: one classification per trial). Off by default since
+    :meth:`_Verifier.consistency` does this job in passes."""
     max_verify: int = 50
     """At most this many rejections by the check."""
+    estimate_scale: bool = True
+    """After the GNC rounds, classify every factor by how the rest of the graph predicts it,
+    at the accepted factors' real noise scale (:meth:`_Verifier.consistency`). See the module
+    docstring, point 3."""
+    active_weight: float = 1e-2
+    """Factors whose weight is below this are left out of a round's solve (their blocks would
+    only add Cholesky fill; see :mod:`fgopt.solvers._subproblem`); their residuals are still
+    evaluated every round, so they come back if the estimate moves towards them."""
+    consistency_probability: float = 0.99
+    """The consistency step's significance at the inliers' real scale: an accepted factor
+    whose leave-one-out residual is outside its ``c^2`` ellipse is rejected when
+    ``w^2 > s^2 chi2.ppf(p, dim)``; a rejected one comes back when it is inside the ellipse and
+    ``w^2 <= s^2 chi2.ppf(p, dim)`` (between the two, a factor keeps its class: no cycles).
+    0.99, since the ellipse test already protects true factors (M3500: 99 % of the true loop
+    closures' leave-one-out residuals are below 0.06 c^2) and an outlier among others in one
+    region can look only mildly significant (M3500 with 30 % wrong closures: one at
+    ``w^2 = 13 s^2``, accepted at 0.999)."""
+    snooping_alpha: float = 0.05
+    """Family-wise significance level of the consistency step's test (Bonferroni over the
+    factors): a factor is significant when ``w^2 > s^2 chi2.isf(alpha / m, dim)`` (m factors).
+    Per factor at the inlier threshold's 0.999, a clean graph of a few thousand factors would
+    lose a few true ones to chance."""
+    time_limit: float | None = None
+    """Seconds: stop the GNC rounds when exceeded (status ``MAX_ITERATIONS``) and finish with
+    the classification steps; ``None``: no limit."""
     initialization: str = "auto"
     """Start of each round's weighted least squares: ``"chordal"`` (a chordal relaxation of the
     weighted pose graph, see :mod:`fgopt.solvers.chordal`), ``"previous"`` (the last round's
@@ -116,15 +150,6 @@ def _known_inlier_mask(problem: Problem, policy: str) -> list[np.ndarray]:
     return masks
 
 
-def _thresholds(problem: Problem, probability: float) -> list[np.ndarray]:
-    from scipy.stats import chi2
-
-    out = [np.full(len(b.source), chi2.ppf(probability, b.kernel.residual_dim))
-           for b in problem.batches]
-    out.append(np.array([chi2.ppf(probability, s.factor.dim) for s in problem._slow]))
-    return out
-
-
 def gnc_weights(loss: str, s: np.ndarray, mu: float) -> np.ndarray:
     """Weights of scale-free residuals ``s = r^2 / c^2`` at control parameter ``mu``."""
     if loss == "gm":
@@ -137,8 +162,10 @@ def gnc_weights(loss: str, s: np.ndarray, mu: float) -> np.ndarray:
 class GNC:
     """``GNC(GNCParams(loss="tls")).optimize(graph, initial)`` -> :class:`Result`.
 
-    ``result.info["weights"]`` holds the final weight of every factor (per batch) and
-    ``result.info["outliers"]`` the number of factors with weight < 0.5.
+    ``result.info["weights"]`` holds the final weight of every factor (per batch of the graph's
+    compiled problem, then one array for Python factors) and ``result.info["outliers"]`` the
+    number of factors with weight < 0.5. ``result.problem`` is the compiled problem of the
+    accepted factors (for :func:`fgopt.marginals`).
     """
 
     def __init__(self, params: GNCParams | None = None):
@@ -150,40 +177,41 @@ class GNC:
                  callback: Callable | None = None) -> Result:
         p = self.params
         t0 = time.perf_counter()
+        deadline = t0 + p.time_limit if p.time_limit is not None else float("inf")
         if not isinstance(initial, Variables):
             raise FgoptError(f"initial values must be fgopt.Variables, got {type(initial).__name__}")
-        problem = Problem(graph, initial, ordering=p.ordering, threads=p.threads,
-                          linear_solver=p.linear_solver)
-        warn_unused(problem.unused_keys)
-        solver = make_linear_solver(p.linear_solver, pattern=problem.pattern)
-        solver.analyze(problem.pattern)
-        lm = LevenbergMarquardt(dataclasses.replace(p.lm, max_iterations=p.max_iterations,
-                                                    verbose=False))
-        inliers = _known_inlier_mask(problem, p.known_inliers)
-        c2 = _thresholds(problem, p.inlier_probability)
-        from .chordal import _PoseGraph, chordal_state  # scipy.sparse: only when GNC runs
-
-        use_chordal = p.initialization in ("auto", "chordal") and _PoseGraph(problem).ok
-        if p.initialization == "chordal" and not use_chordal:
-            raise FgoptError("GNC initialization='chordal' needs a pose graph (SE2 or SE3 poses, "
-                             "between factors and priors only)")
         if p.initialization not in ("auto", "chordal", "previous"):
             raise FgoptError(f"GNC initialization must be 'auto', 'chordal' or 'previous', got "
                              f"{p.initialization!r}")
+        # every factor's residual is evaluated on ``full``; solves run on the factors that
+        # matter (:class:`Restricted`), so (near-)rejected outliers add no Cholesky fill
+        full = Problem(graph, initial, ordering=p.ordering, threads=p.threads,
+                       build_structure=False)
+        warn_unused(full.unused_keys)
+        from .chordal import _PoseGraph, chordal_state  # scipy.sparse: only when GNC runs
 
-        def start(state, weights):
-            """Where the next weighted solve starts: on pose graphs, the chordal estimate of the
-            weighted graph (near-global; starting from the last estimate instead, as GTSAM does,
-            was measured to end in far worse local minima on M3500 with outliers)."""
-            return (chordal_state(problem, state, weights) or state) if use_chordal else state
+        use_chordal = p.initialization in ("auto", "chordal") and _PoseGraph(full).ok
+        if p.initialization == "chordal" and not use_chordal:
+            raise FgoptError("GNC initialization='chordal' needs a pose graph (SE2 or SE3 poses, "
+                             "between factors and priors only)")
+        lm = LevenbergMarquardt(dataclasses.replace(p.lm, max_iterations=p.max_iterations,
+                                                    verbose=False))
+        inliers = _known_inlier_mask(full, p.known_inliers)
+        c2 = _thresholds(full, p.inlier_probability)
+        solver = _Solves(full, p, lm, use_chordal, callback)
+        ones = [np.ones(len(m)) for m in inliers]
 
-        res = lm.optimize_problem(problem, start(problem.initial_state(), None), solver, callback)
-        initial_cost = problem.cost(problem.initial_state())
-        history, iterations = list(res.cost_history), res.iterations
-        state = res.state
+        initial_cost = full.cost(full.initial_state())
+        if use_chordal:  # the residuals that set mu's start: the chordal estimate's (a solve
+            # over every factor would pay the fill of every wrong closure)
+            state = chordal_state(full, full.initial_state(), ones)
+            cost = full.cost(state)
+        else:
+            state, cost = solver.solve(full.initial_state(), ones)
+        history = [initial_cost, cost]
 
-        def scaled(state):
-            return [r / c for r, c in zip(problem.squared_residuals(state), c2)]
+        def scaled(state, c2=c2):
+            return [r / c for r, c in zip(full.squared_residuals(state), c2)]
 
         s = scaled(state)
         s_max = max((float(np.max(np.where(m, 0.0, x))) for x, m in zip(s, inliers) if x.size),
@@ -193,23 +221,24 @@ class GNC:
         else:
             mu = 1.0 / (2.0 * s_max - 1.0) if s_max > 1.0 else None
         status, message = Status.CONVERGED, "no outliers above the inlier threshold"
-        weights = [np.ones_like(x) for x in s]
+        weights = ones
         rounds = 0
-        prev_cost = res.final_cost
+        prev_cost = cost
         while mu is not None and rounds < p.max_rounds:
+            if time.perf_counter() > deadline:
+                status, message = Status.MAX_ITERATIONS, f"time limit {p.time_limit:g} s reached"
+                break
             rounds += 1
             weights = [np.where(m, 1.0, gnc_weights(p.loss, x, mu)) for x, m in zip(s, inliers)]
-            problem.set_weights(weights)
-            res = lm.optimize_problem(problem, start(state, weights), solver)
-            state = res.state
-            iterations += res.iterations
-            history.append(res.final_cost)
+            state, cost = solver.solve(state, weights, warm=not use_chordal)
+            history.append(cost)
             s = scaled(state)
             if p.verbose:
                 n_out = sum(int(np.sum(w < 0.5)) for w in weights)
-                print(f"GNC round {rounds}: mu {mu:.4g}, {res.iterations} LM iterations, "
-                      f"weighted cost {res.final_cost:.6g}, "
-                      f"{n_out} factors with weight < 0.5")
+                print(f"GNC round {rounds}: mu {mu:.4g}, weighted cost {cost:.6g}, "
+                      f"{n_out} factors with weight < 0.5, "
+                      f"{sum(int(np.sum(w >= p.active_weight)) for w in weights)} solved, "
+                      f"{time.perf_counter() - t0:.1f} s")
             if p.loss == "gm":
                 if mu <= 1.0:
                     message = "mu reached 1 (Geman-McClure loss)"
@@ -222,128 +251,72 @@ class GNC:
                     message = "weights converged to 0/1 (truncated least squares)"
                     break
                 mu *= p.mu_step
-            if abs(prev_cost - res.final_cost) <= p.cost_tolerance * max(prev_cost, 1e-300) \
+            if abs(prev_cost - cost) <= p.cost_tolerance * max(prev_cost, 1e-300) \
                     and p.loss == "tls":
                 message = "weighted cost converged"
                 break
-            prev_cost = res.final_cost
+            prev_cost = cost
         else:
             if mu is not None:
                 status, message = Status.MAX_ITERATIONS, f"reached max_rounds={p.max_rounds}"
-        removed = 0
-        if (p.finalize and mu is not None) or p.verify:
-            check = _Verifier(problem, lm, solver, inliers, c2, scaled, start)
+        removed, scale2 = 0, 1.0
+        if (p.finalize and mu is not None) or p.verify or p.estimate_scale:
+            check = _Verifier(full, solver, inliers, c2, p.snooping_alpha,
+                              p.consistency_probability)
             state, weights = check.classify(state)
+            if p.estimate_scale:
+                state, weights, scale2 = check.consistency(state, weights, p.verbose, deadline)
+                if scale2 < 1.0:
+                    message += f"; noise scale s^2 {scale2:.3g}"
             if p.verify:
-                state, weights, removed = check.verify(state, weights, p.max_verify, p.verbose)
-            iterations += check.iterations
+                state, weights, removed = check.verify(state, weights, p.max_verify, p.verbose,
+                                                       deadline)
             history.append(check.objective(state))
             if removed:
                 message += f"; {removed} accepted factors rejected by the leave-one-out check"
-        final = problem.cost(state)
-        problem.set_weights(None)
+        # the result lives on the compiled problem of the accepted factors (marginals need H)
+        sub, sub_state = solver.restricted.prepare(state, weights)
+        final = sub.cost(sub_state)
         outliers = sum(int(np.sum(w < 0.5)) for w in weights)
         timing = {"total": time.perf_counter() - t0}
-        clamps, num_clamped = clamp_hits(problem, state)
+        clamps, num_clamped = clamp_hits(sub, sub_state)
         warn_clamps(clamps, num_clamped)
         return Result(None, status=status, message=f"{message}; {outliers} outliers",
-                      iterations=iterations, initial_cost=initial_cost, final_cost=final,
+                      iterations=solver.iterations, initial_cost=initial_cost, final_cost=final,
                       cost_history=history, timing=timing, method=f"gnc-{p.loss}",
-                      linear_solver=getattr(solver, "name", ""), problem=problem, state=state,
-                      unused_keys=tuple(problem.unused_keys), clamps=tuple(clamps),
+                      linear_solver=getattr(solver.restricted.solver, "name", ""), problem=sub,
+                      state=sub_state, unused_keys=tuple(full.unused_keys), clamps=tuple(clamps),
                       num_clamped=num_clamped,
                       info={"weights": weights, "outliers": outliers, "rounds": rounds,
-                            "rejected_by_check": removed})
+                            "rejected_by_check": removed, "noise_scale2": scale2,
+                            "compilations": solver.restricted.rebuilds})
 
 
-class _Verifier:
-    """GNC's last step: binary classification, then a leave-one-out check of what it accepted.
+class _Solves:
+    """One weighted least-squares solve of GNC: on the factors with weight >= ``active_weight``
+    (:class:`Restricted`), from the chordal relaxation of the weighted pose graph and/or the
+    current estimate (the better result)."""
 
-    GNC is only as global as its inner solver: on real pose graphs it can end in a local
-    minimum where a few outliers are accepted and the estimate is bent to fit them (measured on
-    M3500 with 10 % random loop closures: 2-5 accepted, 40-90 m error). Such a factor has a small
-    residual but a large leave-one-out residual (:mod:`fgopt.solvers.influence`): the rest of the
-    graph contradicts it. The check ranks accepted factors by how much the optimal cost would drop
-    without them (``0.5 r . r_loo``, first order); for the largest drop above ``c^2 / 2`` (where
-    rejecting pays off in the truncated-least-squares objective ``0.5 sum min(r_i^2, c_i^2)``,
-    known inliers ``r_i^2``) it rejects the factor, re-solves, re-classifies every factor
-    (rejected inliers that fit again come back) and keeps the change only if that objective
-    really decreased; it stops when no candidate is left or no rejection helps.
-    """
-
-    def __init__(self, problem, lm, solver, inliers, c2, scaled, start):
-        self.problem, self.lm, self.solver, self.start = problem, lm, solver, start
-        self.inliers, self.c2, self.scaled = inliers, c2, scaled
+    def __init__(self, full, params, lm, use_chordal: bool, callback):
+        self.full, self.lm, self.use_chordal, self.callback = full, lm, use_chordal, callback
+        self.restricted = Restricted(full, params, params.active_weight)
         self.iterations = 0
 
-    def objective(self, state) -> float:
-        s = self.scaled(state)
-        return float(sum(np.sum(0.5 * c * np.where(m, x, np.minimum(x, 1.0)))
-                         for x, m, c in zip(s, self.inliers, self.c2)))
+    def solve(self, state, weights, warm: bool = True) -> tuple[Any, float]:
+        """(new full state, weighted cost). ``warm``: also continue from ``state``."""
+        sub, sub_state = self.restricted.prepare(state, weights)
+        solver = self.restricted.solver
+        best = None
+        if warm or not self.use_chordal:
+            best = self.lm.optimize_problem(sub, sub_state, solver, self.callback)
+            self.iterations += best.iterations
+        if self.use_chordal:
+            from .chordal import chordal_state
 
-    def classify(self, state, forced=None, passes: int = 5):
-        """Binary weights (inlier iff ``r^2 <= c^2``, ``forced`` rows rejected), re-solved
-        until the classification is stable."""
-        weights = None
-        for _ in range(passes):
-            s = self.scaled(state)
-            new = [np.where(m | (x <= 1.0), 1.0, 0.0) for x, m in zip(s, self.inliers)]
-            if forced is not None:
-                for w, f in zip(new, forced):
-                    w[f] = 0.0
-            if weights is not None and all(np.array_equal(a, b) for a, b in zip(new, weights)):
-                break
-            weights = new
-            self.problem.set_weights(weights)
-            # the better of: continuing from the current estimate, and (pose graphs) starting
-            # from the chordal estimate of the new weights; either alone can stall in a local
-            # minimum after the classification changed
-            res = self.lm.optimize_problem(self.problem, state, self.solver)
-            self.iterations += res.iterations
-            fresh = self.start(state, weights)
-            if fresh is not state:
-                other = self.lm.optimize_problem(self.problem, fresh, self.solver)
+            fresh = chordal_state(sub, sub_state, self.restricted.sub_weights)
+            if fresh is not None:
+                other = self.lm.optimize_problem(sub, fresh, solver, self.callback)
                 self.iterations += other.iterations
-                if other.final_cost < res.final_cost:
-                    res = other
-            state = res.state
-        return state, weights
-
-    def _loo_scores(self, state, weights):
-        from .influence import leave_one_out_sq_norms
-
-        self.problem.set_weights(weights)
-        masks = [(w > 0.5) & ~m for w, m in zip(weights[:-1], self.inliers[:-1])]
-        drop = leave_one_out_sq_norms(self.problem, state, masks, cost_decrease=True)
-        # > 1: rejecting the factor lowers the TLS objective (to first order)
-        return [2.0 * x / c for x, c in zip(drop, self.c2[:-1])]
-
-    def verify(self, state, weights, max_removals: int, verbose: bool = False):
-        forced = [np.zeros(len(w), dtype=bool) for w in weights]
-        objective = self.objective(state)
-        removed = 0
-        tried: set = set()
-        while removed < max_removals:
-            loo = self._loo_scores(state, weights)
-            cands = sorted(((float(x[i]), bi, int(i)) for bi, x in enumerate(loo)
-                            for i in np.nonzero(x > 1.0)[0] if (bi, int(i)) not in tried),
-                           reverse=True)
-            improved = False
-            for score, bi, i in cands[:3]:  # a few tries per factorization
-                tried.add((bi, i))
-                trial = [f.copy() for f in forced]
-                trial[bi][i] = True
-                st, w = self.classify(state, trial)
-                obj = self.objective(st)
-                if verbose:
-                    print(f"GNC check: cost drop without it / (c^2/2) {score:.3g}, factor {i} of "
-                          f"batch {bi}: objective {objective:.6g} -> {obj:.6g}")
-                if obj < objective * (1.0 - 1e-9):
-                    state, weights, forced, objective = st, w, trial, obj
-                    removed += 1
-                    improved = True
-                    break
-            if not improved:
-                break
-        self.problem.set_weights(weights)
-        return state, weights, removed
+                if best is None or other.final_cost < best.final_cost:
+                    best = other
+        return self.restricted.to_full(best.state, state), best.final_cost

@@ -16,6 +16,8 @@ per factor examined.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -69,7 +71,8 @@ def _solve_leverages(problem: Problem):
 
 
 def leave_one_out_sq_norms(problem: Problem, state: State, masks: list[np.ndarray],
-                           chunk: int = 4000, cost_decrease: bool = False) -> list[np.ndarray]:
+                           chunk: int = 4000, cost_decrease: bool = False,
+                           both: bool = False) -> Any:
     """``|r_loo|^2`` (whitened by each factor's own noise) of the factors selected by ``masks``
     (one boolean array per batch, as :meth:`Problem.set_weights` takes; Python factors are not
     examined); 0 elsewhere.
@@ -79,6 +82,8 @@ def leave_one_out_sq_norms(problem: Problem, state: State, masks: list[np.ndarra
     linear problems; first order otherwise). Rejecting a factor lowers a truncated-least-squares
     objective ``0.5 sum min(r_i^2, c_i^2)`` when this exceeds ``c^2 / 2``.
 
+    ``both=True`` returns ``(|r_loo|^2 arrays, cost-decrease arrays)`` from one factorization.
+
     Linearizes at ``state`` with the problem's current weights (a factor with weight ``w_e``
     enters H as ``w_e J^T J``, so its leverage uses ``sqrt(w_e) J``) and factorizes H once
     (CHOLMOD, ``P H P^T = L L^T``; without the ``fgopt[cholmod]`` extra, fgopt's own solver and
@@ -87,51 +92,28 @@ def leave_one_out_sq_norms(problem: Problem, state: State, masks: list[np.ndarra
     ``Z_e`` is nonzero only on the elimination-tree paths of the factor's variables, so the cost
     grows with the tree's height, not with the number of variables.
     """
-    problem.linearize(state)
-    H = problem.pattern.matrix(problem.H_data)
-    if have_extra("sksparse"):
-        from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky
-
-        try:
-            F = cholesky(H)
-        except CholmodNotPositiveDefiniteError:  # no prior: a tiny ridge fixes the gauge
-            ridge = 1e-9 * max(1.0, float(np.abs(H.diagonal()).max()))
-            F = cholesky(H, beta=ridge)
-        leverages = _sparse_leverages(F)
-    else:
-        chunk = min(chunk, _DENSE_CHUNK)
-        leverages = _solve_leverages(problem)
-    N = problem.pattern.size
-    out = []
+    leverages, cap = _leverage_fn(problem, state)
+    chunk = min(chunk, cap)
+    out, drops = [], []
     for b, mask in zip(problem.batches, masks):
         n = len(b.source)
         sq = np.zeros(n)
+        drop = np.zeros(n)
         rows = np.nonzero(mask[:n])[0]
-        out.append(sq)
+        out.append(drop if cost_decrease and not both else sq)
+        drops.append(drop)
         if rows.size == 0:
             continue
         res, jac = b.kernel.linearize(b.gather(state), b.source.constants)
         R0 = np.broadcast_to(b.sqrt_info0, (n,) + b.sqrt_info0.shape[1:])
         R = np.broadcast_to(b.sqrt_info, (n,) + b.sqrt_info.shape[1:])  # includes sqrt(w)
-        m = res.shape[1]
-        dims, offs = b.arg_dims, b.arg_local_off
         for start in range(0, rows.size, chunk):
             es = rows[start:start + chunk]
-            c = len(es)
             Jw = np.einsum("nab,nbc->nac", R[es], jac[es])        # sqrt(w) R J, (c, m, D)
-            cols = np.arange(c)[:, None] * m + np.arange(m)[None]  # (c, m) column of (e, k)
-            ri, ci, vals = [], [], []
-            for p in range(len(dims)):
-                d, o = int(dims[p]), int(offs[p])
-                Hrows = b.toff[es, p][:, None] + np.arange(d)[None]  # (c, d)
-                # B[Hrows[e, a], cols[e, k]] = Jw[e, k, o + a]
-                ri.append(np.repeat(Hrows, m, axis=1).reshape(-1))
-                ci.append(np.tile(cols, (1, d)).reshape(-1))
-                vals.append(Jw[:, :, o:o + d].transpose(0, 2, 1).reshape(-1))
-            B = sp.csc_matrix((np.concatenate(vals), (np.concatenate(ri), np.concatenate(ci))),
-                              shape=(N, c * m))
-            h = leverages(B, c, m)
+            h = leverages(_whitened_columns(problem.pattern.size, Jw, b.toff[es], b.arg_dims,
+                                            b.arg_local_off), len(es), res.shape[1])
             r0 = np.einsum("nab,nb->na", R0[es], res[es])                # own noise, no weight
+            m = res.shape[1]
             A = np.eye(m)[None] - h
             # a bridge (h = I in some direction: nothing else predicts the factor) is not an
             # outlier: drop the unpredictable directions (least squares) instead of dividing
@@ -142,8 +124,80 @@ def leave_one_out_sq_norms(problem: Problem, state: State, masks: list[np.ndarra
                 r_loo[ok] = np.linalg.solve(A[ok], r0[ok][:, :, None])[:, :, 0]
             for i in np.nonzero(bridge)[0]:
                 r_loo[i] = np.linalg.lstsq(A[i], r0[i], rcond=1e-10)[0]
-            if cost_decrease:
-                sq[es] = 0.5 * np.sum(r0 * r_loo, axis=1)
-            else:
-                sq[es] = np.sum(r_loo * r_loo, axis=1)
-    return out
+            drop[es] = 0.5 * np.sum(r0 * r_loo, axis=1)
+            sq[es] = np.sum(r_loo * r_loo, axis=1)
+    return (out, drops) if both else out
+
+
+def prediction_sq_norms(problem: Problem, state: State, batch: Any,
+                        rows: np.ndarray) -> np.ndarray:
+    """For factors *not* in ``problem`` (rows ``rows`` of the :class:`~fgopt.batch.FactorBatch`
+    ``batch``, over variables of ``problem``): the squared prediction error normalized by its
+    covariance, ``r^T (I + h')^-1 r`` with ``r`` the whitened residual at ``state`` (which is
+    then the leave-one-out residual) and ``h' = R J H^-1 J^T R^T`` (how uncertain ``problem``'s
+    estimate of the factor's relative pose is, in the factor's own units). Under the factor's
+    noise model (times a scale ``s^2``) it is ``s^2 chi2(dim)`` distributed: Baarda's test of a
+    left-out measurement, as ``r^T (I - h)^-1 r`` is for one that is in.
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    out = np.zeros(rows.shape[0])
+    if rows.size == 0:
+        return out
+    leverages, cap = _leverage_fn(problem, state)
+    kernel = batch.kernel
+    var_idx = problem._vars_of(batch.keys[rows])
+    args = tuple(state.storages[problem._kind_id[id(kind)]][problem.var_row[var_idx[:, j]]]
+                 for j, kind in enumerate(kernel.arg_kinds))
+    res, jac = kernel.linearize(args, batch.constants[rows])
+    m = res.shape[1]
+    R = (np.broadcast_to(np.eye(m), (rows.size, m, m)) if batch.sqrt_information is None
+         else batch.sqrt_information[rows])
+    r = np.einsum("nab,nb->na", R, res)
+    Jw = np.einsum("nab,nbc->nac", R, jac)
+    dims = np.array([k.dim for k in kernel.arg_kinds], dtype=np.int64)
+    offs = np.concatenate([[0], np.cumsum(dims)[:-1]]).astype(np.int64)
+    toff = problem.pattern.var_offset[var_idx]
+    h = np.empty((rows.size, m, m))
+    step = min(cap, 4000)
+    for a in range(0, rows.size, step):
+        sl = slice(a, a + step)
+        h[sl] = leverages(_whitened_columns(problem.pattern.size, Jw[sl], toff[sl], dims, offs),
+                          Jw[sl].shape[0], m)
+    A = np.eye(m)[None] + h
+    return np.einsum("na,na->n", r, np.linalg.solve(A, r[:, :, None])[:, :, 0])
+
+
+def _leverage_fn(problem: Problem, state: State):
+    """``(leverages(B, c, m), max chunk)`` for ``problem``'s H at ``state``: CHOLMOD's sparse
+    forward solve with the ``fgopt[cholmod]`` extra, else fgopt's own solver (dense right-hand
+    sides, so smaller chunks). A tiny ridge fixes a free gauge."""
+    problem.linearize(state)
+    if have_extra("sksparse"):
+        from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky
+
+        H = problem.pattern.matrix(problem.H_data)
+        try:
+            F = cholesky(H)
+        except CholmodNotPositiveDefiniteError:  # no prior: a tiny ridge fixes the gauge
+            ridge = 1e-9 * max(1.0, float(np.abs(H.diagonal()).max()))
+            F = cholesky(H, beta=ridge)
+        return _sparse_leverages(F), 1 << 30
+    return _solve_leverages(problem), _DENSE_CHUNK
+
+
+def _whitened_columns(N: int, Jw: np.ndarray, toff: np.ndarray, dims: np.ndarray,
+                      offs: np.ndarray) -> sp.csc_matrix:
+    """``B`` (N x c m): column ``(e, k)`` is row ``k`` of factor ``e``'s whitened Jacobian
+    ``Jw (c, m, D)`` placed at its variables' tangent offsets ``toff (c, k)`` in H."""
+    c, m = Jw.shape[0], Jw.shape[1]
+    cols = np.arange(c)[:, None] * m + np.arange(m)[None]  # (c, m) column of (e, k)
+    ri, ci, vals = [], [], []
+    for p in range(len(dims)):
+        d, o = int(dims[p]), int(offs[p])
+        Hrows = toff[:, p][:, None] + np.arange(d)[None]  # (c, d)
+        # B[Hrows[e, a], cols[e, k]] = Jw[e, k, o + a]
+        ri.append(np.repeat(Hrows, m, axis=1).reshape(-1))
+        ci.append(np.tile(cols, (1, d)).reshape(-1))
+        vals.append(Jw[:, :, o:o + d].transpose(0, 2, 1).reshape(-1))
+    return sp.csc_matrix((np.concatenate(vals), (np.concatenate(ri), np.concatenate(ci))),
+                         shape=(N, c * m))

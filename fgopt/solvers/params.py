@@ -38,7 +38,9 @@ class LMParams(TerminationParams):
     ``"auto"``: identity when the problem has Lie-group variables and is not BA-shaped (pose
     graphs: M3500 converges in 5 iterations instead of 8, garage 4 instead of 7; IMU + GPS
     navigation: 3 instead of 41), diagonal for BA-shaped and vector-only problems (identity
-    damping needs 99 iterations on Ladybug-49 where diagonal needs 22); see
+    damping needs 99 iterations on Ladybug-49 where diagonal needs 22), and diagonal for a run
+    from a chordal start, whose errors are spread over the whole graph (``fgopt.optimize``'s
+    ``initialization``: MIT 67 iterations instead of 187, garage 53 instead of 149); see
     ``fgopt.solvers.lm.auto_policy``."""
     lambda_policy: str = "auto"
     """``"nielsen"``: on success lambda *= max(1/3, 1 - (2 rho - 1)^3), on failure *= nu with nu
@@ -51,6 +53,11 @@ class LMParams(TerminationParams):
     """Fill-reducing order of the variable graph: amd | metis | nesdis | colamd | natural."""
     threads: int = 1
     """Threads for linearization (numba prange + nogil kernels); 1 = serial (the default)."""
+    backend: str = "auto"
+    """``"numba"``: numba kernels for batches above 1000 factors; ``"numpy"``: NumPy twins,
+    NumPy assembly and retracts and a no-numba linear solver (CHOLMOD / qdldl) for every batch;
+    ``"auto"``: NumPy in a process that has not loaded numba yet, for problems of tangent
+    dimension <= ``fgopt.problem.NUMPY_BACKEND_MAX_SIZE`` (``Problem.choose_backend``)."""
     verbose: bool = False
 
 
@@ -59,6 +66,11 @@ class GaussNewtonParams(TerminationParams):
     linear_solver: str = "auto"
     ordering: str = "amd"
     threads: int = 1
+    backend: str = "auto"
+    """``"numba"``: numba kernels for batches above 1000 factors; ``"numpy"``: NumPy twins,
+    NumPy assembly and retracts and a no-numba linear solver (CHOLMOD / qdldl) for every batch;
+    ``"auto"``: NumPy in a process that has not loaded numba yet, for problems of tangent
+    dimension <= ``fgopt.problem.NUMPY_BACKEND_MAX_SIZE`` (``Problem.choose_backend``)."""
     verbose: bool = False
 
 
@@ -72,4 +84,9 @@ class DoglegParams(TerminationParams):
     linear_solver: str = "auto"
     ordering: str = "amd"
     threads: int = 1
+    backend: str = "auto"
+    """``"numba"``: numba kernels for batches above 1000 factors; ``"numpy"``: NumPy twins,
+    NumPy assembly and retracts and a no-numba linear solver (CHOLMOD / qdldl) for every batch;
+    ``"auto"``: NumPy in a process that has not loaded numba yet, for problems of tangent
+    dimension <= ``fgopt.problem.NUMPY_BACKEND_MAX_SIZE`` (``Problem.choose_backend``)."""
     verbose: bool = False

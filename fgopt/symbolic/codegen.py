@@ -12,7 +12,9 @@ One module per factor type and variable pattern. It holds
   ``fgopt.symbolic.runtime.NUMPY_MAX_BATCH`` instances run the twin while the process's twin
   budget lasts (:func:`fgopt._jit.numpy_budget_left`), so a small problem or a new custom
   factor needs no numba compilation (3-8 s for a Pose3 factor) and no cache load, and a
-  process that keeps solving switches to the faster compiled kernels;
+  process that keeps solving switches to the faster compiled kernels; inside
+  :func:`fgopt._jit.numpy_mode` (a problem on the NumPy backend) every batch does
+  (``runtime.use_numpy``);
 * Python wrappers ``residual(args, consts)`` / ``linearize(args, consts)`` with the
   :class:`~fgopt.factors.kernel.FactorKernel` signature (they check shapes, allocate outputs and
   make one kernel call per batch, twin or numba kernel by batch size);
@@ -35,7 +37,7 @@ from typing import Any
 from .cse import Program, total_ops
 
 #: Bump when the layout of generated modules changes (part of every cache key).
-CODEGEN_VERSION = "2"
+CODEGEN_VERSION = "3"
 
 RESERVED_NAMES = frozenset({"math", "np", "numba", "abs", "min", "max", "range", "EPSILON",
                             "META", "residual", "linearize", "linearize_hessian", "prepare"})
@@ -141,7 +143,7 @@ def _wrapper_source(fn_name: str, kernel: str, layouts: Sequence[ArgLayout],
         lines.append(f"    {arr} = np.empty((n, {shape}))")
     call_args = ", ".join(var_names + ["consts"] + [arr for arr, _ in outs])
     if twin is not None:
-        lines.append("    if n <= NUMPY_MAX_BATCH and numpy_budget_left():")
+        lines.append("    if use_numpy(n):")
         lines.append("        t0 = perf_counter()")
         lines.append("        with np.errstate(all='ignore'):  # as numba's error_model='numpy'")
         lines.append(f"            {twin}({call_args})")
@@ -189,8 +191,7 @@ def module_source(name: str, signature: str, origin: str, layouts: Sequence[ArgL
         "import numpy as np",
         "",
         "from fgopt._jit import njit",
-        "from fgopt.symbolic.runtime import NUMPY_MAX_BATCH, charge_numpy, numpy_budget_left, "
-        "prepare",
+        "from fgopt.symbolic.runtime import charge_numpy, prepare, use_numpy",
         "",
         f"EPSILON = {EPSILON_VALUE!r}",
         f"NAME = {name!r}",

@@ -7,10 +7,10 @@ from typing import Any
 
 import numpy as np
 
-from .._jit import charge_numpy, numpy_budget_left
+from .._jit import charge_numpy, numpy_budget_left, numpy_only
 from ..errors import DimensionMismatchError
 
-__all__ = ["NUMPY_MAX_BATCH", "charge_numpy", "numpy_budget_left", "prepare"]
+__all__ = ["NUMPY_MAX_BATCH", "charge_numpy", "numpy_budget_left", "prepare", "use_numpy"]
 
 #: Batches up to this size run a generated kernel's NumPy twin (same program on whole columns)
 #: while the process's twin budget lasts (``fgopt._jit.numpy_budget_left``): no numba
@@ -18,6 +18,13 @@ __all__ = ["NUMPY_MAX_BATCH", "charge_numpy", "numpy_budget_left", "prepare"]
 #: every batch once the budget is spent, run the numba kernel (compiled once, then loaded from
 #: numba's cache).
 NUMPY_MAX_BATCH = 1000
+
+
+def use_numpy(n: int) -> bool:
+    """Whether a batch of ``n`` instances runs the NumPy twin: every batch inside
+    :func:`fgopt._jit.numpy_mode` (a problem on the NumPy backend), and small batches while the
+    process's twin budget lasts (:func:`fgopt._jit.numpy_budget_left`)."""
+    return numpy_only() or (n <= NUMPY_MAX_BATCH and numpy_budget_left())
 
 
 def _as_kernel_array(a: Any) -> np.ndarray:

@@ -71,3 +71,35 @@ def test_mask_selects_factors_and_others_are_zero():
     loo = leave_one_out_sq_norms(problem, problem.initial_state(), masks)
     assert np.all(loo[0][2:] == 0) and np.all(loo[0][:2] > 0)
     assert all(np.all(x == 0) for x in loo[1:])
+
+
+def test_prediction_of_a_left_out_factor_matches_dense_algebra():
+    """For factors not in the problem: ``r^T (I + J H^-1 J^T)^-1 r`` (whitened) from the sparse
+    factorization equals the dense computation, and at a left-out factor's own residual
+    ``r`` is its leave-one-out residual (the solution without it)."""
+    from fgopt.solvers.influence import prediction_sq_norms
+
+    graph, values = linear_graph(seed=3)
+    factors = list(graph)
+    left_out = [len(factors) - 1, len(factors) - 3]  # the gross outlier and one loop
+    kept = fgopt.FactorGraph([f for i, f in enumerate(factors) if i not in left_out])
+    sol = fgopt.optimize(kept, values, method="gn", max_iterations=3).values
+    problem = Problem(kept, sol)
+    state = problem.initial_state()
+    extra = fgopt.FactorGraph([factors[i] for i in left_out])
+    ep = Problem(extra, sol, build_structure=False)
+    b = ep.batches[0]
+    got = prediction_sq_norms(problem, state, b.source, np.arange(len(b.source)))
+    problem.linearize(state)
+    Hinv = np.linalg.inv(problem.pattern.full(problem.H_data).toarray())
+    for row in range(len(b.source)):
+        f = b.source.factor(row)
+        r = f.whitened_error(sol)
+        J = np.zeros((2, problem.size))
+        Js = f.jacobians(sol)
+        for k, Jk in zip(f.keys, Js):
+            off = problem.pattern.var_offset[problem._vars_of(np.array([int(k)]))[0]]
+            J[:, off:off + 2] = f.noise.whiten(Jk)
+        expected = r @ np.linalg.solve(np.eye(2) + J @ Hinv @ J.T, r)
+        assert np.isclose(got[row], expected, rtol=1e-8)
+    assert got.max() > 100 * got.min()  # the outlier stands out, the loop does not

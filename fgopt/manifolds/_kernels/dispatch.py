@@ -8,11 +8,12 @@ from __future__ import annotations
 import sys
 
 import numpy as np
-from ..._jit import njit
+from ..._jit import njit, numpy_only
 
 from ._common import (
     GROUP_NAMES, MAX_STORAGE_DIM, SE2_ID, SE3_ID, SO2_ID, SO3_ID, storage_dim, tangent_dim,
 )
+from .vectorized import RETRACT_NUMPY
 from .so2 import so2_ad, so2_compose, so2_exp, so2_eye, so2_inverse, so2_log
 from .se2 import se2_ad, se2_adjoint, se2_compose, se2_exp, se2_inverse, se2_jr, se2_jrinv, se2_log
 from .so3 import so3_ad, so3_adjoint, so3_compose, so3_exp, so3_inverse, so3_jr, so3_jrinv, so3_log
@@ -212,21 +213,25 @@ def batch_local(gid, a, b):
 PYTHON_MAX_ROWS = 64
 
 
-def _entry(loop, gid: int, name: str):
+def _entry(loop, gid: int, name: str, vectorized=None):
     def run(a, b):
         a = np.ascontiguousarray(a, dtype=np.float64)
         b = np.ascontiguousarray(b, dtype=np.float64)
+        if vectorized is not None and (numpy_only() or "numba" not in sys.modules):
+            return vectorized(a, b)  # NumPy backend, or numba not in use: no numba import
         if a.shape[0] <= PYTHON_MAX_ROWS and "numba" not in sys.modules:
             return loop.python(gid, a, b)
         return loop(gid, a, b)
 
+    #: True when the NumPy backend can run this without numba (``Problem(backend=)``)
+    run.numpy = vectorized is not None
     run.__name__ = run.__qualname__ = name
     run.__doc__ = f"Batched {name.split('_')[1]} of {GROUP_NAMES[gid]} over (n, storage) rows."
     return run
 
 
-RETRACT_BATCH = tuple(_entry(batch_retract, g, f"{GROUP_NAMES[g].lower()}_retract_batch")
-                      for g in range(5))
+RETRACT_BATCH = tuple(_entry(batch_retract, g, f"{GROUP_NAMES[g].lower()}_retract_batch",
+                             RETRACT_NUMPY[g]) for g in range(5))
 
 
 LOCAL_BATCH = tuple(_entry(batch_local, g, f"{GROUP_NAMES[g].lower()}_local_batch")

@@ -30,19 +30,23 @@ class LinearSolver(Protocol):
         """Solve ``H x = rhs`` with the last factorization."""
 
 
-def choose_linear_solver(pattern: HessianPattern | None) -> str:
+def choose_linear_solver(pattern: HessianPattern | None, backend: str = "numba") -> str:
     """The backend ``"auto"`` picks for a problem's pattern (measured choices, see README).
 
     Tiny systems: dense Cholesky. Otherwise fgopt's block supernodal Cholesky, which factors
     2-6x faster than CHOLMOD on every pose graph and the full BA system measured
     (``benchmarks/factorization.py``); BA-shaped problems go to the Schur complement.
+    On the NumPy backend (``backend="numpy"``: a solve without numba) CHOLMOD when the
+    ``fgopt[cholmod]`` extra is installed, else qdldl's LDL^T (a wheel; no numba, no compile).
     """
-    if pattern is None:
-        from ...errors import have_extra
+    from ...errors import have_extra
 
+    if pattern is None:
         return "cholmod" if have_extra("sksparse") else "block"
     if pattern.size <= DENSE_MAX_SIZE:
         return "dense"
+    if backend == "numpy":
+        return "cholmod" if have_extra("sksparse") else "ldlt"
     from .schur import is_ba_shaped
 
     if is_ba_shaped(pattern):
@@ -51,16 +55,16 @@ def choose_linear_solver(pattern: HessianPattern | None) -> str:
 
 
 def make_linear_solver(name: "str | LinearSolver", pattern: HessianPattern | None = None,
-                       **options) -> LinearSolver:
+                       backend: str = "numba", **options) -> LinearSolver:
     """``"auto" | "block" | "cholmod" | "schur[_dense|_sparse|_pcg]" | "ldlt" | "pcg" | "dense"``
     (or a solver object, returned as is).
 
-    ``"auto"`` chooses from the problem's ``pattern`` (:func:`choose_linear_solver`).
+    ``"auto"`` chooses from the problem's ``pattern`` and ``backend`` (:func:`choose_linear_solver`).
     """
     if not isinstance(name, str):
         return name
     if name == "auto":
-        name = choose_linear_solver(pattern)
+        name = choose_linear_solver(pattern, backend)
     if name == "cholmod":
         from .cholmod import CholmodSolver
 

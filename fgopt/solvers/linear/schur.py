@@ -35,7 +35,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from scipy.linalg import lapack
 
 from ...errors import FgoptError, NotPositiveDefiniteError
 from ...structure import (HessianPattern, _sym_matvec, ba_shaped_kind, build_pattern,
@@ -268,6 +267,8 @@ class SchurSolver:
                 self._S_flat[:] = 0.0
                 self._S_flat[self._pk_dst] = self._packed[self._pk_src]
                 # in place (Fortran-contiguous float64); keep the returned array to be safe
+                from scipy.linalg import lapack  # here: scipy.linalg costs ~0.1 s to import
+
                 self._L, info = lapack.dpotrf(self._S, lower=1, clean=0, overwrite_a=1)
                 if info != 0:
                     raise NotPositiveDefiniteError(
@@ -302,6 +303,8 @@ class SchurSolver:
         if self._nS == 0:
             xS = rS
         elif self.mode == "dense":
+            from scipy.linalg import lapack
+
             xS, info = lapack.dpotrs(self._L, rS, lower=1)
             if info != 0:
                 raise FgoptError(f"Schur: LAPACK dpotrs failed (info={info})")
