@@ -429,9 +429,11 @@ def write_text(path: str | os.PathLike, text: str) -> None:
 SCAN_SLICE = 1 << 24
 
 #: Files up to this many bytes are scanned by :func:`_scan_np` while numba is not in use in the
-#: process (its arrays take ~40 bytes per input byte; numba's scan needs its import, and 4.5 s of
-#: compilation with an empty cache).
-NUMPY_SCAN_MAX_BYTES = 32 << 20
+#: process (numba's scan needs its import, and 4.5 s of compilation with an empty cache). Its
+#: arrays take ~40 bytes per input byte: at 32 MB (main's limit) a 500k-observation BAL file
+#: (29 MB) peaked at 1.5 GB instead of 0.45 GB and read in 3.2 s instead of 0.7 s, so the limit
+#: is 4 MB (every shipped pose graph; torus3D is 3.2 MB).
+NUMPY_SCAN_MAX_BYTES = 4 << 20
 
 
 def scan(path: str | os.PathLike, data: bytes | None = None, has_tag: bool = True,
