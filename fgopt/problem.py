@@ -108,7 +108,7 @@ class _Batch:
     weights: np.ndarray = field(default=None)
     sqrt_info0: np.ndarray = field(default=None)  # the factors' own noise (before GNC weights)
     unit0: bool = True
-    plan: tuple | None = field(default=None)     # NumPy assembly's scatter plan (made on use)
+    plan: list | None = field(default=None)  # NumPy assembly: scatter plan per slice
     fixed: dict = field(default_factory=dict)  # unit flag -> specialized scatter (or None)
 
     def gather(self, state: State, lo: int = 0, hi: int | None = None) -> tuple:
