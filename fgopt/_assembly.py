@@ -93,7 +93,7 @@ def _whiten_rows(e, J, R, r_out, J_out):
 
 @njit(cache=True)
 def _scatter_wide(res, jac, sqrt_info, unit, loss_code, loss_param, loss_shape, arg_dims,
-                  arg_local_off, toff, pos, H_data, g, weights):
+                  arg_local_off, toff, pos, col_shift, H_data, g, weights, cost):
     """:func:`scatter_batch` for ``m >= WIDE_RESIDUAL``: whitened rows, then ``J^T J`` as a sum
     of row outer products (zeros of J skipped), then the scatter of its lower triangle."""
     n, m = res.shape
@@ -102,7 +102,6 @@ def _scatter_wide(res, jac, sqrt_info, unit, loss_code, loss_param, loss_shape, 
     r = np.empty(m)
     Jw = np.empty((m, D))
     Hl = np.empty((D, D))
-    cost = 0.0
     for i in range(n):
         if unit:
             rr = res[i]
@@ -137,38 +136,42 @@ def _scatter_wide(res, jac, sqrt_info, unit, loss_code, loss_param, loss_shape, 
                     acc += JJ[t, op + a] * rr[t]
                 g[gbase + a] += w * acc
             for q in range(k):
-                pq = pos[i, p, q]
-                if pq[0] < 0:
+                p00 = pos[i, p, q]
+                if p00 < 0:
                     continue
-                oq, dq = arg_local_off[q], arg_dims[q]
+                oq, dq, tq = arg_local_off[q], arg_dims[q], toff[i, q]
                 for b in range(dq):
-                    base = pq[b]
-                    a0 = b if p == q else 0
+                    base = p00 + col_shift[tq + b]
                     cb = oq + b
-                    for a in range(a0, dp):
-                        H_data[base + a - a0] += w * Hl[op + a, cb]
+                    for a in range(b if p == q else 0, dp):  # diagonal blocks: lower triangle
+                        H_data[base + a] += w * Hl[op + a, cb]
     return cost
 
 
 @njit(cache=True)
 def scatter_batch(res, jac, sqrt_info, unit, loss_code, loss_param, loss_shape, arg_dims,
-                  arg_local_off, toff, pos, H_data, g, weights):
-    """Accumulate a batch into ``H_data`` / ``g``; return its cost. ``weights[i]`` gets w_i.
+                  arg_local_off, toff, pos, col_shift, H_data, g, weights, cost):
+    """Accumulate a batch into ``H_data`` / ``g``; return ``cost`` plus its cost. ``weights[i]``
+    gets w_i.
 
-    Fused: each ``w (J^T J)`` entry is summed over the residual rows and added straight into H
-    (no local Hessian buffer), and unit-noise residuals/Jacobians are read in place; measured
-    ~30 % faster than building the local system first on Ladybug (2 x 12 Jacobians). Residuals
-    of ``WIDE_RESIDUAL`` rows or more take :func:`_scatter_wide`.
+    ``pos (n, k, k)`` / ``col_shift``: the scatter map (:func:`fgopt.structure.scatter_positions`);
+    entry ``(a, b)`` of block ``(p, q)`` goes to ``pos[i, p, q] + col_shift[toff[i, q] + b] + a``.
+    A large batch is passed in consecutive slices, each call continuing the previous ``cost`` (so
+    the sum is the same as in one call). Fused: each ``w (J^T J)`` entry is summed over the
+    residual rows and added straight into H (no local Hessian buffer), and unit-noise
+    residuals/Jacobians are read in place; measured ~30 % faster than building the local system
+    first on Ladybug (2 x 12 Jacobians). Residuals of ``WIDE_RESIDUAL`` rows or more take
+    :func:`_scatter_wide`.
     """
     if res.shape[1] >= WIDE_RESIDUAL:
         return _scatter_wide(res, jac, sqrt_info, unit, loss_code, loss_param, loss_shape,
-                             arg_dims, arg_local_off, toff, pos, H_data, g, weights)
+                             arg_dims, arg_local_off, toff, pos, col_shift, H_data, g, weights,
+                             cost)
     n, m = res.shape
     D = jac.shape[2]
     k = arg_dims.shape[0]
     r = np.empty(m)
     Jw = np.empty((m, D))
-    cost = 0.0
     for i in range(n):
         if unit:
             rr = res[i]
@@ -194,42 +197,36 @@ def scatter_batch(res, jac, sqrt_info, unit, loss_code, loss_param, loss_shape, 
                     acc += JJ[t, op + a] * rr[t]
                 g[gbase + a] += w * acc
             for q in range(k):
-                pq = pos[i, p, q]
-                if pq[0] < 0:
+                p00 = pos[i, p, q]
+                if p00 < 0:
                     continue
-                oq, dq = arg_local_off[q], arg_dims[q]
+                oq, dq, tq = arg_local_off[q], arg_dims[q], toff[i, q]
                 for b in range(dq):
-                    base = pq[b]
-                    a0 = b if p == q else 0  # diagonal blocks: lower triangle from the diagonal
-                    for a in range(a0, dp):
+                    base = p00 + col_shift[tq + b]
+                    for a in range(b if p == q else 0, dp):  # diagonal blocks: lower triangle
                         acc = 0.0
                         for t in range(m):
                             acc += JJ[t, op + a] * JJ[t, oq + b]
-                        H_data[base + a - a0] += w * acc
+                        H_data[base + a] += w * acc
     return cost
 
 
 @njit(cache=True)
-def _add_local_hessian(Hl, arg_dims, arg_local_off, pos_i, H_data):
-    """Add one factor's dense local Hessian into H's data at its scatter positions ``pos_i``
-    (``(k, k, maxd)``: per argument pair, each column's base index; -1 = not stored)."""
+def _add_local_hessian(Hl, arg_dims, arg_local_off, toff_i, pos_i, col_shift, H_data):
+    """Add one factor's dense local Hessian into H's data through its scatter map ``pos_i``
+    (``(k, k)`` block positions, -1 = not stored; see :func:`scatter_batch`)."""
     k = arg_dims.shape[0]
     for p in range(k):
         op, dp = arg_local_off[p], arg_dims[p]
         for q in range(k):
-            if pos_i[p, q, 0] < 0:
+            p00 = pos_i[p, q]
+            if p00 < 0:
                 continue
-            oq, dq = arg_local_off[q], arg_dims[q]
-            if p == q:  # diagonal block: lower triangle, column b starts at the diagonal
-                for b in range(dq):
-                    base = pos_i[p, q, b]
-                    for a in range(b, dp):
-                        H_data[base + a - b] += Hl[op + a, oq + b]
-            else:
-                for b in range(dq):
-                    base = pos_i[p, q, b]
-                    for a in range(dp):
-                        H_data[base + a] += Hl[op + a, oq + b]
+            oq, dq, tq = arg_local_off[q], arg_dims[q], toff_i[q]
+            for b in range(dq):
+                base = p00 + col_shift[tq + b]
+                for a in range(b if p == q else 0, dp):
+                    H_data[base + a] += Hl[op + a, oq + b]
 
 
 @njit(cache=True)
@@ -250,14 +247,23 @@ def _whitened_sq_norm(e, R, unit):
 
 
 @njit(cache=True)
-def batch_cost(res, sqrt_info, unit, loss_code, loss_param, loss_shape):
-    """``sum rho(|R e|)`` over a batch; NaN if any residual is not finite."""
-    cost = 0.0
+def batch_cost(res, sqrt_info, unit, loss_code, loss_param, loss_shape, cost):
+    """``cost + sum rho(|R e|)`` over a batch (or a slice of one, continuing ``cost``); NaN if
+    any residual is not finite."""
     for i in range(res.shape[0]):
         s = _whitened_sq_norm(res[i], sqrt_info[0 if unit else i], unit)
         rho, _ = rho_and_weight(loss_code, loss_param, loss_shape, s)
         cost += rho
     return cost
+
+
+@njit(cache=True)
+def all_finite(a):
+    """True when every entry of the 1-D array ``a`` is finite (no temporary mask)."""
+    for i in range(a.shape[0]):
+        if not np.isfinite(a[i]):
+            return False
+    return True
 
 
 @njit(cache=True)
@@ -302,7 +308,7 @@ def local_blocks_parallel(res, jac, sqrt_info, unit, loss_code, loss_param, loss
 
 
 @njit(cache=True)
-def scatter_local_blocks(Hl, gl, arg_dims, arg_local_off, toff, pos, H_data, g):
+def scatter_local_blocks(Hl, gl, arg_dims, arg_local_off, toff, pos, col_shift, H_data, g):
     """Serial second half: add precomputed local blocks into H's data and g."""
     n = Hl.shape[0]
     k = arg_dims.shape[0]
@@ -311,4 +317,4 @@ def scatter_local_blocks(Hl, gl, arg_dims, arg_local_off, toff, pos, H_data, g):
             op, dp = arg_local_off[p], arg_dims[p]
             for a in range(dp):
                 g[toff[i, p] + a] += gl[i, op + a]
-        _add_local_hessian(Hl[i], arg_dims, arg_local_off, pos[i], H_data)
+        _add_local_hessian(Hl[i], arg_dims, arg_local_off, toff[i], pos[i], col_shift, H_data)

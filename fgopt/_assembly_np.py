@@ -23,11 +23,11 @@ def _whitened(res, jac, sqrt_info, unit):
     return r, J
 
 
-def batch_cost(res, sqrt_info, unit, loss_code, loss_param, loss_shape) -> float:
-    """``sum rho(|R e|)`` over a batch (as :func:`fgopt._assembly.batch_cost`)."""
+def batch_cost(res, sqrt_info, unit, loss_code, loss_param, loss_shape, cost=0.0) -> float:
+    """``cost + sum rho(|R e|)`` over a batch (as :func:`fgopt._assembly.batch_cost`)."""
     r, _ = _whitened(res, None, sqrt_info, unit)
     rho, _ = rho_and_weight_np(loss_code, loss_param, loss_shape, np.einsum("na,na->n", r, r))
-    return float(rho.sum())
+    return float(cost) + float(rho.sum())
 
 
 def row_squared_norms(res, sqrt_info, unit) -> np.ndarray:
@@ -36,10 +36,12 @@ def row_squared_norms(res, sqrt_info, unit) -> np.ndarray:
     return np.einsum("na,na->n", r, r)
 
 
-def scatter_plan(arg_dims, arg_local_off, toff, pos, H_size: int):
+def scatter_plan(arg_dims, arg_local_off, toff, pos, col_shift, H_size: int):
     """Where each entry of a batch's ``w J^T r`` / ``w J^T J`` goes, computed once per problem:
     ``(g_idx, g_sel, H_idx, H_sel)``, flat targets in g / H's data and the flat positions of
-    their values in ``gl (n, D)`` / ``Hl (n, D, D)`` (lower triangle of each stored block)."""
+    their values in ``gl (n, D)`` / ``Hl (n, D, D)`` (lower triangle of each stored block).
+    Entry ``(a, b)`` of block ``(p, q)`` is at ``pos[i, p, q] + col_shift[toff[i, q] + b] + a``
+    (:func:`fgopt.structure.scatter_positions`)."""
     n, k = toff.shape
     D = int(arg_dims.sum())
     inst = np.arange(n, dtype=np.int64)
@@ -52,32 +54,35 @@ def scatter_plan(arg_dims, arg_local_off, toff, pos, H_size: int):
         op, dp = int(arg_local_off[p]), int(arg_dims[p])
         for q in range(k):
             oq, dq = int(arg_local_off[q]), int(arg_dims[q])
-            base = pos[:, p, q, :dq]                                 # (n, dq)
-            ok = np.nonzero(base[:, 0] >= 0)[0]
+            ok = np.nonzero(pos[:, p, q] >= 0)[0]
             if ok.shape[0] == 0:
                 continue
             a = np.arange(dp)[:, None]
             b = np.arange(dq)[None, :]
             keep = a >= b if p == q else np.ones((dp, dq), bool)     # diagonal: lower triangle
-            a0 = b if p == q else 0
-            where = base[ok][:, None, :] + (a - a0)[None]            # (n_ok, dp, dq)
+            cols = col_shift[toff[ok, q][:, None] + np.arange(dq)[None]]      # (n_ok, dq)
+            where = (pos[ok, p, q].astype(np.int64)[:, None, None] + cols[:, None, :]
+                     + a[None])                                        # (n_ok, dp, dq)
             sel = (ok[:, None, None] * (D * D) + (op + a)[None] * D + (oq + b)[None])
             H_idx.append(where[:, keep].ravel())
             H_sel.append(np.broadcast_to(sel, where.shape)[:, keep].ravel())
-    cat = (lambda xs: np.concatenate(xs) if xs else np.zeros(0, np.int64))
+    cat = (lambda xs: np.concatenate(xs).astype(np.int64, copy=False) if xs
+           else np.zeros(0, np.int64))
     return cat(g_idx), cat(g_sel), cat(H_idx), cat(H_sel)
 
 
 def scatter_batch(res, jac, sqrt_info, unit, loss_code, loss_param, loss_shape, arg_dims,
-                  arg_local_off, toff, pos, H_data, g, weights, plan=None) -> float:
-    """Accumulate a batch into ``H_data`` / ``g``; return its cost (as
-    :func:`fgopt._assembly.scatter_batch`). ``plan``: :func:`scatter_plan` of this batch (made
-    here when not given)."""
+                  arg_local_off, toff, pos, col_shift, H_data, g, weights, cost=0.0,
+                  plan=None) -> float:
+    """Accumulate a batch into ``H_data`` / ``g``; return ``cost`` plus its cost (as
+    :func:`fgopt._assembly.scatter_batch`: entry ``(a, b)`` of block ``(p, q)`` goes to
+    ``pos[i, p, q] + col_shift[toff[i, q] + b] + a``). ``plan``: :func:`scatter_plan` of these
+    rows (made here when not given)."""
     r, J = _whitened(res, jac, sqrt_info, unit)
     rho, w = rho_and_weight_np(loss_code, loss_param, loss_shape, np.einsum("na,na->n", r, r))
     weights[:] = w
     if plan is None:
-        plan = scatter_plan(arg_dims, arg_local_off, toff, pos, H_data.shape[0])
+        plan = scatter_plan(arg_dims, arg_local_off, toff, pos, col_shift, H_data.shape[0])
     g_idx, g_sel, H_idx, H_sel = plan
     Jt = np.swapaxes(J, 1, 2)                                        # (n, D, r)
     gl = w[:, None] * np.matmul(Jt, r[:, :, None])[:, :, 0]          # (n, D)
@@ -85,4 +90,4 @@ def scatter_batch(res, jac, sqrt_info, unit, loss_code, loss_param, loss_shape, 
     g += np.bincount(g_idx, gl.reshape(-1)[g_sel], minlength=g.shape[0])
     if H_idx.shape[0]:
         H_data += np.bincount(H_idx, Hl.reshape(-1)[H_sel], minlength=H_data.shape[0])
-    return float(rho.sum())
+    return float(cost) + float(rho.sum())

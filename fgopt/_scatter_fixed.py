@@ -23,7 +23,7 @@ MAX_ARGS = 3
 MAX_DIM = 16
 #: Batches smaller than this keep the generic kernel (its compile is already paid for).
 MIN_FACTORS = 64
-_VERSION = "1"
+_VERSION = "2"
 _cache: dict[tuple, Callable] = {}
 
 
@@ -39,13 +39,12 @@ def _source(m: int, dims: tuple[int, ...], unit: bool) -> str:
     a("")
     a("")
     a("@njit(cache=True, nogil=True)")
-    a("def scatter(res, jac, sqrt_info, loss_code, loss_param, loss_shape, toff, pos, H_data, "
-      "g, weights):")
+    a("def scatter(res, jac, sqrt_info, loss_code, loss_param, loss_shape, toff, pos, col_shift, "
+      "H_data, g, weights, cost):")
     a("    n = res.shape[0]")
     if not unit:
         a(f"    r = np.empty({m})")
         a(f"    J = np.empty(({m}, {D}))")
-    a("    cost = 0.0")
     a("    for i in range(n):")
     if unit:
         a("        r = res[i]")
@@ -83,8 +82,9 @@ def _source(m: int, dims: tuple[int, ...], unit: bool) -> str:
         for q in range(k):
             if p == q:  # diagonal block: lower triangle, column y starts at the diagonal
                 a(f"        pq = pos[i, {p}, {p}]")
+                a(f"        tq = toff[i, {q}]")
                 a(f"        for y in range({dims[q]}):")
-                a("            base = pq[y] - y")
+                a("            base = pq + col_shift[tq + y]")
                 a(f"            for x in range(y, {dims[p]}):")
                 a("                acc = 0.0")
                 a(f"                for t in range({m}):")
@@ -92,9 +92,10 @@ def _source(m: int, dims: tuple[int, ...], unit: bool) -> str:
                 a("                H_data[base + x] += w * acc")
             else:  # stored in one orientation only (pos < 0 in the other)
                 a(f"        pq = pos[i, {p}, {q}]")
-                a("        if pq[0] >= 0:")
+                a("        if pq >= 0:")
+                a(f"            tq = toff[i, {q}]")
                 a(f"            for y in range({dims[q]}):")
-                a("                base = pq[y]")
+                a("                base = pq + col_shift[tq + y]")
                 a(f"                for x in range({dims[p]}):")
                 a("                    acc = 0.0")
                 a(f"                    for t in range({m}):")
@@ -107,8 +108,9 @@ def _source(m: int, dims: tuple[int, ...], unit: bool) -> str:
 def scatter_kernel(m: int, dims: tuple[int, ...], unit: bool, n: int) -> Callable | None:
     """The specialized scatter for this shape, or ``None`` (use the generic kernel).
 
-    Signature: ``(res, jac, sqrt_info, loss_code, loss_param, loss_shape, toff, pos, H_data, g,
-    weights) -> cost``, the same computation as ``scatter_batch``.
+    Signature: ``(res, jac, sqrt_info, loss_code, loss_param, loss_shape, toff, pos, col_shift,
+    H_data, g, weights, cost) -> cost`` plus this slice's cost, the same computation as
+    ``scatter_batch`` (scatter map ``(pos, col_shift)``, :func:`fgopt.structure.scatter_positions`).
     """
     if not ENABLED or n < MIN_FACTORS or not 0 < len(dims) <= MAX_ARGS or max(dims) > MAX_DIM or m > MAX_DIM:
         return None

@@ -31,34 +31,38 @@ def _pool(threads: int) -> ThreadPoolExecutor:
     return pool
 
 
-def linearize_batch_threaded(problem: Any, b: Any, state: Any, H: np.ndarray,
-                             g: np.ndarray) -> float:
-    """Linearize batch ``b`` with ``problem.threads`` threads; add it into ``H``/``g``."""
+def linearize_batch_threaded(problem: Any, b: Any, state: Any, H: np.ndarray, g: np.ndarray,
+                             lo: int = 0, hi: int | None = None) -> float:
+    """Linearize instances ``lo:hi`` of batch ``b`` with ``problem.threads`` threads; add them
+    into ``H``/``g``; return their cost."""
     threads = problem.threads
-    n = len(b.source)
-    args = b.gather(state)
-    consts = b.source.constants
+    hi = len(b.source) if hi is None else hi
+    n = hi - lo
+    args = b.gather(state, lo, hi)
+    consts = b.source.constants[lo:hi]
     bounds = np.linspace(0, n, threads + 1).astype(int)
 
     def run(c: int):
-        lo, hi = bounds[c], bounds[c + 1]
-        return b.kernel.linearize(tuple(a[lo:hi] for a in args), consts[lo:hi])
+        s, e = bounds[c], bounds[c + 1]
+        return b.kernel.linearize(tuple(a[s:e] for a in args), consts[s:e])
 
     parts = list(_pool(threads).map(run, range(threads)))
     res = np.concatenate([p[0] for p in parts])
     jac = np.concatenate([p[1] for p in parts])
     D = jac.shape[2]
-    if getattr(b, "_Hl", None) is None or b._Hl.shape[0] != n:
+    if getattr(b, "_Hl", None) is None or b._Hl.shape[0] < n:
         b._Hl, b._gl = np.empty((n, D, D)), np.empty((n, D))
+    Hl, gl = b._Hl[:n], b._gl[:n]
     import numba
 
     previous = numba.get_num_threads()
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
     try:
-        cost = asm.local_blocks_parallel(res, jac, b.sqrt_info, b.unit, b.source.loss_code,
-                                         b.source.loss_param, b.source.loss_shape, b._Hl, b._gl,
-                                         b.weights)
+        cost = asm.local_blocks_parallel(res, jac, b.sqrt_info_of(lo, hi), b.unit,
+                                         b.source.loss_code, b.source.loss_param,
+                                         b.source.loss_shape, Hl, gl, b.weights[lo:hi])
     finally:
         numba.set_num_threads(previous)
-    asm.scatter_local_blocks(b._Hl, b._gl, b.arg_dims, b.arg_local_off, b.toff, b.pos, H, g)
+    asm.scatter_local_blocks(Hl, gl, b.arg_dims, b.arg_local_off, b.toff[lo:hi], b.pos[lo:hi],
+                             problem.pattern.col_shift, H, g)
     return float(cost)

@@ -17,6 +17,7 @@ accepted iterate stay intact.
 
 from __future__ import annotations
 
+import functools
 import time
 from contextlib import nullcontext
 from dataclasses import dataclass, field
@@ -34,7 +35,9 @@ from .factors.base import Factor
 from .noise.models import base_noise, loss_code_and_param
 from .key import Key, key_str
 from .manifolds.base import SCALAR_KIND, BatchKind, is_vector_kind, ops_for
-from .structure import HessianPattern, build_pattern, fill_reducing_order, scatter_positions
+from .structure import (DENSE_MAX_SIZE, HessianPattern, ba_shaped_kind, build_pattern,
+                        fill_reducing_order, independent_kinds, kinds_by_count, schur_order,
+                        scatter_positions, unique_int)
 from ._jit import charge_numpy, numpy_budget_left
 from ._scatter_fixed import specialize as specialized_scatter
 from ._threads import PARALLEL_MIN_BATCH, linearize_batch_threaded
@@ -71,6 +74,16 @@ def numpy_backend_supported(kernels, kinds) -> bool:
     return (all(getattr(k, "numpy_twin", False) for k in kernels)
             and all(getattr(kd.retract, "numpy", False) for kd in kinds))
 
+
+def _all_finite(a: np.ndarray) -> bool:
+    """No NaN / inf in the 1-D array ``a``: numba for large arrays (no temporary mask: H of 5M
+    BA observations is 1.1 GB), NumPy for small ones (no numba import)."""
+    if a.shape[0] <= 1 << 16 or _jit.numpy_only() or not _jit.is_numba_loaded():
+        # NumPy (backend, or numba not in use): in slices, the mask stays small
+        step = 1 << 16
+        return all(bool(np.isfinite(a[lo:lo + step]).all()) for lo in range(0, a.shape[0], step))
+    return bool(asm.all_finite(a))
+
 @dataclass(eq=False)
 class State:
     """Variable values during optimization: one storage array per kind + slow-path objects."""
@@ -91,15 +104,25 @@ class _Batch:
     arg_dims: np.ndarray
     arg_local_off: np.ndarray
     toff: np.ndarray = field(default=None)  # (n, k) tangent offsets
-    pos: np.ndarray = field(default=None)   # (n, k, k, maxd) scatter map
+    pos: np.ndarray = field(default=None)   # (n, k, k) scatter map (structure.scatter_positions)
     weights: np.ndarray = field(default=None)
     sqrt_info0: np.ndarray = field(default=None)  # the factors' own noise (before GNC weights)
     unit0: bool = True
-    plan: tuple | None = field(default=None)     # NumPy assembly's scatter plan (made on use)
+    plan: list | None = field(default=None)  # NumPy assembly: scatter plan per slice
     fixed: dict = field(default_factory=dict)  # unit flag -> specialized scatter (or None)
 
-    def gather(self, state: State) -> tuple:
-        return tuple(state.storages[kid][rows] for kid, rows in zip(self.kind_ids, self.rows))
+    def gather(self, state: State, lo: int = 0, hi: int | None = None) -> tuple:
+        """Storage rows of the arguments of instances ``lo:hi`` (default: all)."""
+        return tuple(state.storages[kid][rows[lo:hi]]
+                     for kid, rows in zip(self.kind_ids, self.rows))
+
+    def chunks(self, size: int):
+        """``(lo, hi)`` slices of at most ``size`` instances covering the batch."""
+        n = len(self.source)
+        return [(lo, min(n, lo + size)) for lo in range(0, n, size)] or [(0, 0)]
+
+    def sqrt_info_of(self, lo: int, hi: int) -> np.ndarray:
+        return self.sqrt_info if self.unit else self.sqrt_info[lo:hi]
 
 
 @dataclass(eq=False)
@@ -143,11 +166,26 @@ class _StateView:
         return k in self._p._var_of_key or k in self._p._extra
 
 
+#: Batches are linearized in slices of this many factors (threads: this many per thread).
+CHUNK = 1 << 14
+#: Trial steps are linearized into a second H while H's data takes at most this many bytes;
+#: larger problems linearize them into H itself and re-linearize after a rejected step (the
+#: same numbers: memory of one H saved, one linearization more per rejection). 100k-pose 3D
+#: grid: H 50 MB; 5M BA observations: 1.1 GB.
+SPARE_MAX_BYTES = 32 << 20
+
+
 class Problem:
     """A graph compiled against initial values; see the module docstring."""
 
     def __init__(self, graph: Any, values: Variables, ordering: str | None = "amd",
-                 build_structure: bool = True, threads: int = 1, backend: str = "auto"):
+                 build_structure: bool = True, threads: int = 1, backend: str = "auto",
+                 linear_solver: Any = None):
+        """``linear_solver``: the name of the solver that will factor H, when known: with a
+        Schur-complement solver (a ``"schur..."`` name, or ``"auto"`` on a BA-shaped problem) the
+        eliminated variables come first in H and no fill-reducing order is computed
+        (:func:`fgopt.structure.schur_order`); otherwise ``ordering`` orders H. ``backend``:
+        see :meth:`choose_backend`."""
         if len(graph) == 0:
             raise EmptyProblemError("the factor graph is empty: add factors before optimizing")
         if backend not in BACKENDS:
@@ -164,7 +202,7 @@ class Problem:
         self.pattern: HessianPattern | None = None
         if build_structure:
             with self.kernel_mode():
-                self._build_structure(ordering or "natural")
+                self._build_structure(ordering or "natural", linear_solver)
 
     def choose_backend(self, backend: str = "auto") -> str:
         """``backend`` resolved: ``"auto"`` is ``"numpy"`` when numba is not loaded in the
@@ -196,83 +234,114 @@ class Problem:
     def _collect_variables(self, graph: Any, values: Variables) -> None:
         # keys in order of first use (one dict build, no Python call per key)
         used: dict[int, None] = dict.fromkeys(k for f in graph.factors for k in f.keys)
-        have = values._values
-        if not all(k in have for k in used):
+        if not all(k in values for k in used):
             for f in graph.factors:
                 for k in f.keys:
-                    if k not in have:
+                    if k not in values:
                         raise KeyNotFoundError(
                             f"{f.describe()} uses {key_str(k)}, which is not in the initial "
                             f"values: add it with Variables.add({key_str(k)}, value)")
+        factor_keys = np.fromiter(used, dtype=np.int64, count=len(used))
+        batch_keys = np.zeros(0, dtype=np.int64)
         if graph.batches:
-            all_keys = np.concatenate([b.keys.reshape(-1) for b in graph.batches])
-            all_keys.sort()  # unique by sort + neighbour test (~0.6x np.unique's time)
-            keep = np.ones(all_keys.shape[0], dtype=bool)
-            np.not_equal(all_keys[1:], all_keys[:-1], out=keep[1:])
-            used.update(dict.fromkeys(all_keys[keep].tolist()))
-        self.kinds: list[BatchKind] = []
-        kind_id: dict[int, int] = {}
-        var_keys = list(used)
-        value_of = values._values
-        # one pass per step over all variables, with C-level map / set operations (no Python
-        # bytecode per variable: BAL problems have ~10^4 variables, small graphs re-solve often)
-        if not value_of.keys() >= used.keys():
-            k = next(k for k in var_keys if k not in value_of)
+            batch_keys = unique_int(np.concatenate([b.keys.reshape(-1) for b in graph.batches]))
+            if factor_keys.shape[0]:
+                batch_keys = batch_keys[~np.isin(batch_keys, factor_keys)]
+        # variables: the factors' keys in order of appearance, then the batches' in key order
+        var_keys = np.concatenate([factor_keys, batch_keys])
+        V = var_keys.shape[0]
+        # Values added in bulk (Variables.add_rows) are taken as arrays: no Python step per
+        # variable (a BA problem has ~10^6); the others one by one, in comprehensions.
+        block, brow = values._find_rows(var_keys)
+        per_key = np.flatnonzero(block < 0)
+        value_of = values._dict
+        xs = [value_of.get(k) for k in var_keys[per_key].tolist()]
+        missing = next((i for i, x in enumerate(xs) if x is None), None)
+        if missing is not None:
+            k = int(var_keys[per_key[missing]])
             b, row = self._find_key_row(graph, k)
             raise KeyNotFoundError(
                 f"{b.kernel.name} (factor {b._where(row)}) uses {key_str(Key(k))}, which is "
                 "not in the initial values")
-        xs = list(map(value_of.__getitem__, var_keys))
         ndarray = np.ndarray
-        tkeys = list(map(type, xs))
-        if ndarray in set(tkeys):  # arrays: one kind per length
-            tkeys = [(ndarray, x.shape) if t is ndarray else t for t, x in zip(tkeys, xs)]
-        # traits looked up once per (type, shape); kinds numbered in order of first appearance
-        kid_of: dict = {}
+        tkeys = [(ndarray, x.shape) if type(x) is ndarray else type(x) for x in xs]
+        # traits looked up once per (type, shape) / bulk block; kinds numbered in order of
+        # first appearance among the variables
+        kinds: list[BatchKind] = []
+        found: dict[int, int] = {}  # id(kind) -> provisional number
+
+        def number(kind) -> int:
+            if kind is None:
+                return -1
+            if id(kind) not in found:
+                found[id(kind)] = len(kinds)
+                kinds.append(kind)
+            return found[id(kind)]
+
+        tok = np.empty(V, dtype=np.int64)
         ops_of: dict = {}
+        tok_of: dict = {}
         for tkey in dict.fromkeys(tkeys):
             x = xs[tkeys.index(tkey)]
-            ops = ops_for(x)
-            kind = ops.batch_kind(x)
-            ops_of[tkey] = ops
-            if kind is None:
-                kid_of[tkey] = -1
-                continue
-            kid = kind_id.get(id(kind))
-            if kid is None:
-                kid = kind_id[id(kind)] = len(self.kinds)
-                self.kinds.append(kind)
-            kid_of[tkey] = kid
-        var_kind = np.array(list(map(kid_of.__getitem__, tkeys)), dtype=np.int64)
-        V = len(var_keys)
+            ops = ops_of[tkey] = ops_for(x)
+            tok_of[tkey] = number(ops.batch_kind(x))
+        tok[per_key] = [tok_of[t] for t in tkeys]
+        for b, blk in enumerate(values._pending):
+            on = block == b
+            if on.any():  # the kind the per-key path would find for these values
+                x = blk.kind.wrap(blk.rows[0])
+                tok[on] = number(ops_for(x).batch_kind(x))
+        first = [int(np.argmax(tok == t)) for t in range(len(kinds))]
+        renum = np.full(len(kinds) + 1, -1, dtype=np.int64)  # last entry: -1 -> -1
+        renum[np.argsort(first, kind="stable")] = np.arange(len(kinds))
+        self.kinds = [kinds[t] for t in np.argsort(first, kind="stable").tolist()]
+        kind_id = {id(k): i for i, k in enumerate(self.kinds)}
+        var_kind = renum[tok]
         var_row = np.zeros(V, dtype=np.int64)
         var_dim = np.zeros(V, dtype=np.int64)
-        per_kind: list[list] = []
+        slot = np.full(V, -1, dtype=np.int64)  # position in xs of per-key variables
+        slot[per_key] = np.arange(per_key.shape[0])
+        storages = []
         for kid, kind in enumerate(self.kinds):
             idx = np.nonzero(var_kind == kid)[0]
             var_row[idx] = np.arange(idx.shape[0])
             var_dim[idx] = kind.dim
-            per_kind.append(xs if idx.shape[0] == V else [xs[i] for i in idx.tolist()])
+            S = np.empty((idx.shape[0], kind.storage_dim))
+            pk = slot[idx] >= 0
+            if pk.any():
+                S[pk] = self._storage_of(kind, [xs[i] for i in slot[idx[pk]].tolist()])
+            for b, blk in enumerate(values._pending):
+                on = block[idx] == b
+                if on.any():
+                    S[on] = blk.rows[brow[idx[on]]]
+            storages.append(S)
         slow_idx = np.nonzero(var_kind < 0)[0]
         var_row[slow_idx] = np.arange(slow_idx.shape[0])
-        self._slow_values: list[Any] = [xs[i] for i in slow_idx.tolist()]
+        self._slow_values: list[Any] = [xs[i] for i in slot[slow_idx].tolist()]
         for i, x in zip(slow_idx.tolist(), self._slow_values):
-            var_dim[i] = ops_of[tkeys[i]].dim(x)
+            var_dim[i] = ops_of[tkeys[slot[i]]].dim(x)
         self._kind_id = kind_id
-        self.var_keys = np.array(var_keys, dtype=np.int64)
+        self.var_keys = var_keys
         self.var_kind = var_kind
         self.var_row = var_row
         self.var_dim = var_dim
-        # keys are ints (Key subclasses int): no Key objects needed for lookups
-        self._var_of_key = dict(zip(var_keys, range(V)))
-        self._initial_storages = [self._storage_of(kd, xs) for xs, kd in zip(per_kind, self.kinds)]
+        self._initial_storages = storages
         self._kind_vars = [np.nonzero(self.var_kind == kid)[0] for kid in range(len(self.kinds))]
         self._slow_vars = np.nonzero(self.var_kind < 0)[0]
         self._extra = values  # for unused keys and the final Variables
         #: Keys of ``values`` that no factor uses (returned unchanged in the final values).
-        self.unused_keys: list[Key] = ([k for k in value_of if k not in self._var_of_key]
-                                       if len(value_of) > V else [])
+        self.unused_keys: list[Key] = []
+        if len(values) > V:  # without turning bulk rows into per-key values
+            have = np.concatenate(
+                [np.fromiter(values._dict.keys(), dtype=np.int64, count=len(values._dict))]
+                + [blk.keys for blk in values._pending])
+            self.unused_keys = [Key(k) for k in have[~np.isin(have, var_keys)].tolist()]
         self._sorted = np.argsort(self.var_keys)
+
+    @functools.cached_property
+    def _var_of_key(self) -> dict:
+        """Key -> variable index (built on first use: slow-path factors and marginals)."""
+        return {Key(k): i for i, k in enumerate(self.var_keys.tolist())}
 
     @staticmethod
     def _storage_of(kind: BatchKind, xs: list) -> np.ndarray:
@@ -357,7 +426,19 @@ class Problem:
                            sqrt_info0=R, unit0=bool(noise.is_unit))
 
     # ----------------------------------------------------------------- compile: structure
-    def _build_structure(self, ordering: str) -> None:
+    def _schur_kind(self, linear_solver: Any, independent: tuple[int, ...]) -> int | None:
+        """The kind a Schur solver named ``linear_solver`` would eliminate (None: no Schur)."""
+        if not isinstance(linear_solver, str):
+            return None
+        if linear_solver == "auto":
+            if int(self.var_dim.sum()) <= DENSE_MAX_SIZE:
+                return None
+            return ba_shaped_kind(self.var_kind, self.var_dim, independent)
+        if linear_solver.startswith("schur"):  # SchurSolver(eliminate=None)'s choice
+            return next((k for k in kinds_by_count(self.var_kind) if k in independent), None)
+        return None
+
+    def _build_structure(self, ordering: str, linear_solver: Any = None) -> None:
         pi, pj = [], []
         for b in self.batches:
             k = b.var_idx.shape[1]
@@ -373,20 +454,28 @@ class Problem:
         pi = np.concatenate(pi) if pi else np.zeros(0, np.int64)
         pj = np.concatenate(pj) if pj else np.zeros(0, np.int64)
         V = self.var_keys.shape[0]
-        order = fill_reducing_order(V, pi, pj, ordering)
+        independent = independent_kinds(self.var_kind, pi, pj)
+        eliminated = self._schur_kind(linear_solver, independent)
+        if eliminated is not None:
+            order = schur_order(self.var_kind, eliminated)
+        else:
+            order = fill_reducing_order(V, pi, pj, ordering)
         self.pattern, lookup = build_pattern(self.var_dim, order, pi, pj)
+        del pi, pj
         self.pattern.var_kind = self.var_kind
         self.pattern.kind_names = tuple(k.name for k in self.kinds)
+        self.pattern.independent_kinds = independent
         rank = np.empty(V, dtype=np.int64)
         rank[order] = np.arange(V)
         off = self.pattern.var_offset
         for b in self.batches:
             b.toff = np.ascontiguousarray(off[b.var_idx])
-            b.pos = scatter_positions(lookup, rank, b.var_idx, b.arg_dims)
+            b.pos = scatter_positions(lookup, rank, b.var_idx)
             b.plan = None
         for s in self._slow:
             s.toff = off[s.var_idx][None]
-            s.pos = scatter_positions(lookup, rank, s.var_idx[None], s.arg_dims)
+            s.pos = scatter_positions(lookup, rank, s.var_idx[None])
+        del lookup
         # tangent indices of each kind's variables, row order (for batched retract)
         self._kind_tangent = []
         for kid, kind in enumerate(self.kinds):
@@ -399,6 +488,9 @@ class Problem:
         self.H_data = np.zeros(self.pattern.nnz)
         self.g = np.zeros(self.pattern.size)
         self._spare: tuple[np.ndarray, np.ndarray] | None = None
+        #: Linearize trial states into a second H (see :meth:`linearize_candidate`).
+        self.spare_buffers = self.H_data.nbytes <= SPARE_MAX_BYTES
+        self._holds_candidate = False
 
     # ----------------------------------------------------------------- iteration API
     @property
@@ -447,13 +539,19 @@ class Problem:
         t0 = time.perf_counter()
         total = 0.0
         for b in self.batches:
-            res = b.kernel.residual(b.gather(state), b.source.constants)
-            kernels = _asm(len(b.source))
-            t1 = time.perf_counter()
-            total += kernels.batch_cost(res, b.sqrt_info, b.unit, b.source.loss_code,
-                                        b.source.loss_param, b.source.loss_shape)
-            if kernels is asm_np:
+            if _asm(len(b.source)) is asm_np:  # NumPy twins: small batch, budget left
+                res = b.kernel.residual(b.gather(state), b.source.constants)
+                t1 = time.perf_counter()
+                total += asm_np.batch_cost(res, b.sqrt_info, b.unit, b.source.loss_code,
+                                           b.source.loss_param, b.source.loss_shape)
                 charge_numpy(time.perf_counter() - t1)
+                continue
+            cost = 0.0
+            for lo, hi in b.chunks(CHUNK):
+                res = b.kernel.residual(b.gather(state, lo, hi), b.source.constants[lo:hi])
+                cost = asm.batch_cost(res, b.sqrt_info_of(lo, hi), b.unit, b.source.loss_code,
+                                      b.source.loss_param, b.source.loss_shape, cost)
+            total += cost
         if self._slow:
             view = _StateView(self, state)
             for s in self._slow:
@@ -471,38 +569,56 @@ class Problem:
         """Fill ``self.H_data`` (lower CSC of H) and ``self.g`` (J^T W r); return the cost."""
         if self.pattern is None:
             raise FgoptError("this Problem was built without structure")
+        self._holds_candidate = False
         total = self._linearize_into(state, self.H_data, self.g)
-        if not (np.isfinite(total) and np.all(np.isfinite(self.g))
-                and np.all(np.isfinite(self.H_data))):
+        if not (np.isfinite(total) and _all_finite(self.g) and _all_finite(self.H_data)):
             raise NonFiniteError(self.locate_nonfinite(state))
         return total
 
     def linearize_candidate(self, state: State) -> float:
-        """Linearize a trial state into spare buffers; return its cost (NaN if not finite).
+        """Linearize a trial state; return its cost (NaN if not finite).
 
         Trust-region methods call this instead of ``cost`` so an accepted step needs no second
-        evaluation of the residuals: :meth:`accept_candidate` swaps the buffers in. A trial
-        point with a non-finite value, cost, residual or Jacobian gives NaN: the caller rejects
-        it as a step, and the current linearization stays as it was.
+        evaluation of the residuals, then :meth:`accept_candidate` or :meth:`reject_candidate`.
+        With ``spare_buffers`` the trial goes into a second H / g (swapped in on acceptance);
+        without, into H itself, and a rejection re-linearizes the current state (same numbers:
+        linearizing a state is deterministic). ``spare_buffers`` defaults to H's data taking at
+        most ``SPARE_MAX_BYTES``: a second H costs as much memory as H again (1.1 GB for 5M BA
+        observations), re-linearizing costs time only on rejected steps. A trial point with a
+        non-finite value, cost, residual or Jacobian gives NaN: the caller rejects it as a step,
+        and the current linearization stays (or is restored) as it was.
         """
         if not self.state_is_finite(state):
             return float("nan")
-        if self._spare is None:
-            self._spare = (np.zeros_like(self.H_data), np.zeros_like(self.g))
-        H, g = self._spare
+        if self.spare_buffers:
+            if self._spare is None:
+                self._spare = (np.zeros_like(self.H_data), np.zeros_like(self.g))
+            H, g = self._spare
+        else:
+            H, g = self.H_data, self.g
+            self._holds_candidate = True
         try:
             total = self._linearize_into(state, H, g)
         except NonFiniteError:
             return float("nan")
-        if not (np.isfinite(total) and np.all(np.isfinite(g)) and np.all(np.isfinite(H))):
+        if not (np.isfinite(total) and _all_finite(g) and _all_finite(H)):
             return float("nan")
         return total
 
     def accept_candidate(self) -> None:
         """Make the last :meth:`linearize_candidate` the current linearization."""
-        H, g = self._spare
-        self._spare = (self.H_data, self.g)
-        self.H_data, self.g = H, g
+        if self.spare_buffers:
+            H, g = self._spare
+            self._spare = (self.H_data, self.g)
+            self.H_data, self.g = H, g
+        self._holds_candidate = False
+
+    def reject_candidate(self, state: State) -> None:
+        """Keep ``state`` (the current iterate) as the linearization point after a rejected
+        :meth:`linearize_candidate`."""
+        if self._holds_candidate:
+            self._linearize_into(state, self.H_data, self.g)
+            self._holds_candidate = False
 
     def _linearize_into(self, state: State, H: np.ndarray, g: np.ndarray) -> float:
         with self.kernel_mode():
@@ -513,42 +629,57 @@ class Problem:
         g[:] = 0.0
         total = 0.0
         t_lin = t_asm = 0.0
+        shift = self.pattern.col_shift
         for b in self.batches:
-            t0 = time.perf_counter()
             if (self.threads > 1 and len(b.source) >= PARALLEL_MIN_BATCH
                     and self.backend == "numba"):
-                total += linearize_batch_threaded(self, b, state, H, g)
+                t0 = time.perf_counter()
+                for lo, hi in b.chunks(CHUNK * self.threads):
+                    total += linearize_batch_threaded(self, b, state, H, g, lo, hi)
                 t_lin += time.perf_counter() - t0
                 continue
-            res, jac = b.kernel.linearize(b.gather(state), b.source.constants)
-            t1 = time.perf_counter()
+            # in slices: the kernels' residual / Jacobian / gathered arguments stay a few MB
+            # instead of ~300 bytes per factor at once (1.5 GB for 5M BA observations)
+            chunks = b.chunks(CHUNK)
             kernels = _asm(len(b.source))
             if kernels is asm_np:
+                # NumPy backend, or a small batch while the twin budget lasts: bincount assembly
+                # with a scatter plan per slice (made on first use, kept)
                 if b.plan is None:
-                    b.plan = asm_np.scatter_plan(b.arg_dims, b.arg_local_off, b.toff, b.pos,
-                                                 H.shape[0])
-                total += asm_np.scatter_batch(
-                    res, jac, b.sqrt_info, b.unit, b.source.loss_code, b.source.loss_param,
-                    b.source.loss_shape, b.arg_dims, b.arg_local_off, b.toff, b.pos, H, g,
-                    b.weights, b.plan)
-                charge_numpy(time.perf_counter() - t1)
+                    b.plan = [None] * len(chunks)
+                fixed = None
             else:
                 # numba: the shape-specialized kernel where one applies
                 fixed = b.fixed.get(b.unit, _UNSET)
                 if fixed is _UNSET:
                     fixed = b.fixed[b.unit] = specialized_scatter(b)
-                if fixed is not None:
-                    total += fixed(res, jac, b.sqrt_info, b.source.loss_code,
-                                   b.source.loss_param, b.source.loss_shape, b.toff, b.pos, H, g,
-                                   b.weights)
+            cost = 0.0
+            for c, (lo, hi) in enumerate(chunks):
+                t0 = time.perf_counter()
+                res, jac = b.kernel.linearize(b.gather(state, lo, hi), b.source.constants[lo:hi])
+                t1 = time.perf_counter()
+                toff, pos = b.toff[lo:hi], b.pos[lo:hi]
+                if kernels is asm_np:
+                    if b.plan[c] is None:
+                        b.plan[c] = asm_np.scatter_plan(b.arg_dims, b.arg_local_off, toff, pos,
+                                                        shift, H.shape[0])
+                    cost = asm_np.scatter_batch(
+                        res, jac, b.sqrt_info_of(lo, hi), b.unit, b.source.loss_code,
+                        b.source.loss_param, b.source.loss_shape, b.arg_dims, b.arg_local_off,
+                        toff, pos, shift, H, g, b.weights[lo:hi], cost, b.plan[c])
+                    charge_numpy(time.perf_counter() - t1)
+                elif fixed is not None:
+                    cost = fixed(res, jac, b.sqrt_info_of(lo, hi), b.source.loss_code,
+                                 b.source.loss_param, b.source.loss_shape, toff, pos, shift, H,
+                                 g, b.weights[lo:hi], cost)
                 else:
-                    total += asm.scatter_batch(
-                        res, jac, b.sqrt_info, b.unit, b.source.loss_code, b.source.loss_param,
-                        b.source.loss_shape, b.arg_dims, b.arg_local_off, b.toff, b.pos, H, g,
-                        b.weights)
-            t2 = time.perf_counter()
-            t_lin += t1 - t0
-            t_asm += t2 - t1
+                    cost = asm.scatter_batch(res, jac, b.sqrt_info_of(lo, hi), b.unit,
+                                             b.source.loss_code, b.source.loss_param,
+                                             b.source.loss_shape, b.arg_dims, b.arg_local_off,
+                                             toff, pos, shift, H, g, b.weights[lo:hi], cost)
+                t_lin += t1 - t0
+                t_asm += time.perf_counter() - t1
+            total += cost
         if self._slow:
             t0 = time.perf_counter()
             view = _StateView(self, state)
@@ -558,8 +689,8 @@ class Problem:
                 J = np.concatenate(Js, axis=1)[None]
                 total += asm_np.scatter_batch(e[None], J, s.sqrt_info, s.unit, s.loss_code,
                                               s.loss_param, s.loss_shape, s.arg_dims,
-                                              s.arg_local_off, s.toff,
-                                              s.pos, H, g, np.ones(1))
+                                              s.arg_local_off, s.toff, s.pos, shift, H, g,
+                                              np.ones(1))
             t_lin += time.perf_counter() - t0
         self.timing["linearize"] += t_lin
         self.timing["assemble"] += t_asm
@@ -603,12 +734,19 @@ class Problem:
     def locate_nonfinite(self, state: State) -> str:
         """Name the first factor whose residual or Jacobian is not finite."""
         for b in self.batches:
-            with self.kernel_mode():
-                res, jac = b.kernel.linearize(b.gather(state), b.source.constants)
-            for arr, what in ((res, "residual"), (jac, "Jacobian")):
-                bad = ~np.isfinite(arr.reshape(arr.shape[0], -1)).all(axis=1)
-                row = int(np.argmax(bad)) if bad.any() else -1
-                if row >= 0:
+            for lo, hi in b.chunks(CHUNK):
+                with self.kernel_mode():
+                    res, jac = b.kernel.linearize(b.gather(state, lo, hi),
+                                                  b.source.constants[lo:hi])
+                for arr, what in ((res, "residual"), (jac, "Jacobian")):
+                    if self.backend == "numpy":
+                        bad = ~np.isfinite(arr.reshape(arr.shape[0], -1)).all(axis=1)
+                        row = int(np.argmax(bad)) if bad.any() else -1
+                    else:
+                        row = asm.first_nonfinite_row(arr)
+                    if row < 0:
+                        continue
+                    row += lo
                     keys = ", ".join(key_str(Key(int(k))) for k in b.source.keys[row])
                     hint = b.kernel.nonfinite_hint or "check its measurement and variables"
                     return (f"{b.kernel.name}({keys}) (factor {b.source._where(row)}) has a "
@@ -630,12 +768,14 @@ class Problem:
         """
         out = []
         for b in self.batches:
-            with self.kernel_mode():
-                res = b.kernel.residual(b.gather(state), b.source.constants)
-            if self.backend == "numpy":
-                out.append(asm_np.row_squared_norms(res, b.sqrt_info0, b.unit0))
-            else:
-                out.append(asm.row_squared_norms(res, b.sqrt_info0, b.unit0))
+            parts = []
+            for lo, hi in b.chunks(CHUNK):
+                with self.kernel_mode():
+                    res = b.kernel.residual(b.gather(state, lo, hi), b.source.constants[lo:hi])
+                R0 = b.sqrt_info0 if b.unit0 else b.sqrt_info0[lo:hi]
+                norms = asm_np if self.backend == "numpy" else asm
+                parts.append(norms.row_squared_norms(res, R0, b.unit0))
+            out.append(np.concatenate(parts))
         view = _StateView(self, state)
         slow = [float(np.sum(s.factor.whitened_error(view) ** 2)) for s in self._slow]
         out.append(np.array(slow))

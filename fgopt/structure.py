@@ -3,17 +3,21 @@
 H = J^T W J is stored as the **lower triangle in CSC** (what CHOLMOD reads). Variables are
 given tangent offsets in a fill-reducing order computed on the *variable* (block) graph, which
 is much smaller than the scalar matrix, and then expanded; the solvers then factor H in its
-natural order. Each variable's diagonal block and each coupled pair's block are stored dense,
-so the position of entry ``(a, b)`` of block ``(i, j)`` is ``col_base[b] + a``.
+natural order. When a Schur-complement solver will factor H, no fill-reducing order is needed:
+the eliminated variables simply come first (:func:`schur_order`). Each variable's diagonal
+block and each coupled pair's block are stored dense: a block whose entry ``(0, 0)`` is at data
+index ``p00`` has entry ``(a, b)`` at ``p00 + col_shift[c0 + b] + a`` (``c0`` = the first
+column of its column variable; :func:`column_shift`).
 
 The scatter map gives, for every factor instance and every ordered pair ``(p, q)`` of its
-variables with ``off[v_p] >= off[v_q]``, the data index of the block's first row in each of its
-columns; the assembly kernel adds the factor's dense ``D x D`` Hessian block there.
+variables with ``rank(v_p) >= rank(v_q)``, that ``p00``: one integer per block (the assembly
+kernel adds the factor's dense ``D x D`` Hessian block through it).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -25,20 +29,58 @@ CHOLMOD_ORDERINGS = ("metis", "nesdis", "colamd", "default", "best")
 
 @dataclass(eq=False)
 class HessianPattern:
-    """Lower-triangular CSC pattern of H with per-variable block layout."""
+    """Lower-triangular CSC pattern of H with per-variable block layout.
+
+    The row ``indices`` (one int64 per stored entry: as large as H itself) are built on first
+    use from the block list: the Schur solver never needs them.
+    """
 
     size: int                 # N: total tangent dimension
     indptr: np.ndarray        # (N + 1,) int64
-    indices: np.ndarray       # (nnz,) int64 row indices, sorted within each column
     diag_pos: np.ndarray      # (N,) data index of each diagonal entry
     var_offset: np.ndarray    # (V,) tangent offset of each variable
     var_dim: np.ndarray       # (V,) tangent dim of each variable
+    block_codes: np.ndarray   # (nb,) sorted rank(column var) * V + rank(row var) of the blocks
+    block_p00: np.ndarray     # (nb,) data index of each block's entry (0, 0)
+    order: np.ndarray         # (V,) the variable of each rank (rank = position in H)
     var_kind: np.ndarray | None = None  # (V,) manifold kind id (-1: Python manifold), if known
     kind_names: tuple[str, ...] = ()    # names of the kind ids
+    #: Kind ids no factor couples with themselves (no block joins two variables of the kind),
+    #: when the builder knows them (the compiled problem does); None: unknown.
+    independent_kinds: tuple[int, ...] | None = None
+    col_shift: np.ndarray = None        # (N,) see column_shift (computed when not given)
+    _indices: np.ndarray | None = field(default=None, repr=False)
+
+    def __post_init__(self):
+        if self.col_shift is None:
+            self.col_shift = column_shift(self.indptr, self.var_offset, self.var_dim)
+
+    @property
+    def indices(self) -> np.ndarray:
+        """``(nnz,)`` int64 row indices, sorted within each column (built once, then kept)."""
+        return self.row_indices(cache=True)
+
+    def row_indices(self, cache: bool = True) -> np.ndarray:
+        """The row indices; ``cache=False`` does not keep them when they were not built yet
+        (a solver that needs them only for its analysis)."""
+        if self._indices is not None:
+            return self._indices
+        args = (self.block_codes, self.var_offset.shape[0], self.order, self.var_dim,
+                self.var_offset, self.indptr)
+        out = _layout_kernel(_block_rows, _block_rows_np, int(self.indptr[-1]), *args)
+        if cache:
+            self._indices = out
+        return out
+
+    def blocks(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(row var, column var, p00)`` of every stored block, diagonal blocks included."""
+        V = self.var_offset.shape[0]
+        return (self.order[self.block_codes % V], self.order[self.block_codes // V],
+                self.block_p00)
 
     @property
     def nnz(self) -> int:
-        return int(self.indices.shape[0])
+        return int(self.indptr[-1])
 
     def matrix(self, data: np.ndarray) -> "sp.csc_matrix":
         """The lower triangle as a scipy CSC matrix sharing ``data`` (no copy)."""
@@ -122,6 +164,56 @@ def fill_reducing_order(num_vars: int, pairs_i: np.ndarray, pairs_j: np.ndarray,
     return np.asarray(f.P(), dtype=np.int64)
 
 
+#: ``"auto"`` factors systems of at most this many unknowns with a dense Cholesky.
+DENSE_MAX_SIZE = 300
+
+
+def independent_kinds(var_kind: np.ndarray, pairs_i: np.ndarray,
+                      pairs_j: np.ndarray) -> tuple[int, ...]:
+    """Kind ids (>= 0) of which no pair ``(pairs_i, pairs_j)`` joins two variables."""
+    var_kind = np.asarray(var_kind)
+    kinds = np.unique(var_kind[var_kind >= 0])
+    ki, kj = var_kind[pairs_i], var_kind[pairs_j]
+    joined = np.unique(ki[(ki == kj) & (np.asarray(pairs_i) != np.asarray(pairs_j))])
+    return tuple(int(k) for k in np.setdiff1d(kinds, joined))
+
+
+def kinds_by_count(var_kind: np.ndarray) -> list[int]:
+    """Kind ids (>= 0), the most numerous first (ties: smaller id first)."""
+    ids, counts = np.unique(var_kind[var_kind >= 0], return_counts=True)
+    return [int(i) for i in ids[np.argsort(-counts, kind="stable")]]
+
+
+def ba_shaped_kind(var_kind: np.ndarray, var_dim: np.ndarray,
+                   independent: tuple[int, ...]) -> int | None:
+    """The kind to eliminate when a problem is BA-shaped, else None.
+
+    BA-shaped: the kind with the most variables is independent (no factor couples two of its
+    variables), has at least twice as many variables as all others together and at least half
+    of the tangent dimension, so eliminating it leaves a much smaller reduced system.
+    """
+    var_kind = np.asarray(var_kind)
+    by_count = kinds_by_count(var_kind)
+    if not by_count or by_count[0] not in independent:
+        return None
+    mask = var_kind == by_count[0]
+    n_e = int(mask.sum())
+    if n_e == mask.shape[0]:  # one kind only (pose graphs): nothing would be left to reduce to
+        return None
+    if n_e < 2 * (mask.shape[0] - n_e) or 2 * int(var_dim[mask].sum()) < int(var_dim.sum()):
+        return None
+    return by_count[0]
+
+
+def schur_order(var_kind: np.ndarray, eliminated_kind: int) -> np.ndarray:
+    """Variables of ``eliminated_kind`` first, then the others (each in index order).
+
+    The order of H for a Schur-complement solve: every block coupling an eliminated variable
+    with a kept one lies in the eliminated variable's columns, next to its diagonal block, and
+    the solver orders the reduced system itself, so H needs no fill-reducing order.
+    """
+    e = np.asarray(var_kind) == eliminated_kind
+    return np.concatenate([np.nonzero(e)[0], np.nonzero(~e)[0]]).astype(np.int64)
 def minimum_degree_order(A) -> np.ndarray:
     """Multiple minimum degree elimination order of the symmetric pattern of ``A`` (SuperLU's
     ``MMD_AT_PLUS_A``, shipped in scipy's wheels; no SuiteSparse).
@@ -141,10 +233,13 @@ def build_pattern(var_dim: np.ndarray, order: np.ndarray, pairs_i: np.ndarray,
     """Pattern of H for variables with dims ``var_dim`` coupled by ``(pairs_i, pairs_j)``.
 
     ``order`` is the elimination order of the variables. Returns the pattern and a lookup used
-    by :func:`scatter_positions`: ``block_keys`` (sorted ``lo * V + hi`` codes of stored blocks,
-    ``hi`` = the variable with the larger offset) and ``block_col_base`` (per block, per column
-    of the block's column variable, the data index of its first row).
+    by :func:`scatter_positions`: ``codes`` (sorted ``rank(column var) * V + rank(row var)`` of
+    every stored block, diagonal blocks included: the CSC order of the blocks), ``col_ptr``
+    (blocks of column rank ``r`` are ``codes[col_ptr[r]:col_ptr[r + 1]]``) and ``p00`` (data index
+    of each block's entry ``(0, 0)``).
     """
+    var_dim = np.asarray(var_dim, dtype=np.int64)
+    order = np.asarray(order, dtype=np.int64)
     V = var_dim.shape[0]
     rank = np.empty(V, dtype=np.int64)
     rank[order] = np.arange(V)
@@ -152,63 +247,48 @@ def build_pattern(var_dim: np.ndarray, order: np.ndarray, pairs_i: np.ndarray,
     dims_in_order = var_dim[order]
     var_offset[order] = np.concatenate([[0], np.cumsum(dims_in_order)[:-1]]) if V else []
     N = int(var_dim.sum())
-
-    # Unique off-diagonal blocks as (column var = smaller offset, row var = larger offset).
-    pi, pj = np.asarray(pairs_i, np.int64), np.asarray(pairs_j, np.int64)
-    keep = pi != pj
-    pi, pj = pi[keep], pj[keep]
-    col_var = np.where(rank[pi] < rank[pj], pi, pj)
-    row_var = np.where(rank[pi] < rank[pj], pj, pi)
-    codes = np.unique(col_var * V + row_var)
-    col_var, row_var = codes // V, codes % V
-    # Diagonal blocks for every variable.
-    all_col = np.concatenate([np.arange(V), col_var])
-    all_row = np.concatenate([np.arange(V), row_var])
-    # Sort blocks by (column rank, row rank): the CSC order.
-    sort = np.lexsort((rank[all_row], rank[all_col]))
-    all_col, all_row = all_col[sort], all_row[sort]
-    indptr, indices, col_base_flat, block_start = _expand_blocks(
-        V, N, var_dim, var_offset, rank, all_col, all_row)
+    # Blocks as rank codes (column = the smaller rank): one sort gives the CSC order, diagonal
+    # blocks first in their columns.
+    ri = rank[np.asarray(pairs_i, dtype=np.int64)]
+    rj = rank[np.asarray(pairs_j, dtype=np.int64)]
+    keep = ri != rj
+    ri, rj = ri[keep], rj[keep]
+    codes = np.concatenate([np.minimum(ri, rj) * V + np.maximum(ri, rj),
+                            np.arange(V, dtype=np.int64) * (V + 1)])
+    del ri, rj, keep
+    codes = unique_int(codes)
+    args = (codes, V, order, var_dim, var_offset, N)
+    indptr, p00 = _layout_kernel(_block_layout, _block_layout_np, codes.shape[0] * 4, *args)
     diag_pos = indptr[:-1].copy()  # diagonal entry is the first of each lower column
-    pattern = HessianPattern(N, indptr, indices, diag_pos, var_offset, var_dim.astype(np.int64))
-    block_codes = all_col * V + all_row
-    srt = np.argsort(block_codes)
-    lookup = {"codes": block_codes[srt], "block": srt, "block_start": block_start,
-              "col_base": col_base_flat, "V": V}
+    pattern = HessianPattern(N, indptr, diag_pos, var_offset, var_dim, codes, p00, order)
+    col_ptr = np.searchsorted(codes, np.arange(V + 1, dtype=np.int64) * V)
+    lookup = {"codes": codes, "col_ptr": col_ptr, "p00": p00, "V": V}
     return pattern, lookup
 
 
-def _expand_blocks(V, N, var_dim, var_offset, rank, blk_col, blk_row):
-    """Scalar CSC (indptr, indices) from blocks sorted in CSC order, plus column bases."""
-    nb = blk_col.shape[0]
-    dc = var_dim[blk_col]
-    dr = var_dim[blk_row]
-    is_diag = blk_col == blk_row
-    # rows each block contributes to each of its columns: diagonal blocks are triangular
-    # col-length contributions: for column b of a diagonal block: dr - b; else dr.
-    col_len = np.zeros(N, dtype=np.int64)
-    # Accumulate off-diagonal contributions: every column of the column variable gets dr rows.
-    off_cols = np.repeat(var_offset[blk_col[~is_diag]], dc[~is_diag]) + ranges(dc[~is_diag])
-    np.add.at(col_len, off_cols, np.repeat(dr[~is_diag], dc[~is_diag]))
-    diag_vars = blk_col[is_diag]
-    dcols = np.repeat(var_offset[diag_vars], var_dim[diag_vars]) + ranges(var_dim[diag_vars])
-    col_len[dcols] += np.repeat(var_dim[diag_vars], var_dim[diag_vars]) - ranges(var_dim[diag_vars])
-    indptr = np.zeros(N + 1, dtype=np.int64)
-    np.cumsum(col_len, out=indptr[1:])
-    nnz = int(indptr[-1])
-    indices = np.empty(nnz, dtype=np.int64)
-    block_start = np.zeros(nb + 1, dtype=np.int64)
-    np.cumsum(dc, out=block_start[1:])
-    col_base = np.empty(int(block_start[-1]), dtype=np.int64)
-    if numpy_only() or indices.shape[0] <= 20000:
-        # NumPy backend, or small: vectorized (no numba import or cache load; as fast as the
-        # kernel at this size)
-        _fill_indices_np(blk_col, blk_row, var_dim, var_offset, indptr, indices, block_start,
-                         col_base)
-    else:
-        _fill_indices(blk_col, blk_row, var_dim, var_offset, indptr, indices, block_start,
-                      col_base)
-    return indptr, indices, col_base, block_start
+def unique_int(a: np.ndarray) -> np.ndarray:
+    """Sorted unique values of an int64 array (sort-based: numpy's hash-based ``unique`` was
+    6x slower on 10^7 codes)."""
+    a = np.sort(a)
+    if a.shape[0] < 2:
+        return a
+    keep = np.empty(a.shape[0], dtype=bool)
+    keep[0] = True
+    np.not_equal(a[1:], a[:-1], out=keep[1:])
+    return a[keep]
+
+
+def column_shift(indptr: np.ndarray, var_offset: np.ndarray, var_dim: np.ndarray) -> np.ndarray:
+    """``shift[c] = indptr[c] - indptr[c0] - (c - c0)``, ``c0`` = first column of c's variable.
+
+    A block whose entry ``(0, 0)`` is at data index ``p00`` has entry ``(a, b)`` at
+    ``p00 + shift[c0 + b] + a`` (lower CSC, block-dense: each column of a variable holds the same
+    blocks, the diagonal block's triangle one row shorter per column).
+    """
+    srt = np.argsort(var_offset, kind="stable")
+    c0 = np.repeat(var_offset[srt], var_dim[srt])
+    c = np.arange(c0.shape[0], dtype=np.int64)
+    return indptr[:-1] - indptr[c0] - (c - c0)
 
 
 def ranges(lengths: np.ndarray) -> np.ndarray:
@@ -221,73 +301,137 @@ def ranges(lengths: np.ndarray) -> np.ndarray:
     return np.arange(total, dtype=np.int64) - starts
 
 
-from ._jit import is_numba_loaded, njit, numpy_only  # noqa: E402  (numba kernels below)
+from ._jit import (charge_numpy, is_numba_loaded, njit,  # noqa: E402  (numba kernels below)
+                   numpy_budget_left, numpy_only)
 
 
-def _fill_indices_np(blk_col, blk_row, var_dim, var_offset, indptr, indices, block_start,
-                     col_base):
-    """:func:`_fill_indices` vectorized: one entry per (block, column of the block)."""
-    dc = var_dim[blk_col]
-    nb = blk_col.shape[0]
-    b = np.repeat(np.arange(nb, dtype=np.int64), dc)        # block of each (block, column)
-    cb = ranges(dc)                                          # column within the block
-    col = var_offset[blk_col][b] + cb
-    diag = (blk_col == blk_row)[b]
-    length = var_dim[blk_row][b] - np.where(diag, cb, 0)
-    # blocks arrive in CSC order, so within one scalar column they follow block order
-    order = np.argsort(col, kind="stable")
-    csum = np.cumsum(length[order])
-    first = np.empty_like(csum)
-    first[0:1] = 0
-    first[1:] = csum[:-1]
-    col_sorted = col[order]
-    group_start = np.searchsorted(col_sorted, col_sorted, side="left")
-    within = first - first[group_start]
-    base = np.empty_like(col)
-    base[order] = indptr[col_sorted] + within
-    col_base[block_start[b] + cb] = base
-    start_row = var_offset[blk_row][b] + np.where(diag, cb, 0)
-    dest = np.repeat(base, length) + ranges(length)
-    indices[dest] = np.repeat(start_row, length) + ranges(length)
+def _block_layout_np(codes, V, order, var_dim, var_offset, N):
+    """:func:`_block_layout` vectorized (NumPy backend and small problems)."""
+    c, r = order[codes // V], order[codes % V]
+    dr = var_dim[r]
+    grp = codes // V                                   # column rank of each block
+    rows = np.bincount(grp, weights=dr, minlength=V).astype(np.int64)  # rows in column 0
+    dims = var_dim[order]
+    col_len = np.repeat(rows[:dims.shape[0]], dims) - ranges(dims)   # diagonal: triangular
+    indptr = np.zeros(N + 1, dtype=np.int64)
+    np.cumsum(col_len, out=indptr[1:])
+    # within its column, a block starts after the rows of the blocks before it
+    csum = np.cumsum(dr) - dr
+    first = np.searchsorted(grp, grp, side="left")
+    p00 = indptr[var_offset[c]] + csum - csum[first] if codes.shape[0] else \
+        np.zeros(0, dtype=np.int64)
+    p00 = np.where(var_dim[c] > 0, p00, 0)
+    return indptr, p00.astype(np.int64)
 
 
-def _scatter_positions_np(codes, block, block_start, col_base, V, var_rank, var_idx, arg_dims,
-                          maxd):
+def _block_rows_np(codes, V, order, var_dim, var_offset, indptr):
+    """:func:`_block_rows` vectorized: one entry per (block, column of the block)."""
+    c, r = order[codes // V], order[codes % V]
+    _, p00 = _block_layout_np(codes, V, order, var_dim, var_offset, indptr.shape[0] - 1)
+    shift = column_shift(indptr, var_offset, var_dim)
+    dc = var_dim[c]
+    b = np.repeat(np.arange(codes.shape[0], dtype=np.int64), dc)   # block of each entry
+    cb = ranges(dc)                                                  # column within the block
+    a0 = np.where((c == r)[b], cb, 0)                                # first stored row
+    length = var_dim[r][b] - a0
+    start = p00[b] + shift[var_offset[c][b] + cb] + a0
+    indices = np.empty(int(indptr[-1]), dtype=np.int64)
+    within = ranges(length)
+    indices[np.repeat(start, length) + within] = np.repeat(var_offset[r][b] + a0, length) + within
+    return indices
+
+
+def _scatter_positions_np(codes, col_ptr, p00, V, var_rank, var_idx):
     """:func:`_scatter_positions` vectorized over instances (one pass per argument pair)."""
     n, k = var_idx.shape
-    pos = np.full((n, k, k, maxd), -1, dtype=np.int64)
+    pos = np.full((n, k, k), -1, dtype=np.int64)
     rank = var_rank[var_idx]
     for p in range(k):
-        vp = var_idx[:, p]
         for q in range(k):
-            vq = var_idx[:, q]
-            ok = rank[:, p] >= rank[:, q]
-            if p != q:
-                ok &= vp != vq
+            ok = rank[:, p] >= rank[:, q] if p == q else rank[:, p] > rank[:, q]
             rows = np.nonzero(ok)[0]
             if rows.shape[0] == 0:
                 continue
-            at = np.searchsorted(codes, vq[rows] * V + vp[rows])
-            start = block_start[block[at]]
-            d = int(arg_dims[q])
-            pos[rows, p, q, :d] = col_base[start[:, None] + np.arange(d)[None, :]]
+            at = np.searchsorted(codes, rank[rows, q] * V + rank[rows, p])
+            pos[rows, p, q] = p00[at]
     return pos
 
 
+#: Layout work up to this size runs vectorized while numba is not in use in the process (the
+#: NumPy backend's solvers analyze the pattern outside its kernel mode; its arrays take ~10
+#: words per entry).
+NUMPY_LAYOUT_MAX = 1 << 22
+
+
+def _layout_kernel(kernel, twin, work: int, *args):
+    """``twin(*args)`` (NumPy, vectorized) on the NumPy backend, while numba is not in use (up to
+    ``NUMPY_LAYOUT_MAX``), or for about ``work`` steps while the process still rents
+    (:func:`_small`, time charged); else the numba ``kernel``."""
+    if numpy_only() or (work <= NUMPY_LAYOUT_MAX and not is_numba_loaded()):
+        return twin(*args)
+    if _small(work):
+        t0 = time.perf_counter()
+        try:
+            return twin(*args)
+        finally:
+            charge_numpy(time.perf_counter() - t0)
+    return kernel(*args)
+
+
+def _small(work: int) -> bool:
+    """Loops of about ``work`` steps run as plain Python while the process still rents
+    (``fgopt._jit.numpy_budget_left``): numba's import, initialization and cache loads (~0.5 s)
+    would cost more. Callers charge the time to the budget (:func:`_charged`)."""
+    return work <= 20000 and numpy_budget_left()
+
+
+def _charged(kernel, *args):
+    """``kernel.python(*args)``, its time counted towards the switch to numba."""
+    t0 = time.perf_counter()
+    try:
+        return kernel.python(*args)
+    finally:
+        charge_numpy(time.perf_counter() - t0)
+
+
 @njit(cache=True)
-def _fill_indices(blk_col, blk_row, var_dim, var_offset, indptr, indices, block_start, col_base):
+def _block_layout(codes, V, order, var_dim, var_offset, N):
+    """``indptr`` of the scalar CSC of blocks given as sorted rank codes, and the data index of
+    each block's entry ``(0, 0)``."""
+    nb = codes.shape[0]
+    indptr = np.zeros(N + 1, dtype=np.int64)
+    for b in range(nb):
+        c, r = order[codes[b] // V], order[codes[b] % V]
+        oc, dc, dr = var_offset[c], var_dim[c], var_dim[r]
+        for cb in range(dc):
+            indptr[oc + cb + 1] += dc - cb if c == r else dr
+    for j in range(N):
+        indptr[j + 1] += indptr[j]
+    p00 = np.empty(nb, dtype=np.int64)
+    fill = indptr[:-1].copy()  # per column: where the next block's rows go
+    for b in range(nb):
+        c, r = order[codes[b] // V], order[codes[b] % V]
+        oc, dc, dr = var_offset[c], var_dim[c], var_dim[r]
+        p00[b] = fill[oc] if dc else 0
+        for cb in range(dc):
+            fill[oc + cb] += dc - cb if c == r else dr
+    return indptr, p00
+
+
+@njit(cache=True)
+def _block_rows(codes, V, order, var_dim, var_offset, indptr):
+    """Row indices of the scalar CSC (see :func:`_block_layout`)."""
+    indices = np.empty(indptr[-1], dtype=np.int64)
     fill = indptr[:-1].copy()
-    for b in range(blk_col.shape[0]):
-        c, r = blk_col[b], blk_row[b]
-        dc, dr = var_dim[c], var_dim[r]
-        oc, orow = var_offset[c], var_offset[r]
+    for b in range(codes.shape[0]):
+        c, r = order[codes[b] // V], order[codes[b] % V]
+        oc, orow, dc, dr = var_offset[c], var_offset[r], var_dim[c], var_dim[r]
         for cb in range(dc):
             col = oc + cb
-            col_base[block_start[b] + cb] = fill[col]
-            start = cb if c == r else 0
-            for a in range(start, dr):
+            for a in range(cb if c == r else 0, dr):
                 indices[fill[col]] = orow + a
                 fill[col] += 1
+    return indices
 
 
 @njit(cache=True)
@@ -307,46 +451,45 @@ def _sym_matvec(indptr, indices, data, x):
     return y
 
 
-def scatter_positions(lookup: dict, var_rank: np.ndarray, var_idx: np.ndarray,
-                      arg_dims: np.ndarray) -> np.ndarray:
-    """Per-instance column bases of every stored block of a batch's local Hessian.
+def scatter_positions(lookup: dict, var_rank: np.ndarray, var_idx: np.ndarray) -> np.ndarray:
+    """Per instance, where each stored block of its local Hessian sits in H's data array.
 
     ``var_idx``: ``(n, k)`` variable indices of each instance's arguments. Returns ``pos`` of shape
-    ``(n, k, k, maxd)``: for pairs with ``rank[v_p] >= rank[v_q]`` the data index of the first
-    row of block ``(v_p, v_q)`` in each of its columns (for ``p == q``: the diagonal's position),
-    else -1.
+    ``(n, k, k)``: for pairs with ``rank[v_p] >= rank[v_q]`` the data index of entry ``(0, 0)`` of
+    block ``(v_p, v_q)`` (rows of ``v_p``, columns of ``v_q``; ``p == q``: the diagonal block),
+    else -1. Entry ``(a, b)`` is then at ``pos + col_shift[off[v_q] + b] + a``
+    (:func:`column_shift`).
     """
     n, k = var_idx.shape
-    maxd = int(arg_dims.max()) if k else 1
     # NumPy backend, or small problems before numba is in use: vectorized (no numba import)
-    run = _scatter_positions_np if numpy_only() or (n * k * k <= 20000
-                                                     and not is_numba_loaded()) \
-        else _scatter_positions
+    small = numpy_only() or (n * k * k <= 20000 and not is_numba_loaded())
+    run = _scatter_positions_np if small else _scatter_positions
     return run(np.ascontiguousarray(lookup["codes"], dtype=np.int64),
-               np.ascontiguousarray(lookup["block"], dtype=np.int64),
-               np.ascontiguousarray(lookup["block_start"], dtype=np.int64),
-               np.ascontiguousarray(lookup["col_base"], dtype=np.int64),
+               np.ascontiguousarray(lookup["col_ptr"], dtype=np.int64),
+               np.ascontiguousarray(lookup["p00"], dtype=np.int64),
                int(lookup["V"]), np.ascontiguousarray(var_rank, dtype=np.int64),
-               np.ascontiguousarray(var_idx, dtype=np.int64),
-               np.ascontiguousarray(arg_dims, dtype=np.int64), maxd)
+               np.ascontiguousarray(var_idx, dtype=np.int64))
 
 
 @njit(cache=True)
-def _scatter_positions(codes, block, block_start, col_base, V, var_rank, var_idx, arg_dims,
-                       maxd):
-    # one pass per instance (a numpy pass per argument pair cost ~k^2 Python steps per batch:
-    # 30 ms of set-up for 1500 smart factors of up to 10 poses)
+def _scatter_positions(codes, col_ptr, p00, V, var_rank, var_idx):
+    # one pass per instance; each block is found by bisection within its column's blocks
     n, k = var_idx.shape
-    pos = np.full((n, k, k, maxd), -1, dtype=np.int64)
+    pos = np.full((n, k, k), -1, dtype=np.int64)
     for i in range(n):
         for p in range(k):
-            vp = var_idx[i, p]
+            rp = var_rank[var_idx[i, p]]
             for q in range(k):
-                vq = var_idx[i, q]
-                if var_rank[vp] < var_rank[vq] or (p != q and vp == vq):
+                rq = var_rank[var_idx[i, q]]
+                if rp < rq or (p != q and rp == rq):
                     continue
-                at = np.searchsorted(codes, vq * V + vp)
-                start = block_start[block[at]]
-                for c in range(arg_dims[q]):
-                    pos[i, p, q, c] = col_base[start + c]
+                want = rq * V + rp
+                lo, hi = col_ptr[rq], col_ptr[rq + 1]
+                while lo < hi:
+                    mid = (lo + hi) // 2
+                    if codes[mid] < want:
+                        lo = mid + 1
+                    else:
+                        hi = mid
+                pos[i, p, q] = p00[lo]
     return pos

@@ -17,14 +17,13 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <ctime>
 #include <fstream>
 #include <iostream>
 #include <map>
 #include <sstream>
 #include <string>
 #include <vector>
-
-#include <time.h>
 
 using Clock = std::chrono::steady_clock;
 
@@ -45,12 +44,14 @@ Eigen::Matrix<double, N, N> UpperSqrt(const Eigen::Matrix<double, N, N>& I) {
   }
   return J.llt().matrixU();
 }
-// CPU seconds of this process: a comparison that a loaded machine distorts less than wall time.
+// CPU seconds of this process (user + system): unlike wall time, not inflated when other
+// processes compete for the cores.
 static double cpu_now() {
-  timespec ts;
+  struct timespec ts;
   clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
   return ts.tv_sec + 1e-9 * ts.tv_nsec;
 }
+
 static double secs(Clock::time_point a, Clock::time_point b) {
   return std::chrono::duration<double>(b - a).count();
 }
@@ -230,9 +231,11 @@ int main(int argc, char** argv) {
   Data d;
   d.kind = kind;
   auto t0 = Clock::now();
+  double c0 = cpu_now();
   ceres::Problem prob;
   bool ok = kind == "bal" ? ReadBal(path, d, prob) : ReadG2o(path, kind == "pose3d", d, prob);
   double load_s = secs(t0, Clock::now());
+  double load_cpu_s = cpu_now() - c0;
   if (!ok) { std::cerr << "cannot read " << path << "\n"; return 1; }
   const std::vector<double> x0 = d.x, q0 = d.q;
 
@@ -260,20 +263,16 @@ int main(int argc, char** argv) {
     d.x = x0;
     d.q = q0;
     auto a = Clock::now();
-    double c = cpu_now();
+    double ca = cpu_now();
     ceres::Solve(o, &prob, &s);
     double t = secs(a, Clock::now());
-    if (k > 0) {
-      samples.push_back(t);
-      cpu_samples.push_back(cpu_now() - c);
-    }
+    if (k > 0) cpu_samples.push_back(cpu_now() - ca);
+    if (k > 0) samples.push_back(t);
   }
-  auto median = [](std::vector<double> v) {
-    std::sort(v.begin(), v.end());
-    size_t m = v.size();
-    return m % 2 ? v[m / 2] : 0.5 * (v[m / 2 - 1] + v[m / 2]);
-  };
-  double med = median(samples), med_cpu = median(cpu_samples);
+  std::vector<double> sorted = samples;
+  std::sort(sorted.begin(), sorted.end());
+  size_t m = sorted.size();
+  double med = m % 2 ? sorted[m / 2] : 0.5 * (sorted[m / 2 - 1] + sorted[m / 2]);
 
   std::ofstream out(est);
   out.precision(17);
@@ -295,16 +294,17 @@ int main(int argc, char** argv) {
       out << p[0] << " " << p[1] << " " << p[2] << "\n";
     }
   }
-  printf("{\"load_s\": %.9g, \"solve_s\": %.9g, \"solve_cpu_s\": %.9g, \"samples\": [", load_s,
-         med, med_cpu);
+  std::sort(cpu_samples.begin(), cpu_samples.end());
+  double cpu_med = m % 2 ? cpu_samples[m / 2] : 0.5 * (cpu_samples[m / 2 - 1] + cpu_samples[m / 2]);
+  printf("{\"load_s\": %.9g, \"load_cpu_s\": %.9g, \"solve_s\": %.9g, \"solve_cpu_s\": %.9g, "
+         "\"samples\": [", load_s, load_cpu_s, med, cpu_med);
   for (size_t k = 0; k < samples.size(); ++k) printf("%s%.9g", k ? ", " : "", samples[k]);
-  printf("], \"cpu_samples\": [");
-  for (size_t k = 0; k < cpu_samples.size(); ++k) printf("%s%.9g", k ? ", " : "", cpu_samples[k]);
   printf("], \"iterations\": %d, \"initial_cost\": %.17g, \"final_cost\": %.17g, "
-         "\"termination\": \"%s\", \"linear_solver_s\": %.9g, \"ceres\": \"%s\", "
-         "\"repaired_information\": %d}\n",
+         "\"termination\": \"%s\", \"linear_solver_s\": %.9g, \"preprocessor_s\": %.9g, "
+         "\"minimizer_s\": %.9g, \"ceres\": \"%s\", \"repaired_information\": %d}\n",
          s.num_successful_steps + s.num_unsuccessful_steps - 1, s.initial_cost, s.final_cost,
          ceres::TerminationTypeToString(s.termination_type), s.linear_solver_time_in_seconds,
-         CERES_VERSION_STRING, g_repaired);
+         s.preprocessor_time_in_seconds, s.minimizer_time_in_seconds, CERES_VERSION_STRING,
+         g_repaired);
   return 0;
 }

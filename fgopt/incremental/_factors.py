@@ -383,7 +383,8 @@ class FactorStore:
             vs = batch.var_slots[rows]
             args = tuple(storages[kid][vs[:, j]] for j, kid in enumerate(self._kids(batch)))
             res = batch.kernel.residual(args, batch.consts[rows])
-            total += asm.batch_cost(res, batch.R[rows], False, batch.code, batch.k, batch.shape)
+            total += asm.batch_cost(res, batch.R[rows], False, batch.code, batch.k, batch.shape,
+                                    0.0)
         if self.python:
             view = _EstimateView(self.vars, storages, objects)
             for f in self.python.values():

@@ -16,8 +16,11 @@ Output (:class:`Scan`):
 - per record ``r``: ``line[r]`` (1-based line number), ``first[r]`` / ``count[r]`` (slice of its
   numeric values), and when ``has_tag``: ``tag_hash[r]`` (FNV-1a of the first token) and its byte
   span ``tag_start[r]:tag_end[r]``;
-- per value ``v``: ``values[v]``, ``bad[v]`` (True when the token is not a number) and its byte
-  span ``tok_start[v]:tok_end[v]`` for error messages.
+- per value ``v``: ``values[v]``, ``bad[v]`` (True when the token is not a number) and where
+  its token starts, ``tok_start[v]`` (for error messages; ``Scan.token`` finds its end).
+
+Outputs are sized exactly by a first counting pass; large files are scanned in slices with a
+progress bar (tqdm) when that takes over a second.
 """
 
 from __future__ import annotations
@@ -29,13 +32,12 @@ import os
 import zlib
 from dataclasses import dataclass
 
-from .._jit import is_numba_loaded, njit, numpy_only
 import numpy as np
 
+from .._jit import is_numba_loaded, njit, numpy_only
 from ..errors import FileFormatError
+from ._scan_np import _FNV_OFFSET, _FNV_PRIME, _scan_np
 
-_FNV_OFFSET = np.uint64(0xCBF29CE484222325)
-_FNV_PRIME = np.uint64(0x100000001B3)
 _MAX_MANTISSA = 1 << 53
 
 
@@ -109,9 +111,22 @@ def _scale_exact(m, exp10, p10_hi, p10_lo):
     return h, True
 
 
+@njit(cache=True, inline="always")
+def _ends_token(buf, j, n, comment):
+    """True at a token boundary: end of data, whitespace, line end or the comment character."""
+    if j >= n:
+        return True
+    c = buf[j]
+    return c == 10 or c == comment or _is_space(c)
+
+
 @njit(cache=True)
-def _parse_number(buf, s, e, p10_hi, p10_lo):
-    """Parse ``buf[s:e]``; returns ``(value, ok)``. ``ok`` False: let Python decide."""
+def _parse_token(buf, s, n, comment, p10_hi, p10_lo):
+    """Parse the token starting at ``s``; returns ``(value, ok, end)``, ``end`` = where the
+    token ends. ``ok`` False: let Python decide (also for tokens that are not numbers).
+
+    One pass: digits are consumed while the token is read (no separate search for its end).
+    """
     j = s
     neg = False
     if buf[j] == 45 or buf[j] == 43:  # '-' '+'
@@ -122,7 +137,7 @@ def _parse_number(buf, s, e, p10_hi, p10_lo):
     exp10 = 0
     digits = 0
     exact = True
-    while j < e and 48 <= buf[j] <= 57:
+    while j < n and 48 <= buf[j] <= 57:
         d = buf[j] - 48
         digits += 1
         if m == 0 and d == 0:
@@ -135,9 +150,9 @@ def _parse_number(buf, s, e, p10_hi, p10_lo):
             if d != 0:
                 exact = False
         j += 1
-    if j < e and buf[j] == 46:  # '.'
+    if j < n and buf[j] == 46:  # '.'
         j += 1
-        while j < e and 48 <= buf[j] <= 57:
+        while j < n and 48 <= buf[j] <= 57:
             d = buf[j] - 48
             digits += 1
             if m == 0 and d == 0:
@@ -149,75 +164,73 @@ def _parse_number(buf, s, e, p10_hi, p10_lo):
             elif d != 0:
                 exact = False
             j += 1
-    if digits == 0:
-        return 0.0, False
-    if j < e and (buf[j] == 101 or buf[j] == 69):  # 'e' 'E'
+    ok = digits > 0
+    if ok and j < n and (buf[j] == 101 or buf[j] == 69):  # 'e' 'E'
         j += 1
         eneg = False
-        if j < e and (buf[j] == 45 or buf[j] == 43):
+        if j < n and (buf[j] == 45 or buf[j] == 43):
             eneg = buf[j] == 45
             j += 1
         edigits = 0
         ex = 0
-        while j < e and 48 <= buf[j] <= 57:
+        while j < n and 48 <= buf[j] <= 57:
             if ex < 100000:
                 ex = ex * 10 + (buf[j] - 48)
             edigits += 1
             j += 1
-        if edigits == 0:
-            return 0.0, False
+        ok = edigits > 0
         exp10 += -ex if eneg else ex
-    if j != e or not exact:
-        return 0.0, False
+    if not _ends_token(buf, j, n, comment):  # something else follows: not a plain number
+        ok = False
+        while not _ends_token(buf, j, n, comment):
+            j += 1
+    if not ok or not exact:
+        return 0.0, False, j
     if m == 0:
-        return (-0.0 if neg else 0.0), True
+        return (-0.0 if neg else 0.0), True, j
     v, ok = _scale_exact(m, exp10, p10_hi, p10_lo)
-    return (-v if neg else v), ok
+    return (-v if neg else v), ok, j
 
 
 @njit(cache=True)
-def _scan(buf, has_tag, comment, p10_hi, p10_lo):
+def _count(buf):
+    """Upper bounds for the outputs: lines, and runs of non-space bytes (tokens)."""
+    lines = 1
+    toks = 0
+    gap = True
+    for i in range(buf.shape[0]):
+        c = buf[i]
+        if c == 10 or _is_space(c):
+            lines += c == 10
+            gap = True
+        elif gap:
+            toks += 1
+            gap = False
+    return lines, toks
+
+
+@njit(cache=True)
+def _scan_part(buf, stop_at, has_tag, comment, p10_hi, p10_lo, values, slow, tok_start,
+               rec_line, rec_first, rec_count, tag_hash, tag_start, tag_end, state):
+    """Scan the lines starting before byte ``stop_at``; resumable: ``state`` = ``[next byte,
+    values so far, records so far, next line number]`` is read and updated. Each byte is read
+    once (tokens are parsed as they are found)."""
     n = buf.shape[0]
-    num_lines = 1
-    for i in range(n):
-        if buf[i] == 10:
-            num_lines += 1
-    max_tok = n // 2 + 1
-    values = np.empty(max_tok)
-    slow = np.zeros(max_tok, dtype=np.int8)
-    tok_start = np.empty(max_tok, dtype=np.int64)
-    tok_end = np.empty(max_tok, dtype=np.int64)
-    rec_line = np.empty(num_lines, dtype=np.int64)
-    rec_first = np.empty(num_lines, dtype=np.int64)
-    rec_count = np.empty(num_lines, dtype=np.int64)
-    tag_hash = np.zeros(num_lines, dtype=np.uint64)
-    tag_start = np.zeros(num_lines, dtype=np.int64)
-    tag_end = np.zeros(num_lines, dtype=np.int64)
-    nv = 0
-    nr = 0
-    line = 1
-    i = 0
-    while i <= n:
-        line_end = i
-        while line_end < n and buf[line_end] != 10:
-            line_end += 1
-        stop = line_end
-        if comment >= 0:
-            for j in range(i, line_end):
-                if buf[j] == comment:
-                    stop = j
-                    break
+    i, nv, nr, line = state[0], state[1], state[2], state[3]
+    while i <= n and i < stop_at:
         j = i
         started = False
         need_tag = has_tag
         while True:
-            while j < stop and _is_space(buf[j]):
+            while j < n and _is_space(buf[j]):
                 j += 1
-            if j >= stop:
+            if j >= n or buf[j] == 10:
+                break
+            if buf[j] == comment:  # the rest of the line is a comment
+                while j < n and buf[j] != 10:
+                    j += 1
                 break
             s = j
-            while j < stop and not _is_space(buf[j]):
-                j += 1
             if not started:
                 started = True
                 rec_line[nr] = line
@@ -225,14 +238,15 @@ def _scan(buf, has_tag, comment, p10_hi, p10_lo):
             if need_tag:
                 need_tag = False
                 h = _FNV_OFFSET
-                for q in range(s, j):
-                    h = (h ^ np.uint64(buf[q])) * _FNV_PRIME
+                while not _ends_token(buf, j, n, comment):
+                    h = (h ^ np.uint64(buf[j])) * _FNV_PRIME
+                    j += 1
                 tag_hash[nr] = h
                 tag_start[nr] = s
                 tag_end[nr] = j
                 rec_first[nr] = nv
                 continue
-            v, ok = _parse_number(buf, s, j, p10_hi, p10_lo)
+            v, ok, j = _parse_token(buf, s, n, comment, p10_hi, p10_lo)
             values[nv] = v
             if not ok:
                 slow[nv] = 1
@@ -240,15 +254,26 @@ def _scan(buf, has_tag, comment, p10_hi, p10_lo):
                     if buf[q] == 95 or buf[q] > 127:  # '_' or non-ASCII: float() is too lax
                         slow[nv] = 2
             tok_start[nv] = s
-            tok_end[nv] = j
             nv += 1
         if started:
             rec_count[nr] = nv - rec_first[nr]
             nr += 1
         line += 1
-        i = line_end + 1
-    return (values[:nv], slow[:nv], tok_start[:nv], tok_end[:nv], rec_line[:nr], rec_first[:nr],
-            rec_count[:nr], tag_hash[:nr], tag_start[:nr], tag_end[:nr])
+        i = j + 1  # j is at the line's newline (or the end of the data)
+    state[0], state[1], state[2], state[3] = i, nv, nr, line
+
+
+@njit(cache=True)
+def _token_ends(buf, starts, comment):
+    """Where each token starting at ``starts`` ends (whitespace, line end or comment)."""
+    out = np.empty(starts.shape[0], dtype=np.int64)
+    n = buf.shape[0]
+    for t in range(starts.shape[0]):
+        j = starts[t]
+        while j < n and buf[j] != 10 and buf[j] != comment and not _is_space(buf[j]):
+            j += 1
+        out[t] = j
+    return out
 
 
 @njit(cache=True)
@@ -295,16 +320,18 @@ class Scan:
     values: np.ndarray
     bad: np.ndarray
     tok_start: np.ndarray
-    tok_end: np.ndarray
     line: np.ndarray
     first: np.ndarray
     count: np.ndarray
     tag_hash: np.ndarray
     tag_start: np.ndarray
     tag_end: np.ndarray
+    comment: int = -1
 
     def token(self, v: int) -> str:
-        return _text(self.buf[self.tok_start[v]:self.tok_end[v]])
+        s = int(self.tok_start[v])
+        e = int(_token_ends(self.buf, self.tok_start[v:v + 1], self.comment)[0])
+        return _text(self.buf[s:e])
 
     def tag(self, r: int) -> str:
         return _text(self.buf[self.tag_start[r]:self.tag_end[r]])
@@ -316,20 +343,53 @@ class Scan:
     def error(self, message: str, line: int | None) -> FileFormatError:
         return FileFormatError(message, self.path, None if line is None else int(line))
 
-    def check_values(self, which: np.ndarray | None = None) -> None:
-        """Raise for the first non-number token (among ``which`` value indices, default all)."""
-        bad = self.bad if which is None else self.bad[which]
+    def check_values(self, which: np.ndarray | slice | None = None) -> None:
+        """Raise for the first non-number token (among ``which`` value indices or a slice of
+        them, default all)."""
+        which = _as_index(which, self.values.shape[0])
+        bad = self.bad[which]
         if bad.any():
-            v = int(np.nonzero(bad)[0][0]) if which is None else int(which[np.nonzero(bad)[0][0]])
+            v = _nth(which, int(np.argmax(bad)))
             raise self.error(f"{self.token(v)!r} is not a number", self.line_of_value(v))
 
-    def check_finite(self, which: np.ndarray) -> None:
-        """Raise for the first NaN / inf value among value indices ``which``."""
-        vals = self.values[which]
-        fin = np.isfinite(vals)
-        if not fin.all():
-            v = int(which[np.nonzero(~fin)[0][0]])
+    def check_finite(self, which: np.ndarray | slice | None = None) -> None:
+        """Raise for the first NaN / inf value among value indices ``which`` (or a slice)."""
+        which = _as_index(which, self.values.shape[0])
+        a = np.ascontiguousarray(self.values[which]).reshape(-1)
+        fin = (_first_nonfinite_np(a) if numpy_only() or not is_numba_loaded()
+               else _first_nonfinite(a))
+        if fin >= 0:
+            v = _nth(which, fin)
             raise self.error(f"{self.token(v)!r} is not a finite number", self.line_of_value(v))
+
+
+def _as_index(which, n: int):
+    return slice(0, n) if which is None else which
+
+
+def _nth(which, i: int) -> int:
+    """The value index of the ``i``-th element selected by ``which`` (array or slice)."""
+    if isinstance(which, slice):
+        return (which.start or 0) + i * (which.step or 1)
+    return int(which[i])
+
+
+def _first_nonfinite_np(a, step: int = 1 << 20) -> int:
+    """:func:`_first_nonfinite` in NumPy (no numba import), in slices: the mask stays 1 MB."""
+    for lo in range(0, a.shape[0], step):
+        bad = ~np.isfinite(a[lo:lo + step])
+        if bad.any():
+            return lo + int(np.argmax(bad))
+    return -1
+
+
+@njit(cache=True)
+def _first_nonfinite(a):
+    """Index of the first non-finite entry of the 1-D array ``a``, or -1 (no temporary mask)."""
+    for i in range(a.shape[0]):
+        if not np.isfinite(a[i]):
+            return i
+    return -1
 
 
 def _text(b: np.ndarray) -> str:
@@ -365,96 +425,88 @@ def write_text(path: str | os.PathLike, text: str) -> None:
         f.write(data)
 
 
+#: Files are scanned in slices of this many bytes (progress is reported between slices).
+SCAN_SLICE = 1 << 24
+
 #: Files up to this many bytes are scanned by :func:`_scan_np` while numba is not in use in the
-#: process (its arrays take ~40 bytes per input byte; numba's scan needs its import, and 4.5 s of
-#: compilation with an empty cache).
-NUMPY_SCAN_MAX_BYTES = 32 << 20
-
-
-def _scan_np(buf, has_tag, comment):
-    """:func:`_scan` with NumPy array passes over the bytes (same outputs; values parsed by
-    NumPy's string-to-float conversion, the grammar and rounding of ``float()``)."""
-    n = buf.shape[0]
-    nl = buf == 10
-    line_id = np.cumsum(nl) - nl                      # line index of every byte ('\n': its line)
-    sep = nl | (buf == 32) | (buf == 9) | (buf == 13) | (buf == 11) | (buf == 12)
-    if comment >= 0:
-        is_c = buf == comment
-        if is_c.any():
-            cum = np.cumsum(is_c)
-            line_start = np.concatenate(([0], np.nonzero(nl)[0] + 1))
-            before = np.concatenate(([0], cum))[line_start]
-            sep |= (cum - before[line_id]) > 0
-    tok = ~sep
-    edge = np.diff(np.concatenate(([False], tok, [False])).view(np.int8))
-    start = np.nonzero(edge == 1)[0].astype(np.int64)
-    end = np.nonzero(edge == -1)[0].astype(np.int64)
-    tline = line_id[start]
-    new_rec = np.ones(start.shape[0], dtype=bool)
-    new_rec[1:] = tline[1:] != tline[:-1]
-    rec_tok = np.nonzero(new_rec)[0]                  # first token of each record
-    rec_line = tline[rec_tok] + 1
-    num_rec = rec_tok.shape[0]
-    if has_tag:
-        tag_start, tag_end = start[rec_tok], end[rec_tok]
-        is_val = ~new_rec
-        h = np.full(num_rec, _FNV_OFFSET, dtype=np.uint64)
-        tag_len = tag_end - tag_start
-        for j in range(int(tag_len.max(initial=0))):
-            on = j < tag_len
-            byte = buf[np.minimum(tag_start + j, n - 1)].astype(np.uint64)
-            h = np.where(on, (h ^ byte) * _FNV_PRIME, h)
-        tag_hash = h
-    else:
-        tag_start = np.zeros(num_rec, np.int64)
-        tag_end = np.zeros(num_rec, np.int64)
-        tag_hash = np.zeros(num_rec, np.uint64)
-        is_val = np.ones(start.shape[0], dtype=bool)
-    vstart, vend = start[is_val], end[is_val]
-    rec_of_tok = np.cumsum(new_rec) - 1
-    count = np.bincount(rec_of_tok[is_val], minlength=num_rec).astype(np.int64)
-    first = np.zeros(num_rec, np.int64)
-    np.cumsum(count[:-1], out=first[1:])
-    m = vstart.shape[0]
-    values = np.empty(m)
-    bad = np.zeros(m, dtype=bool)
-    if m:
-        width = int((vend - vstart).max())
-        at = vstart[:, None] + np.arange(width)[None, :]
-        chars = np.where(at < vend[:, None], buf[np.minimum(at, n - 1)], 0).astype(np.uint8)
-        # '_' or non-ASCII: float() would accept them, the fast scanner does not
-        odd = ((chars == 95) | (chars > 127)).any(axis=1)
-        toks = np.ascontiguousarray(chars).view(f"S{width}").reshape(-1)
-        good = ~odd
-        try:
-            values[good] = toks[good].astype(float)
-        except ValueError:
-            for i in np.nonzero(good)[0].tolist():
-                try:
-                    values[i] = float(toks[i])
-                except ValueError:
-                    values[i], bad[i] = np.nan, True
-        values[odd], bad[odd] = np.nan, True
-    return values, bad, vstart, vend, rec_line, first, count, tag_hash, tag_start, tag_end
+#: process (numba's scan needs its import, and 4.5 s of compilation with an empty cache). Its
+#: arrays take ~40 bytes per input byte: at 32 MB (main's limit) a 500k-observation BAL file
+#: (29 MB) peaked at 1.5 GB instead of 0.45 GB and read in 3.2 s instead of 0.7 s, so the limit
+#: is 4 MB (every shipped pose graph; torus3D is 3.2 MB).
+NUMPY_SCAN_MAX_BYTES = 4 << 20
 
 
 def scan(path: str | os.PathLike, data: bytes | None = None, has_tag: bool = True,
-         comment: str | None = "#") -> Scan:
-    """Tokenize ``path`` (or ``data``, its bytes); see the module docstring."""
+         comment: str | None = "#", progress: bool = True) -> Scan:
+    """Tokenize ``path`` (or ``data``, its bytes); see the module docstring.
+
+    With ``progress``, a bar (tqdm, when installed) appears on stderr when scanning takes
+    longer than a second.
+    """
     p = os.fspath(path)
     if data is None:
         data = read_bytes(p)
     buf = np.frombuffer(data, dtype=np.uint8)
-    code = -1 if comment is None else ord(comment)
-    if numpy_only() or (buf.shape[0] <= NUMPY_SCAN_MAX_BYTES and not is_numba_loaded()):
-        out = _scan_np(buf, has_tag, code)
-        return Scan(p, buf, *out)
-    out = _scan(buf, has_tag, code, _P10_HI, _P10_LO)
-    values, slow = out[0].copy(), out[1]
+    cm = -1 if comment is None else ord(comment)
+    n = buf.shape[0]
+    if numpy_only() or (n <= NUMPY_SCAN_MAX_BYTES and not is_numba_loaded()):
+        # NumPy backend, or a small file while numba is not in use: no numba import
+        values, bad, vstart, _, line, first, count, tag_hash, tag_start, tag_end = \
+            _scan_np(buf, has_tag, cm)
+        if not has_tag:
+            tag_hash = np.zeros(0, dtype=np.uint64)
+            tag_start = tag_end = np.zeros(0, dtype=np.int64)
+        return Scan(p, buf, values, bad, vstart, line, first, count, tag_hash, tag_start,
+                    tag_end, comment=cm)
+    out = _scan_numba(buf, has_tag, cm, _progress_bar(n, p) if progress and n > SCAN_SLICE
+                      else None)
+    return Scan(p, buf, *out, comment=cm)
+
+
+def _scan_numba(buf: np.ndarray, has_tag: bool, cm: int, bar=None) -> tuple:
+    """The numba scan in slices of ``SCAN_SLICE`` bytes (``bar``: a progress bar, closed here):
+    ``(values, bad, tok_start, line, first, count, tag_hash, tag_start, tag_end)``."""
+    n = buf.shape[0]
+    lines, toks = _count(buf)  # exact-size outputs: no over-allocation, no copies
+    values = np.empty(toks)
+    slow = np.zeros(toks, dtype=np.int8)
+    tok_start = np.empty(toks, dtype=np.int64)
+    rec = [np.empty(lines, dtype=np.int64) for _ in range(3)]
+    tags = ([np.zeros(lines, dtype=np.uint64), np.zeros(lines, dtype=np.int64),
+             np.zeros(lines, dtype=np.int64)] if has_tag
+            else [np.zeros(0, dtype=np.uint64), np.zeros(0, dtype=np.int64),
+                  np.zeros(0, dtype=np.int64)])
+    state = np.array([0, 0, 0, 1], dtype=np.int64)
+    try:
+        while state[0] <= n:
+            done = int(state[0])
+            _scan_part(buf, min(done + SCAN_SLICE, n + 1), has_tag, cm, _P10_HI, _P10_LO,
+                       values, slow, tok_start, rec[0], rec[1], rec[2], tags[0], tags[1],
+                       tags[2], state)
+            if bar is not None:
+                bar.update(min(int(state[0]), n) - done)
+    finally:
+        if bar is not None:
+            bar.close()
+    nv, nr = int(state[1]), int(state[2])
+    values, slow, tok_start = values[:nv], slow[:nv], tok_start[:nv]
     bad = slow == 2
     values[bad] = np.nan
     idx = np.nonzero(slow == 1)[0]
-    if idx.shape[0] > 0:  # long mantissas (17-digit repr), nan/inf, garbage
-        values[idx], bad[idx] = _parse_slow(buf, out[2][idx], out[3][idx])
-    return Scan(p, buf, values, bad, out[2], out[3], out[4], out[5], out[6], out[7], out[8],
-                out[9])
+    if idx.shape[0] > 0:  # long mantissas, nan/inf, garbage
+        starts = tok_start[idx]
+        values[idx], bad[idx] = _parse_slow(buf, starts, _token_ends(buf, starts, cm))
+    if has_tag:
+        tags = [t[:nr] for t in tags]
+    return (values, bad, tok_start, rec[0][:nr], rec[1][:nr], rec[2][:nr], tags[0], tags[1],
+            tags[2])
+
+
+def _progress_bar(total: int, path: str):
+    """A byte-count progress bar shown after one second, or None without tqdm."""
+    try:
+        from tqdm.auto import tqdm
+    except ImportError:
+        return None
+    return tqdm(total=total, unit="B", unit_scale=True, unit_divisor=1024, delay=1.0,
+                desc=f"reading {os.path.basename(path)}", leave=False)

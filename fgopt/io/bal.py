@@ -58,9 +58,10 @@ def _is_bal_kernel(kernel: Any) -> bool:
 
 
 def read_bal(path: str | os.PathLike, data: bytes | None = None,
-             form: str = "snavely") -> tuple[FactorGraph, Variables]:
+             form: str = "snavely", progress: bool = True) -> tuple[FactorGraph, Variables]:
     """Read a BAL file; returns ``(graph, initial)`` (see the module docstring).
 
+    ``progress``: a progress bar on stderr when reading takes over a second (tqdm).
     ``form="snavely"`` (default) gives R^9 cameras ``c<i>``. GTSAM's camera form, same cost
     (see :mod:`fgopt.io._sfm`): ``"camera"`` (a PinholeCamera[Cal3Bundler] variable ``c<i>``:
     SE(3) pose looking down +z and Cal3Bundler), ``"pose+calibration"`` (SE3 ``x<i>`` and
@@ -72,7 +73,7 @@ def read_bal(path: str | os.PathLike, data: bytes | None = None,
     if form not in FORMS:
         raise FgoptError(f"read_bal: form must be one of {FORMS}, got {form!r}")
     p = os.fspath(path)
-    sc = scan(p, data=data, has_tag=False, comment=None)
+    sc = scan(p, data=data, has_tag=False, comment=None, progress=progress)
     nrec = sc.line.shape[0]
     if nrec == 0:
         raise FileFormatError("the file is empty; a BAL file starts with 'num_cameras "
@@ -88,18 +89,18 @@ def read_bal(path: str | os.PathLike, data: bytes | None = None,
                        f"observations), found {' '.join(sc.token(i) for i in range(3))}",
                        sc.line[0])
     nc, npt, nobs = (int(x) for x in header)
-    obs_rec = np.arange(1, min(1 + nobs, nrec))
-    if obs_rec.shape[0] < nobs:
+    obs_rec = slice(1, min(1 + nobs, nrec))  # records (lines) of the observations
+    if nrec - 1 < nobs:
         raise sc.error(f"the header announces {nobs} observations, the file has "
-                       f"{obs_rec.shape[0]} more lines", sc.line[-1])
-    short = np.nonzero(sc.count[obs_rec] != 4)[0]
+                       f"{nrec - 1} more lines", sc.line[-1])
+    short = np.flatnonzero(sc.count[obs_rec] != 4)
     if short.shape[0] > 0:
-        r = int(obs_rec[short[0]])
+        r = 1 + int(short[0])
         raise sc.error(f"observation {r - 1} needs 4 numbers (camera point x y), found "
                        f"{sc.count[r]}", sc.line[r])
     obs = sc.values[3:3 + 4 * nobs].reshape(nobs, 4)
     obs_lines = sc.line[obs_rec]
-    sc.check_finite(np.arange(3, 3 + 4 * nobs))
+    sc.check_finite(slice(3, 3 + 4 * nobs))
     ci, pj = obs[:, 0], obs[:, 1]
     for what, idx, limit in (("camera", ci, nc), ("point", pj, npt)):
         bad = (idx != np.floor(idx)) | (idx < 0) | (idx >= limit)
@@ -116,7 +117,7 @@ def read_bal(path: str | os.PathLike, data: bytes | None = None,
     if have > need:
         raise sc.error(f"unexpected extra number {sc.token(start + need)!r} after the "
                        f"{need} camera and point parameters", sc.line_of_value(start + need))
-    sc.check_finite(np.arange(start, start + need))
+    sc.check_finite(slice(start, start + need))
     cams = sc.values[start:start + 9 * nc].reshape(nc, 9)
     pts = sc.values[start + 9 * nc:].reshape(npt, 3)
     if form != "snavely":
@@ -127,16 +128,21 @@ def read_bal(path: str | os.PathLike, data: bytes | None = None,
                            sc.line_of_value(start + 9 * i + 6))
         return gtsam_form_graph(rotations_from_angle_axis(cams[:, :3]), cams[:, 3:6],
                                 cams[:, 6:9], ci, pj, obs[:, 2:4], pts, form,
-                                (str(p), np.asarray(obs_lines)))
+                                (str(p), _compact_lines(obs_lines)))
     cb, pb = int(key("c", 0)), int(key("p", 0))
     values = Variables()
-    values.add_rows(range(cb, cb + nc), vector_kind(9), cams)
-    values.add_rows(range(pb, pb + npt), vector_kind(3), pts)
+    values.add_rows(np.arange(cb, cb + nc, dtype=np.int64), vector_kind(9), cams)
+    values.add_rows(np.arange(pb, pb + npt, dtype=np.int64), vector_kind(3), pts)
     graph = FactorGraph()
     keys = np.column_stack([cb + ci.astype(np.int64), pb + pj.astype(np.int64)])
     graph.add_batch(reprojection_kernel(), keys, obs[:, 2:4], None,
-                    origin=(str(p), np.asarray(obs_lines)))
+                    origin=(str(p), _compact_lines(obs_lines)))
     return graph, values
+
+
+def _compact_lines(lines: np.ndarray) -> np.ndarray:
+    """Line numbers for error messages, as int32 when they fit (4 bytes per observation)."""
+    return lines.astype(np.int32 if lines.shape[0] == 0 or lines[-1] < 2 ** 31 else np.int64)
 
 
 def write_bal(path: str | os.PathLike, graph: Any, values: Any) -> None:

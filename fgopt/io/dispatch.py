@@ -48,8 +48,8 @@ def detect_format(path: str | os.PathLike, data: bytes | None = None) -> str:
 
 
 def read(path: str | os.PathLike, *, format: str | None = None, add_prior: bool = False,
-         skip_unknown: bool = False, repair_information: str | None = None
-         ) -> tuple[FactorGraph, Variables]:
+         skip_unknown: bool = False, repair_information: str | None = None,
+         progress: bool = True) -> tuple[FactorGraph, Variables]:
     """Read any supported file; returns ``(graph, initial)``.
 
     Args:
@@ -61,6 +61,8 @@ def read(path: str | os.PathLike, *, format: str | None = None, add_prior: bool 
         add_prior, skip_unknown, repair_information: g2o options, see :func:`read_g2o`
             (BAL files have no gauge prior, unknown tags or information matrices; passing a
             non-default value for one is an error).
+        progress: show a progress bar on stderr (tqdm, when installed) if scanning the file
+            takes over a second.
     """
     from .bal import read_bal
     from .bundler import read_bundler
@@ -76,12 +78,12 @@ def read(path: str | os.PathLike, *, format: str | None = None, add_prior: bool 
                                   "pass format='bal' if it is a BAL file", p, 1)
     if format == "g2o":
         return read_g2o(p, add_prior=add_prior, skip_unknown=skip_unknown,
-                        repair_information=repair_information, data=data)
+                        repair_information=repair_information, data=data, progress=progress)
     if format == "bal":
         if add_prior or skip_unknown or repair_information is not None:
             raise FgoptError("read: add_prior, skip_unknown and repair_information apply to g2o "
                              f"files; {p} is a BAL file")
-        return read_bal(p, data=data)
+        return read_bal(p, data=data, progress=progress)
     if format == "bundler":
         if add_prior or skip_unknown or repair_information is not None:
             raise FgoptError("read: add_prior, skip_unknown and repair_information apply to g2o "

@@ -148,7 +148,7 @@ class _Reader:
 
 def read_g2o(path: str | os.PathLike, add_prior: bool = False, skip_unknown: bool = False,
              repair_information: str | None = None, repair_floor: float = 1e-6,
-             data: bytes | None = None) -> tuple[FactorGraph, Variables]:
+             data: bytes | None = None, progress: bool = True) -> tuple[FactorGraph, Variables]:
     """Read a g2o (or GTSAM / TORO) pose-graph file; returns ``(graph, initial)``.
 
     Args:
@@ -160,6 +160,7 @@ def read_g2o(path: str | os.PathLike, add_prior: bool = False, skip_unknown: boo
             ``"clip"`` clips their eigenvalues to ``repair_floor`` times the largest one.
         repair_floor: relative eigenvalue floor of the ``"clip"`` repair.
         data: the file's bytes, if already in memory (``path`` is then only used in messages).
+        progress: a progress bar on stderr when scanning takes over a second (tqdm).
 
     Raises:
         FileFormatError: malformed input; the message names the file and line.
@@ -167,7 +168,7 @@ def read_g2o(path: str | os.PathLike, add_prior: bool = False, skip_unknown: boo
     if repair_information not in info_mod.REPAIR_CHOICES:
         raise FgoptError(f"repair_information must be None or 'clip', got {repair_information!r}")
     p = os.fspath(path)
-    sc = scan(p, data=data)
+    sc = scan(p, data=data, progress=progress)
     if sc.line.shape[0] == 0:
         raise FileFormatError("the file has no records (no vertices, no edges)", p)
     rd = _Reader(p, sc, skip_unknown)

@@ -62,10 +62,9 @@ class Dogleg:
         while it < p.max_iterations:
             H, g = problem.H_data, problem.g
             if h_gn is None:
-                Hr = H.copy()
-                Hr[pattern.diag_pos] += p.regularization * np.maximum(H[pattern.diag_pos], 1e-6)
                 try:
-                    h_gn = run.solve(Hr, -g)
+                    h_gn = run.solve_damped(
+                        p.regularization * np.maximum(H[pattern.diag_pos], 1e-6), -g)
                 except NotPositiveDefiniteError:
                     return run.finish(Status.FAILED, "H is not positive definite")
                 if not np.all(np.isfinite(h_gn)):
@@ -112,6 +111,8 @@ class Dogleg:
                 if done is not None:
                     return run.finish(Status.CONVERGED, done)
             else:
+                problem.reject_candidate(run.state)  # H back to the current state's (no-op
+                # unless a trial was linearized into H itself)
                 stop = run.record(it, new_cost, used_radius, step_norm, False, old, predicted)
                 if radius < p.min_radius:
                     return run.finish(Status.CONVERGED, "trust region collapsed: no further decrease")

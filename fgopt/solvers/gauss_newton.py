@@ -38,7 +38,7 @@ class GaussNewton:
             old = run.cost
             if delta is None:
                 try:
-                    delta = run.solve(problem.H_data.copy(), -problem.g)
+                    delta = run.solve_damped(None, -problem.g)
                 except NotPositiveDefiniteError:
                     return run.finish(Status.FAILED, "H is not positive definite: add a prior to "
                                       "fix the gauge, or use method='lm'")
@@ -56,6 +56,7 @@ class GaussNewton:
                 # the next step needs the Jacobian here: a non-finite one rejects the point too
                 new_cost = problem.linearize_candidate(candidate)
             if not math.isfinite(new_cost):
+                problem.reject_candidate(run.state)  # H back to the current state's
                 stop = run.record(it, new_cost, 0.0, step_norm, False, old)
                 delta = 0.5 * delta
                 if run.converged_by_step(0.5 * step_norm) is not None:

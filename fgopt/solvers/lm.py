@@ -112,11 +112,9 @@ class LevenbergMarquardt:
                 D = np.ones(diag_pos.shape[0])
             else:
                 D = np.clip(H[diag_pos], p.min_diagonal, p.max_diagonal)
-            Hd = H.copy()
-            Hd[diag_pos] += lam * D
             old = run.cost
             try:
-                delta = run.solve(Hd, -g)
+                delta = run.solve_damped(lam * D, -g)
                 ok = bool(np.all(np.isfinite(delta)))
             except NotPositiveDefiniteError:
                 ok, delta = False, None
@@ -152,6 +150,7 @@ class LevenbergMarquardt:
                 if done is not None:
                     return run.finish(Status.CONVERGED, done)
             else:
+                problem.reject_candidate(run.state)
                 stop = run.record(it, new_cost, lam, step_norm, False, old, predicted)
                 if by_factor:
                     lam *= p.lambda_factor

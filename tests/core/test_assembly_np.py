@@ -51,9 +51,10 @@ def test_scatter_and_cost_equal_numba(make, loss):
             H, g, w = np.zeros_like(p.H_data), np.zeros_like(p.g), np.zeros(len(b.source))
             c = mod.scatter_batch(res, jac, b.sqrt_info, b.unit, b.source.loss_code,
                                   b.source.loss_param, b.source.loss_shape, b.arg_dims,
-                                  b.arg_local_off, b.toff, b.pos, H, g, w)
+                                  b.arg_local_off, b.toff, b.pos, p.pattern.col_shift, H, g, w,
+                                  0.0)
             cc = mod.batch_cost(res, b.sqrt_info, b.unit, b.source.loss_code,
-                                b.source.loss_param, b.source.loss_shape)
+                                b.source.loss_param, b.source.loss_shape, 0.0)
             out.append((H, g, w, c, cc))
         (H0, g0, w0, c0, cc0), (H1, g1, w1, c1, cc1) = out
         scale = np.abs(H0).max()

@@ -55,3 +55,59 @@ def test_variables_errors_name_the_key():
         v.add(key("x", 5), np.zeros((2, 2)))
     assert isinstance(KeyNotFoundError("x"), FgoptError)
     assert fgopt.FgoptError is FgoptError
+
+
+def _bulk(n=5):
+    rows = np.arange(3.0 * n).reshape(n, 3)
+    keys = np.array([int(key("p", j)) for j in range(n)])
+    return keys, rows
+
+
+def test_bulk_rows_behave_like_added_values():
+    """Vector rows added in bulk (kept as an array until needed): at, in, len, the key order,
+    duplicates, copies, updates and pickling behave as if each value had been added."""
+    import pickle
+
+    from fgopt.manifolds.base import vector_kind
+
+    keys, rows = _bulk()
+    v = Variables().add(key("x", 0), 1.0)
+    v.add_rows(keys, vector_kind(3), rows)
+    assert len(v) == 6 and key("p", 4) in v and int(key("p", 4)) in v and key("p", 5) not in v
+    assert np.array_equal(v.at(key("p", 2)), rows[2]) and len(v._pending) == 1
+    with pytest.raises(DuplicateKeyError, match="p3"):
+        v.add_rows(keys[3:4], vector_kind(3), rows[:1])
+    with pytest.raises(DuplicateKeyError, match="x0"):
+        v.add_rows([int(key("x", 0))], vector_kind(3), rows[:1])
+    with pytest.raises(KeyNotFoundError, match="p9"):
+        v.at(key("p", 9))
+    w = v.copy()
+    w.update(key("p", 1), np.array([7.0, 8.0, 9.0]))
+    assert np.array_equal(v.at(key("p", 1)), rows[1]) and w.at(key("p", 1))[0] == 7.0
+    assert v.keys() == [key("x", 0)] + [key("p", j) for j in range(5)]
+    u = pickle.loads(pickle.dumps(v))
+    assert u.keys() == v.keys() and np.array_equal(u.at(key("p", 4)), rows[4])
+    with pytest.raises(DuplicateKeyError):
+        Variables().add_rows(np.array([3, 3]), vector_kind(3), rows[:2])
+
+
+def test_problem_takes_bulk_rows_as_arrays():
+    """A problem compiled from bulk rows has the same variables, kinds, order and storage as
+    one compiled from per-key values, and never turns the rows into per-key objects."""
+    from fgopt.datasets import bal_synthetic
+    from fgopt.problem import Problem
+
+    graph, bulk = bal_synthetic(6, 40, 3, seed=2).read()
+    assert bulk._pending  # the BAL reader adds cameras and points in bulk
+    per_key = Variables()
+    for k in bulk.keys():
+        per_key.add(k, bulk.at(k))
+    assert not per_key._pending
+    _, bulk = bal_synthetic(6, 40, 3, seed=2).read()
+    a, b = Problem(graph, bulk), Problem(graph, per_key)
+    assert bulk._pending  # still arrays
+    assert np.array_equal(a.var_keys, b.var_keys) and np.array_equal(a.var_kind, b.var_kind)
+    assert [k.name for k in a.kinds] == [k.name for k in b.kinds]
+    for x, y in zip(a._initial_storages, b._initial_storages):
+        assert np.array_equal(x, y)
+    assert a.linearize(a.initial_state()) == b.linearize(b.initial_state())

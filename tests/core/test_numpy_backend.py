@@ -30,14 +30,14 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def _numba_scan(buf: np.ndarray, has_tag: bool):
-    out = _scan._scan(buf, has_tag, ord("#"), _scan._P10_HI, _scan._P10_LO)
-    values, slow = out[0].copy(), out[1]
-    bad = slow == 2
-    values[bad] = np.nan
-    idx = np.nonzero(slow == 1)[0]
-    if idx.shape[0]:
-        values[idx], bad[idx] = _scan._parse_slow(buf, out[2][idx], out[3][idx])
-    return (values, bad) + tuple(out[2:])
+    """The numba scan's outputs in :func:`fgopt.io._scan._scan_np`'s layout."""
+    values, bad, start, line, first, count, th, ts, te = _scan._scan_numba(buf, has_tag,
+                                                                            ord("#"))
+    end = _scan._token_ends(buf, start, ord("#"))
+    if not has_tag:  # the NumPy scan gives zeros per record
+        th = np.zeros(line.shape[0], np.uint64)
+        ts = te = np.zeros(line.shape[0], np.int64)
+    return values, bad, start, end, line, first, count, th, ts, te
 
 
 ODD_TEXT = [(b"VERTEX_SE2 0 1 2 3\n# a comment line\n  EDGE 1 2 1_0 x\xc3\xa9 nan inf -1e400 1e-400 "

@@ -17,15 +17,15 @@ def _case(rng, n, m, dims, unit):
     R = np.triu(rng.normal(size=(n, m, m))) + 3 * np.eye(m)
     sqrt_info = np.eye(m)[None] if unit else R
     toff = rng.integers(0, 50, size=(n, k)).astype(np.int64)
-    maxd = max(dims)
-    pos = np.full((n, k, k, maxd), -1, dtype=np.int64)
+    pos = np.full((n, k, k), -1, dtype=np.int64)
     for i in range(n):
         for p in range(k):
             for q in range(k):
                 stored = p == q or (p > q) == bool((i + p + q) % 2)  # either orientation
                 if stored:
-                    pos[i, p, q, :dims[q]] = rng.integers(0, 200, size=dims[q])
-    return res, jac, sqrt_info, toff, pos
+                    pos[i, p, q] = rng.integers(0, 200)
+    col_shift = rng.integers(0, 40, size=60).astype(np.int64)
+    return res, jac, sqrt_info, toff, pos, col_shift
 
 
 @pytest.mark.parametrize("dims", [(3,), (3, 3), (6, 6), (9, 3), (2, 3, 1)])
@@ -35,19 +35,21 @@ def test_specialized_equals_generic(dims, unit, robust):
     """Same H, g, cost and weights (to rounding) as the generic kernel."""
     rng = np.random.default_rng(len(dims) * 7 + sum(dims))
     n, m = 80, 2 + len(dims)
-    res, jac, sqrt_info, toff, pos = _case(rng, n, m, dims, unit)
+    res, jac, sqrt_info, toff, pos, col_shift = _case(rng, n, m, dims, unit)
     code, param, shape = loss_code_and_param(Huber(1.0) if robust else None)
     fixed = sf.scatter_kernel(m, dims, unit, n)
     assert fixed is not None
     out = []
     for generic in (True, False):
-        H, g, w = np.zeros(260), np.zeros(60), np.zeros(n)
+        H, g, w = np.zeros(300), np.zeros(60), np.zeros(n)
         if generic:
             offs = np.concatenate([[0], np.cumsum(dims)[:-1]]).astype(np.int64)
             c = asm.scatter_batch(res, jac, sqrt_info, unit, code, param, shape,
-                                  np.array(dims, np.int64), offs, toff, pos, H, g, w)
+                                  np.array(dims, np.int64), offs, toff, pos, col_shift, H, g, w,
+                                  0.5)
         else:
-            c = fixed(res, jac, sqrt_info, code, param, shape, toff, pos, H, g, w)
+            c = fixed(res, jac, sqrt_info, code, param, shape, toff, pos, col_shift, H, g, w,
+                      0.5)
         out.append((c, H, g, w))
     (c0, H0, g0, w0), (c1, H1, g1, w1) = out
     assert c1 == pytest.approx(c0, rel=1e-12)

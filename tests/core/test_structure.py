@@ -33,10 +33,11 @@ def test_scatter_equals_dense_normal_equations(ordering, m):
             D = int(dims.sum())
             res = rng.normal(size=(1, m))
             jac = rng.normal(size=(1, m, D))
-            pos = scatter_positions(lookup, rank, var_idx, dims)
+            pos = scatter_positions(lookup, rank, var_idx)
             toff = off[var_idx]
             cost = asm.scatter_batch(res, jac, np.eye(m)[None], True, 0, 0.0, 0.0, dims,
-                                     np.array([0, dims[0]]), toff, pos, H_data, g, np.ones(1))
+                                     np.array([0, dims[0]]), toff, pos, pattern.col_shift,
+                                     H_data, g, np.ones(1), 0.0)
             assert np.isclose(cost, 0.5 * res[0] @ res[0])
             cols = np.concatenate([np.arange(off[v], off[v] + var_dim[v]) for v in var_idx[0]])
             H_dense[np.ix_(cols, cols)] += jac[0].T @ jac[0]
@@ -61,10 +62,10 @@ def test_whitening_and_robust_weights(m):
     e = np.linspace(2.0, -1.0, m)[None]
     J = rng.normal(size=(1, m, 2))
     H_data, g, w = np.zeros(pattern.nnz), np.zeros(2), np.ones(1)
-    pos = scatter_positions(lookup, np.array([0]), np.array([[0]]), var_dim)
+    pos = scatter_positions(lookup, np.array([0]), np.array([[0]]))
     k = 0.5
     cost = asm.scatter_batch(e, J, R[None], False, 1, k, 0.0, var_dim, np.array([0]),
-                             np.array([[0]]), pos, H_data, g, w)
+                             np.array([[0]]), pos, pattern.col_shift, H_data, g, w, 0.0)
     r = R @ e[0]
     t = np.linalg.norm(r)
     assert t > k

@@ -53,3 +53,33 @@ def test_malformed_numbers_are_bad(tok):
 def test_missing_file_is_a_file_format_error(tmp_path):
     with pytest.raises(FileFormatError, match="no such file"):
         scan(tmp_path / "nope.g2o")
+
+
+def test_sliced_scan_reports_progress_and_equals_one_pass(monkeypatch):
+    """Large inputs are scanned in resumable slices (a progress bar between them): the result
+    equals a one-slice scan, and the bar advances over every byte."""
+    import fgopt.io._scan as S
+
+    rng = np.random.default_rng(3)
+    lines = [f"T{i % 3} {i} {rng.normal():.17g} # c\n" + ("\n" if i % 7 == 0 else "")
+             for i in range(500)]
+    data = "".join(lines).encode()
+    whole = scan("mem.txt", data=data)
+
+    class Bar:
+        def __init__(self):
+            self.n, self.closed = 0, False
+
+        def update(self, k):
+            self.n += k
+
+        def close(self):
+            self.closed = True
+
+    bars = []
+    monkeypatch.setattr(S, "SCAN_SLICE", 97)  # slices end mid-line and mid-token
+    monkeypatch.setattr(S, "_progress_bar", lambda n, p: bars.append(Bar()) or bars[-1])
+    sliced = scan("mem.txt", data=data)
+    assert bars and bars[0].n == len(data) and bars[0].closed
+    for name in ("values", "bad", "tok_start", "line", "first", "count", "tag_hash"):
+        assert np.array_equal(getattr(sliced, name), getattr(whole, name)), name

@@ -332,10 +332,10 @@ def _grow(a, cap):
 
 @njit(cache=True)
 def build_hmap(indptr, indices, new_of_old, var_of_new, sn_of, off, sn, rvp, rvi, rpos,
-               pstart, rows):
-    """Position in the panels of every stored entry of H's lower CSC (pattern order)."""
+               pstart, rows, hmap):
+    """Position in the panels of every stored entry of H's lower CSC (pattern order), written
+    into ``hmap`` (int32 when the panels allow: half the bytes)."""
     n = indptr.shape[0] - 1
-    hmap = np.empty(indices.shape[0], np.int64)
     for j in range(n):
         for p in range(indptr[j], indptr[j + 1]):
             I = new_of_old[indices[p]]

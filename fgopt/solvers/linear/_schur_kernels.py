@@ -17,6 +17,12 @@ and ``p00`` = the position of the block's entry ``(0, 0)``:
 * orientation 0 (``f`` after ``e``, stored in ``e``'s columns): ``B[a, b]`` at ``p00 + cshift[off_e + b] + a``
 * orientation 1 (``f`` before ``e``, stored in ``f``'s columns): ``B[a, b]`` at ``p00 + cshift[off_f + a] + b``
 
+The kernels read ``B_k`` through ``(X, bbase, bshift)``: entry ``(a, c)`` is at
+``X[bbase[k] + bshift[off_e + c] + a]``. When every edge has orientation 0 (the Schur layout of
+:func:`fgopt.structure.schur_order`) that is H itself (``bbase`` = ``p00``, ``bshift`` =
+``cshift``): no copy of the camera-point blocks (27 doubles per BA observation) is made. Other
+layouts gather the blocks into a copy laid out the same way (:func:`gather_blocks`).
+
 Blocks of ``S`` are addressed by column bases: entry ``(a, b)`` of block ``blk`` is at
 ``blk_base[blk_ptr[blk] + b] + a`` (dense column-major S and CHOLMOD's lower CSC alike).
 """
@@ -66,15 +72,46 @@ def _chol_inverse(C, d, L, out):
     return True
 
 
-@njit(cache=True, fastmath=_FM)
-def eliminate(H, indptr, cshift, e_off, e_dim, c_ptr, edge_ptr, edge_f, edge_p00, edge_orient,
-              f_hoff, f_dim, w_ptr, pair_ptr, pair_blk, blk_ptr, blk_base, Cinv, B, W, S,
-              accumulate):
-    """Invert every ``C_e``, store ``B_k``, subtract ``W_k B_l^T`` from S.
+@njit(cache=True)
+def gather_blocks(H, cshift, e_off, e_dim, edge_ptr, edge_f, f_hoff, f_dim, edge_p00,
+                  edge_orient, bbase, bshift, X):
+    """Copy every ``B_k`` from H (either orientation) into ``X`` (addressed by bbase/bshift)."""
+    for i in range(e_off.shape[0]):
+        d, o = e_dim[i], e_off[i]
+        for k in range(edge_ptr[i], edge_ptr[i + 1]):
+            f = edge_f[k]
+            df, fo, p00, bb = f_dim[f], f_hoff[f], edge_p00[k], bbase[k]
+            for c in range(d):
+                dst = bb + bshift[o + c]
+                for a in range(df):
+                    if edge_orient[k] == 0:
+                        X[dst + a] = H[p00 + cshift[o + c] + a]
+                    else:
+                        X[dst + a] = H[p00 + cshift[fo + a] + c]
 
-    ``B_k`` is stored column-major per edge: entry ``(a, c)`` at ``w_ptr[k] + c df + a``. ``W`` is
-    scratch for one e's ``W_k`` (same layout, offsets relative to its first edge): the solve
-    only needs ``B`` and ``C_e^-1``.
+
+@njit(cache=True, inline="always")
+def _block_of(codes, col_ptr, nF, fc, fr):
+    """Index of S's block (rows fr, columns fc) among the sorted block codes ``fc * nF + fr``
+    (bisection within column fc's blocks)."""
+    want = fc * nF + fr
+    lo, hi = col_ptr[fc], col_ptr[fc + 1]
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if codes[mid] < want:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True, fastmath=_FM)
+def eliminate(H, indptr, e_off, e_dim, c_ptr, edge_ptr, edge_f, f_dim, X, bbase, bshift,
+              pair_ptr, pair_blk, blk_ptr, blk_base, Cinv, W, S, accumulate):
+    """Invert every ``C_e`` (read from H), subtract ``W_k B_l^T`` from S.
+
+    ``W`` is scratch for one e's ``W_k = B_k C_e^-1`` (column-major ``df x de`` per edge, one
+    after the other): the solve only needs ``B`` and ``C_e^-1``.
     ``S`` must already hold ``A_FF``; with ``accumulate=False`` S is left alone (implicit
     Schur). Returns -1, or the index of an ``e`` whose ``C_e`` is not positive definite.
     """
@@ -99,55 +136,43 @@ def eliminate(H, indptr, cshift, e_off, e_dim, c_ptr, edge_ptr, edge_f, edge_p00
             for b in range(d):
                 Cinv[cp + a * d + b] = Ci[a, b]
         k0, k1 = edge_ptr[i], edge_ptr[i + 1]
+        ww = 0
         for k in range(k0, k1):
-            f = edge_f[k]
-            df = f_dim[f]
-            p00 = edge_p00[k]
-            wp = w_ptr[k]
-            if edge_orient[k] == 0:
-                for b in range(d):
-                    pb = p00 + cshift[o + b]
-                    for a in range(df):
-                        B[wp + b * df + a] = H[pb + a]
-            else:
-                fo = f_hoff[f]
-                for a in range(df):
-                    pa = p00 + cshift[fo + a]
-                    for b in range(d):
-                        B[wp + b * df + a] = H[pa + b]
-            ww = wp - w_ptr[k0]
+            df = f_dim[edge_f[k]]
+            bb = bbase[k]
             for b in range(d):
                 for a in range(df):
                     t = 0.0
                     for c in range(d):
-                        t += B[wp + c * df + a] * Ci[c, b]
+                        t += X[bb + bshift[o + c] + a] * Ci[c, b]
                     W[ww + b * df + a] = t
+            ww += df * d
         if not accumulate:
             continue
         p = pair_ptr[i]
+        wi = 0
         for ki in range(k0, k1):
             dfi = f_dim[edge_f[ki]]
-            wi = w_ptr[ki] - w_ptr[k0]
             for kj in range(k0, ki + 1):
                 dfj = f_dim[edge_f[kj]]
-                bj = w_ptr[kj]
+                bj = bbase[kj]
                 bp = blk_ptr[pair_blk[p]]
                 p += 1
                 diag = ki == kj
                 for b in range(dfj):
                     base = blk_base[bp + b]
                     for c in range(d):
-                        x = B[bj + c * dfj + b]
+                        x = X[bj + bshift[o + c] + b]
                         wc = wi + c * dfi
                         for a in range(b if diag else 0, dfi):
                             S[base + a] -= W[wc + a] * x
+            wi += dfi * d
     return -1
 
 
 @njit(cache=True, fastmath=_FM)
-def eliminate_e3f9(H, indptr, cshift, e_off, c_ptr, edge_ptr, edge_f, edge_p00, edge_orient,
-                   f_hoff, w_ptr, pair_ptr, pair_blk, blk_ptr, blk_base, Cinv, B, W, S,
-                   accumulate):
+def eliminate_e3f9(H, indptr, e_off, c_ptr, edge_ptr, X, bbase, bshift, pair_ptr, pair_blk,
+                   blk_ptr, blk_base, Cinv, W, S, accumulate):
     """:func:`eliminate` for ``de = 3``, ``df = 9`` (BAL), with fixed-size unrolled loops.
 
     S must be the *packed* block store: block ``blk`` is a full column-major 9x9 at
@@ -169,44 +194,33 @@ def eliminate_e3f9(H, indptr, cshift, e_off, c_ptr, edge_ptr, edge_f, edge_p00, 
         for a in range(3):
             for b in range(3):
                 Cinv[cp + a * 3 + b] = Ci[a, b]
+        s0, s1, s2 = bshift[o], bshift[o + 1], bshift[o + 2]
         k0, k1 = edge_ptr[i], edge_ptr[i + 1]
         for k in range(k0, k1):
-            p00 = edge_p00[k]
-            wp = w_ptr[k]
-            if edge_orient[k] == 0:
-                for b in range(3):
-                    pb = p00 + cshift[o + b]
-                    for a in range(9):
-                        B[wp + b * 9 + a] = H[pb + a]
-            else:
-                fo = f_hoff[edge_f[k]]
-                for a in range(9):
-                    pa = p00 + cshift[fo + a]
-                    for b in range(3):
-                        B[wp + b * 9 + a] = H[pa + b]
-            ww = wp - w_ptr[k0]
+            bb = bbase[k]
+            ww = 27 * (k - k0)
             for b in range(3):
                 c0, c1, c2 = Ci[0, b], Ci[1, b], Ci[2, b]
                 for a in range(9):
-                    W[ww + b * 9 + a] = (B[wp + a] * c0 + B[wp + 9 + a] * c1
-                                         + B[wp + 18 + a] * c2)
+                    W[ww + b * 9 + a] = (X[bb + s0 + a] * c0 + X[bb + s1 + a] * c1
+                                         + X[bb + s2 + a] * c2)
         if not accumulate:
             continue
         p = pair_ptr[i]
         for ki in range(k0, k1):
-            wi = w_ptr[ki] - w_ptr[k0]
+            wi = 27 * (ki - k0)
             # W_ki in registers (numba does not SLP-vectorize: unrolled scalar code
             # with operands in locals is ~2.5x faster than loops over memory)
             w00, w10, w20, w30, w40, w50, w60, w70, w80 = W[wi:wi + 9]
             w01, w11, w21, w31, w41, w51, w61, w71, w81 = W[wi + 9:wi + 18]
             w02, w12, w22, w32, w42, w52, w62, w72, w82 = W[wi + 18:wi + 27]
             for kj in range(k0, ki + 1):
-                bj = w_ptr[kj]
+                bj = bbase[kj]
                 base = blk_base[blk_ptr[pair_blk[p]]]
                 p += 1
                 blk = S[base:base + 81]  # packed column-major 9x9
                 for b in range(9):
-                    x0, x1, x2 = B[bj + b], B[bj + 9 + b], B[bj + 18 + b]
+                    x0, x1, x2 = X[bj + s0 + b], X[bj + s1 + b], X[bj + s2 + b]
                     col = blk[9 * b:9 * b + 9]
                     col[0] -= w00 * x0 + w01 * x1 + w02 * x2
                     col[1] -= w10 * x0 + w11 * x1 + w12 * x2
@@ -221,7 +235,8 @@ def eliminate_e3f9(H, indptr, cshift, e_off, c_ptr, edge_ptr, edge_f, edge_p00, 
 
 
 @njit(cache=True, fastmath=_FM)
-def reduce_rhs(rhs, rS, e_off, e_dim, c_ptr, Cinv, edge_ptr, edge_f, f_soff, f_dim, w_ptr, B):
+def reduce_rhs(rhs, rS, e_off, e_dim, c_ptr, Cinv, edge_ptr, edge_f, f_soff, f_dim, X, bbase,
+               bshift):
     """``rS -= sum_k B_k C_e^-1 rhs_e`` (``rS`` holds ``rhs_F`` in S order on entry)."""
     maxd = 1
     for i in range(e_off.shape[0]):
@@ -240,16 +255,17 @@ def reduce_rhs(rhs, rS, e_off, e_dim, c_ptr, Cinv, edge_ptr, edge_f, f_soff, f_d
             f = edge_f[k]
             df = f_dim[f]
             so = f_soff[f]
-            wp = w_ptr[k]
+            bb = bbase[k]
             for c in range(d):
                 yc = y[c]
+                col = bb + bshift[o + c]
                 for a in range(df):
-                    rS[so + a] -= B[wp + c * df + a] * yc
+                    rS[so + a] -= X[col + a] * yc
 
 
 @njit(cache=True, fastmath=_FM)
 def back_substitute(rhs, xS, x, e_off, e_dim, c_ptr, Cinv, edge_ptr, edge_f, f_soff, f_dim,
-                    w_ptr, B):
+                    X, bbase, bshift):
     """``x_e = C_e^-1 (rhs_e - sum_k B_k^T x_f)`` into ``x`` (H order)."""
     maxd = 1
     for i in range(e_off.shape[0]):
@@ -264,11 +280,12 @@ def back_substitute(rhs, xS, x, e_off, e_dim, c_ptr, Cinv, edge_ptr, edge_f, f_s
             f = edge_f[k]
             df = f_dim[f]
             so = f_soff[f]
-            wp = w_ptr[k]
+            bb = bbase[k]
             for c in range(d):
+                col = bb + bshift[o + c]
                 t = 0.0
                 for a in range(df):
-                    t += B[wp + c * df + a] * xS[so + a]
+                    t += X[col + a] * xS[so + a]
                 y[c] -= t
         cp = c_ptr[i]
         for a in range(d):
@@ -279,8 +296,8 @@ def back_substitute(rhs, xS, x, e_off, e_dim, c_ptr, Cinv, edge_ptr, edge_f, f_s
 
 
 @njit(cache=True, fastmath=_FM)
-def implicit_schur_matvec(xS, out, e_dim, c_ptr, Cinv, edge_ptr, edge_f, f_soff, f_dim, w_ptr,
-                          B):
+def implicit_schur_matvec(xS, out, e_off, e_dim, c_ptr, Cinv, edge_ptr, edge_f, f_soff, f_dim,
+                          X, bbase, bshift):
     """``out -= sum_e B_e C_e^-1 B_e^T xS`` (``out`` holds ``A_FF xS`` on entry)."""
     maxd = 1
     for i in range(e_dim.shape[0]):
@@ -289,6 +306,7 @@ def implicit_schur_matvec(xS, out, e_dim, c_ptr, Cinv, edge_ptr, edge_f, f_soff,
     z = np.empty(maxd)
     for i in range(e_dim.shape[0]):
         d = e_dim[i]
+        o = e_off[i]
         for c in range(d):
             y[c] = 0.0
         k0, k1 = edge_ptr[i], edge_ptr[i + 1]
@@ -296,11 +314,12 @@ def implicit_schur_matvec(xS, out, e_dim, c_ptr, Cinv, edge_ptr, edge_f, f_soff,
             f = edge_f[k]
             df = f_dim[f]
             so = f_soff[f]
-            wp = w_ptr[k]
+            bb = bbase[k]
             for c in range(d):
+                col = bb + bshift[o + c]
                 t = 0.0
                 for a in range(df):
-                    t += B[wp + c * df + a] * xS[so + a]
+                    t += X[col + a] * xS[so + a]
                 y[c] += t
         cp = c_ptr[i]
         for a in range(d):
@@ -312,15 +331,17 @@ def implicit_schur_matvec(xS, out, e_dim, c_ptr, Cinv, edge_ptr, edge_f, f_soff,
             f = edge_f[k]
             df = f_dim[f]
             so = f_soff[f]
-            wp = w_ptr[k]
+            bb = bbase[k]
             for c in range(d):
                 zc = z[c]
+                col = bb + bshift[o + c]
                 for a in range(df):
-                    out[so + a] -= B[wp + c * df + a] * zc
+                    out[so + a] -= X[col + a] * zc
 
 
 @njit(cache=True, fastmath=_FM)
-def schur_block_diagonal(Dg, dg_ptr, e_dim, c_ptr, Cinv, edge_ptr, edge_f, f_dim, w_ptr, B):
+def schur_block_diagonal(Dg, dg_ptr, e_off, e_dim, c_ptr, Cinv, edge_ptr, edge_f, f_dim, X,
+                         bbase, bshift):
     """``Dg[f] -= sum_{k: f} B_k C_e^-1 B_k^T`` (full ``df x df`` blocks, row-major; holds
     ``A_ff`` on entry)."""
     maxd = 1
@@ -329,23 +350,24 @@ def schur_block_diagonal(Dg, dg_ptr, e_dim, c_ptr, Cinv, edge_ptr, edge_f, f_dim
     w = np.empty(16 * maxd)
     for i in range(e_dim.shape[0]):
         d = e_dim[i]
+        o = e_off[i]
         cp = c_ptr[i]
         for k in range(edge_ptr[i], edge_ptr[i + 1]):
             f = edge_f[k]
             df = f_dim[f]
             dp = dg_ptr[f]
-            wp = w_ptr[k]
+            bb = bbase[k]
             if w.shape[0] < df * d:
                 w = np.empty(df * d)
             for c in range(d):  # w = B_k C_e^-1 (column-major)
                 for a in range(df):
                     t = 0.0
                     for q in range(d):
-                        t += B[wp + q * df + a] * Cinv[cp + q * d + c]
+                        t += X[bb + bshift[o + q] + a] * Cinv[cp + q * d + c]
                     w[c * df + a] = t
             for b in range(df):
                 for c in range(d):
-                    x = B[wp + c * df + b]
+                    x = X[bb + bshift[o + c] + b]
                     for a in range(df):
                         Dg[dp + b * df + a] -= w[c * df + a] * x
 
@@ -388,15 +410,56 @@ def apply_blocks(Minv, dg_ptr, f_soff, f_dim, r, z):
 
 
 @njit(cache=True)
-def enumerate_pairs(edge_ptr, edge_f, pair_ptr, out_i, out_j):
-    """Per e, the reduced-variable pairs ``(f_ki, f_kj)``, ``kj <= ki`` (edges sorted by rank)."""
+def pair_blocks(edge_ptr, edge_f, codes, col_ptr, nF, pair_ptr, out):
+    """Per e, the packed block of every pair ``(f_ki, f_kj)``, ``kj <= ki`` (edges sorted by
+    rank), found once here so that :func:`eliminate` reads one small integer per pair."""
     for i in range(edge_ptr.shape[0] - 1):
         p = pair_ptr[i]
         for ki in range(edge_ptr[i], edge_ptr[i + 1]):
             for kj in range(edge_ptr[i], ki + 1):
-                out_i[p] = edge_f[ki]
-                out_j[p] = edge_f[kj]
+                out[p] = _block_of(codes, col_ptr, nF, edge_f[kj], edge_f[ki])
                 p += 1
+
+
+@njit(cache=True)
+def co_observation_codes(edge_ptr, edge_f, nF):
+    """Codes ``f1 * nF + f2`` (``f1 > f2``) of the F pairs that share an E variable, each once
+    (a marker per F variable: no array of all (e, f1, f2) triples)."""
+    nK = edge_f.shape[0]
+    f_ptr = np.zeros(nF + 1, dtype=np.int64)  # edges by F variable: their E variables
+    for k in range(nK):
+        f_ptr[edge_f[k] + 1] += 1
+    for f in range(nF):
+        f_ptr[f + 1] += f_ptr[f]
+    f_e = np.empty(nK, dtype=np.int64)
+    fill = f_ptr[:-1].copy()
+    for e in range(edge_ptr.shape[0] - 1):
+        for k in range(edge_ptr[e], edge_ptr[e + 1]):
+            f_e[fill[edge_f[k]]] = e
+            fill[edge_f[k]] += 1
+    mark = np.full(nF, -1, dtype=np.int64)
+    count = 0
+    for f in range(nF):
+        for p in range(f_ptr[f], f_ptr[f + 1]):
+            e = f_e[p]
+            for k in range(edge_ptr[e], edge_ptr[e + 1]):
+                g = edge_f[k]
+                if g < f and mark[g] != f:
+                    mark[g] = f
+                    count += 1
+    codes = np.empty(count, dtype=np.int64)
+    mark[:] = -1
+    count = 0
+    for f in range(nF):
+        for p in range(f_ptr[f], f_ptr[f + 1]):
+            e = f_e[p]
+            for k in range(edge_ptr[e], edge_ptr[e + 1]):
+                g = edge_f[k]
+                if g < f and mark[g] != f:
+                    mark[g] = f
+                    codes[count] = f * nF + g
+                    count += 1
+    return np.sort(codes)
 
 
 @njit(cache=True, fastmath=_FM)

@@ -10,48 +10,22 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..._jit import njit
 from ...errors import FgoptError
 from ...structure import HessianPattern, ranges
 from . import _schur_kernels as K
 
 
-def scalar_to_var(pattern: HessianPattern) -> np.ndarray:
-    order = np.argsort(pattern.var_offset, kind="stable")
-    return np.repeat(order, pattern.var_dim[order]).astype(np.int64)
-
-
-def column_entries(pattern: HessianPattern, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Data positions of every stored entry of columns ``cols``, and the column of each."""
-    starts, ends = pattern.indptr[cols], pattern.indptr[cols + 1]
-    pos = np.repeat(starts, ends - starts) + ranges(ends - starts)
-    return pos, np.repeat(cols, ends - starts)
-
-
-def off_diagonal_blocks(pattern: HessianPattern, var_at: np.ndarray):
-    """Every stored off-diagonal block once: ``(row var, column var, position of entry (0, 0))``.
-
-    A block lives in the columns of its column variable; its ``(0, 0)`` entry is in that
-    variable's first column, on the row variable's first row.
-    """
-    V = pattern.var_offset.shape[0]
-    pos, _ = column_entries(pattern, pattern.var_offset.astype(np.int64))
-    rows = pattern.indices[pos]
-    rv = var_at[rows]
-    cv = np.repeat(np.arange(V, dtype=np.int64),
-                   pattern.indptr[pattern.var_offset + 1] - pattern.indptr[pattern.var_offset])
-    keep = (rows == pattern.var_offset[rv]) & (rv != cv)
-    return rv[keep], cv[keep], pos[keep]
-
-
 def blocks(pattern: HessianPattern) -> tuple:
-    """``(var_at, row vars, column vars, (0, 0) positions)`` of the off-diagonal blocks."""
-    var_at = scalar_to_var(pattern)
-    return (var_at, *off_diagonal_blocks(pattern, var_at))
+    """``(row vars, column vars, (0, 0) positions)`` of the off-diagonal blocks of H."""
+    rv, cv, p00 = pattern.blocks()
+    off = rv != cv
+    return rv[off], cv[off], p00[off]
 
 
 def is_independent(pattern: HessianPattern, mask: np.ndarray, blk: tuple | None = None) -> bool:
     """True when no stored block of H couples two variables of ``mask``."""
-    _, brv, bcv, _ = blocks(pattern) if blk is None else blk
+    brv, bcv, _ = blocks(pattern) if blk is None else blk
     return not np.any(mask[brv] & mask[bcv])
 
 
@@ -59,7 +33,7 @@ def edges(pattern: HessianPattern, is_e: np.ndarray, blk: tuple) -> dict:
     """E-F edges (orientation 0: block in e's columns, f after e; 1: in f's columns) and F-F
     couplings. F variables are numbered by H offset, E variables likewise."""
     var_off, V = pattern.var_offset, pattern.var_offset.shape[0]
-    var_at, brv, bcv, p00 = blk
+    brv, bcv, p00 = blk
     if np.any(is_e[brv] & is_e[bcv]):
         raise FgoptError("SchurSolver: the variables chosen for elimination are not "
                          "independent (a factor couples two of them); pass eliminate=... "
@@ -76,7 +50,7 @@ def edges(pattern: HessianPattern, is_e: np.ndarray, blk: tuple) -> dict:
     o1 = is_e[brv] & ~is_e[bcv]
     ff = ~is_e[brv] & ~is_e[bcv]
     return {
-        "var_at": var_at, "e_vars": e_vars, "f_vars": f_vars,
+        "e_vars": e_vars, "f_vars": f_vars,
         "edge_e": np.concatenate([eidx[bcv[o0]], eidx[brv[o1]]]),
         "edge_f": np.concatenate([fidx[brv[o0]], fidx[bcv[o1]]]),
         "edge_p00": np.concatenate([p00[o0], p00[o1]]),
@@ -85,54 +59,67 @@ def edges(pattern: HessianPattern, is_e: np.ndarray, blk: tuple) -> dict:
         "ff_i": fidx[brv[ff]], "ff_j": fidx[bcv[ff]]}
 
 
-def column_shift(pattern: HessianPattern, var_at: np.ndarray) -> np.ndarray:
-    """``cshift[c] = indptr[c] - indptr[c0] - (c - c0)``, ``c0`` = first column of c's variable."""
-    c = np.arange(pattern.size, dtype=np.int64)
-    c0 = pattern.var_offset[var_at]
-    return pattern.indptr[:-1] - pattern.indptr[c0] - (c - c0)
-
-
 def a_entries(pattern: HessianPattern, s_to_h: np.ndarray):
     """Entries of ``H_FF``: data positions in H and their lower (row, col) in S scalars."""
     h_to_s = np.full(pattern.size, -1, dtype=np.int64)
     h_to_s[s_to_h] = np.arange(s_to_h.shape[0])
-    pos, col = column_entries(pattern, np.sort(s_to_h))
-    sr = h_to_s[pattern.indices[pos]]
-    keep = sr >= 0
-    sr, sc = sr[keep], h_to_s[col[keep]]
-    return pos[keep], np.maximum(sr, sc), np.minimum(sr, sc)
+    rv, cv, p00 = pattern.blocks()
+    off = pattern.var_offset
+    ff = (h_to_s[off[rv]] >= 0) & (h_to_s[off[cv]] >= 0)
+    return _block_entries(rv[ff], cv[ff], p00[ff], off, pattern.var_dim, pattern.col_shift,
+                          h_to_s)
+
+
+@njit(cache=True)
+def _block_entries(rv, cv, p00, var_off, var_dim, col_shift, h_to_s):
+    """Every stored entry of the given blocks: data position, lower (row, col) via h_to_s."""
+    n = 0
+    for b in range(rv.shape[0]):
+        dc, dr = var_dim[cv[b]], var_dim[rv[b]]
+        n += dc * (dc + 1) // 2 if rv[b] == cv[b] else dc * dr
+    pos = np.empty(n, dtype=np.int64)
+    row = np.empty(n, dtype=np.int64)
+    col = np.empty(n, dtype=np.int64)
+    n = 0
+    for b in range(rv.shape[0]):
+        oc, orow = var_off[cv[b]], var_off[rv[b]]
+        for c in range(var_dim[cv[b]]):
+            for a in range(c if rv[b] == cv[b] else 0, var_dim[rv[b]]):
+                pos[n] = p00[b] + col_shift[oc + c] + a
+                sr, sc = h_to_s[orow + a], h_to_s[oc + c]
+                row[n], col[n] = max(sr, sc), min(sr, sc)
+                n += 1
+    return pos, row, col
 
 
 def co_observation_pairs(edge_ptr: np.ndarray, edge_f: np.ndarray, nF: int):
-    """Unique pairs ``(f1 > f2)`` of F variables that share an E variable."""
-    k = np.diff(edge_ptr)
-    pair_ptr = np.concatenate([[0], np.cumsum(k * (k + 1) // 2)]).astype(np.int64)
-    pi = np.empty(int(pair_ptr[-1]), dtype=np.int64)
-    pj = np.empty_like(pi)
-    K.enumerate_pairs(edge_ptr, edge_f, pair_ptr, pi, pj)
-    keep = pi != pj
-    codes = np.unique(np.maximum(pi, pj)[keep] * nF + np.minimum(pi, pj)[keep])
+    """Unique pairs ``(f1 > f2)`` of F variables that share an E variable (sorted)."""
+    codes = K.co_observation_codes(edge_ptr, np.ascontiguousarray(edge_f, dtype=np.int64), nF)
     return codes // nF, codes % nF
 
 
-def packed_blocks(nF, f_dim, f_soff, f_rank, edge_ptr, edge_f, ff_i, ff_j, a_row, a_col):
+def packed_blocks(nF, f_dim, f_soff, f_rank, edge_ptr, edge_f, co_i, co_j, ff_i, ff_j, a_row,
+                  a_col):
     """The packed block store of S and the maps into it.
 
     Blocks ``(row var br, column var bc)`` with ``rank(br) >= rank(bc)``: every diagonal block,
-    every pair of F variables sharing an E variable, every F-F coupling of H. Block ``b`` is a
-    column-major ``dr x dc`` array at ``pk_off[b]``. Returns a dict with the kernels' arrays
-    (``pair_ptr``, ``pair_blk``, ``blk_ptr``, ``blk_base``), ``a_dst`` (H_FF -> packed), the lower
-    entries of the store (``pk_src``) with their S ``srow`` / ``scol``, and the pairs
-    ``pi, pj`` / ``fi, fj`` (for a sparse pattern).
+    every pair of F variables sharing an E variable (``co_i, co_j``), every F-F coupling of H.
+    Block ``b`` is a column-major ``dr x dc`` array at ``pk_off[b]``; its code ``bc * nF + br``
+    is ``codes[b]`` (sorted; column ``bc``'s blocks are ``codes[col_ptr[bc]:col_ptr[bc + 1]]``).
+    ``pair_blk[pair_ptr[e] + t]`` is the block of e's t-th pair of edges ``(ki >= kj)`` (edges
+    sorted by ``(e, rank of f)``), int32 while the blocks allow (12 bytes per pair fewer than
+    int64 indices; looked up once here by bisection in ``codes``, not per iteration).
+    Returns a dict with the kernels' arrays (``pair_ptr``, ``pair_blk``, ``blk_ptr``, ``blk_base``),
+    ``a_dst`` (H_FF -> packed), the lower entries of the store (``pk_src``) with their S
+    ``srow`` / ``scol``, and the pairs ``fi, fj`` (for a sparse pattern).
     """
-    k = np.diff(edge_ptr)
-    pair_ptr = np.concatenate([[0], np.cumsum(k * (k + 1) // 2)]).astype(np.int64)
-    pi = np.empty(int(pair_ptr[-1]), dtype=np.int64)
-    pj = np.empty_like(pi)
-    K.enumerate_pairs(edge_ptr, edge_f, pair_ptr, pi, pj)  # rank(pi) >= rank(pj)
-    lo = f_rank[ff_i] >= f_rank[ff_j]
-    fi, fj = np.where(lo, ff_i, ff_j), np.where(lo, ff_j, ff_i)
-    codes = np.unique(np.concatenate([pj * nF + pi, fj * nF + fi,
+    def lower_first(i, j):  # (row, column) with rank(row) >= rank(column)
+        lo = f_rank[i] >= f_rank[j]
+        return np.where(lo, i, j), np.where(lo, j, i)
+
+    ci, cj = lower_first(co_i, co_j)
+    fi, fj = lower_first(ff_i, ff_j)
+    codes = np.unique(np.concatenate([cj * nF + ci, fj * nF + fi,
                                       np.arange(nF, dtype=np.int64) * (nF + 1)]))
     bc, br = codes // nF, codes % nF
     dr, dc = f_dim[br], f_dim[bc]
@@ -145,14 +132,21 @@ def packed_blocks(nF, f_dim, f_soff, f_rank, edge_ptr, edge_f, ff_i, ff_j, a_row
     f_of_s = np.repeat(np.argsort(f_rank), f_dim[np.argsort(f_rank)])
     fr, fc = f_of_s[a_row], f_of_s[a_col]
     blk = np.searchsorted(codes, fc * nF + fr)
+    k = np.diff(edge_ptr)
+    pair_ptr = np.zeros(k.shape[0] + 1, dtype=np.int64)
+    np.cumsum(k * (k + 1) // 2, out=pair_ptr[1:])
+    pair_blk = np.empty(int(pair_ptr[-1]),
+                        dtype=np.int32 if codes.shape[0] < 2**31 else np.int64)
+    col_ptr = np.searchsorted(codes, np.arange(nF + 1, dtype=np.int64) * nF)
+    K.pair_blocks(edge_ptr, edge_f, codes, col_ptr, nF, pair_ptr, pair_blk)
     return {
-        "pair_ptr": pair_ptr, "pair_blk": np.searchsorted(codes, pj * nF + pi),
+        "pair_ptr": pair_ptr, "pair_blk": pair_blk,
         "blk_ptr": np.concatenate([[0], np.cumsum(dc)]).astype(np.int64),
         "blk_base": np.repeat(pk_off[:-1], dc) + ranges(dc) * np.repeat(dr, dc),
         "pk_off": pk_off, "br": br, "bc": bc,
         "a_dst": pk_off[blk] + (a_col - f_soff[fc]) * f_dim[fr] + (a_row - f_soff[fr]),
         "pk_src": pk_src, "srow": srow[pk_src], "scol": scol[pk_src],
-        "pi": pi, "pj": pj, "fi": fi, "fj": fj}
+        "ci": ci, "cj": cj, "fi": fi, "fj": fj}
 
 
 def csc_positions(pat: HessianPattern, row: np.ndarray, col: np.ndarray) -> np.ndarray:

@@ -13,7 +13,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from ...errors import FgoptError
-from ...structure import HessianPattern
+from ...structure import DENSE_MAX_SIZE, HessianPattern
 
 
 @runtime_checkable
@@ -43,7 +43,7 @@ def choose_linear_solver(pattern: HessianPattern | None, backend: str = "numba")
 
     if pattern is None:
         return "cholmod" if have_extra("sksparse") else "block"
-    if pattern.size <= 300:
+    if pattern.size <= DENSE_MAX_SIZE:
         return "dense"
     if backend == "numpy":
         return "cholmod" if have_extra("sksparse") else "ldlt"

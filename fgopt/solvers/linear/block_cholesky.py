@@ -49,7 +49,14 @@ class BlockSymbolic:
     sparent: np.ndarray      # (S,) parent supernode (-1: root)
 
 
-def analyze_blocks(pattern: HessianPattern, relax=DEFAULT_RELAX) -> BlockSymbolic:
+def rows_of(pattern: HessianPattern) -> np.ndarray:
+    """H's row indices for the analysis, not kept by the pattern when it had not built them
+    (one int64 per entry of H: as large as H's data)."""
+    return pattern.row_indices(cache=False)
+
+
+def analyze_blocks(pattern: HessianPattern, relax=DEFAULT_RELAX,
+                   rows: np.ndarray | None = None) -> BlockSymbolic:
     var_offset = np.asarray(pattern.var_offset, np.int64)
     var_dim = np.asarray(pattern.var_dim, np.int64)
     V = var_offset.shape[0]
@@ -58,7 +65,9 @@ def analyze_blocks(pattern: HessianPattern, relax=DEFAULT_RELAX) -> BlockSymboli
     vorder = np.argsort(var_offset, kind="stable")
     off_r, dim_r = var_offset[vorder], var_dim[vorder]
     col2rank = np.repeat(np.arange(V, dtype=np.int64), dim_r)
-    ap, ai = sym.block_graph(off_r, pattern.indptr, pattern.indices, col2rank)
+    rows = rows_of(pattern) if rows is None else rows
+    ap, ai = sym.block_graph(off_r, pattern.indptr, rows, col2rank)
+    del rows
     parent = sym.etree(V, ap, ai)
     lp, li = sym.symbolic_columns(V, ap, ai, parent)
     cnt = np.diff(lp)
@@ -116,7 +125,8 @@ class BlockCholeskySolver:
     def analyze(self, pattern: HessianPattern) -> None:
         from . import _block_kernels as k
 
-        sy = analyze_blocks(pattern, self.relax)
+        rows = rows_of(pattern)
+        sy = analyze_blocks(pattern, self.relax, rows)
         self.symbolic = sy
         S = sy.sn.shape[0] - 1
         sn_of = np.repeat(np.arange(S, dtype=np.int64), np.diff(sy.sn))
@@ -128,8 +138,12 @@ class BlockCholeskySolver:
         new_of_old = np.empty(pattern.size, np.int64)
         new_of_old[self._perm] = np.arange(pattern.size)
         var_of_new = np.repeat(np.arange(sy.n_var, dtype=np.int64), sy.dim)
-        self._hmap = sym.build_hmap(pattern.indptr, pattern.indices, new_of_old, var_of_new, sn_of,
-                                  sy.off, sy.sn, sy.rvp, sy.rvi, sy.rpos, sy.pstart, sy.rows)
+        # int32 positions when the factor's panels have fewer than 2^31 entries (H-sized: 4
+        # bytes per entry of H saved)
+        self._hmap = np.empty(pattern.nnz, np.int32 if sy.pstart[-1] < 2**31 - 16 else np.int64)
+        sym.build_hmap(pattern.indptr, rows, new_of_old, var_of_new, sn_of, sy.off, sy.sn,
+                       sy.rvp, sy.rvi, sy.rpos, sy.pstart, sy.rows, self._hmap)
+        del rows
         self._col0 = sy.off[sy.sn[:-1]]
         # global (factor-order) scalar index of every panel row
         rix_len = sy.rows

@@ -37,7 +37,8 @@ import time
 import numpy as np
 
 from ...errors import FgoptError, NotPositiveDefiniteError
-from ...structure import HessianPattern, _sym_matvec, build_pattern, fill_reducing_order
+from ...structure import (HessianPattern, _sym_matvec, ba_shaped_kind, build_pattern,
+                          fill_reducing_order, kinds_by_count)
 from . import _schur_kernels as K
 from . import _schur_layout as L
 
@@ -102,8 +103,7 @@ class SchurSolver:
         nS = int(f_dim.sum())
         mode, co = self.reduced, None
         if mode in ("auto", "sparse") and nF > 2 and nS < self.pcg_min:
-            srt = np.argsort(edge_e, kind="stable")
-            co = L.co_observation_pairs(edge_ptr, np.ascontiguousarray(edge_f[srt]), nF)
+            co = L.co_observation_pairs(edge_ptr, edge_f[np.argsort(edge_e, kind="stable")], nF)
         if mode == "auto":  # measured: dense wins up to ~1000 unknowns, or when S is full
             full = co is not None and len(co[0]) + len(ff_i) >= 0.5 * nF * (nF - 1) / 2
             mode = ("dense" if nS <= self.dense_max or (full and nS <= 4 * self.dense_max)
@@ -117,21 +117,17 @@ class SchurSolver:
         f_rank = np.empty(nF, dtype=np.int64)
         f_rank[order] = np.arange(nF)
         # edges sorted by (e, rank of f): then pairs (ki >= kj) have rank(f_ki) >= rank(f_kj)
-        srt = np.lexsort((f_rank[edge_f], edge_e))
+        srt = np.argsort(edge_e * max(nF, 1) + f_rank[edge_f])  # one sort of distinct codes
         edge_e, edge_f = edge_e[srt], np.ascontiguousarray(edge_f[srt])
         self._edge_ptr, self._edge_f = edge_ptr, edge_f
-        self._edge_p00 = np.ascontiguousarray(ed["edge_p00"][srt])
-        self._edge_orient = np.ascontiguousarray(ed["edge_orient"][srt])
         self._e_off, self._e_dim = var_off[e_vars].astype(np.int64), e_dim
         self._f_hoff, self._f_dim = var_off[f_vars].astype(np.int64), f_dim
         self._c_ptr = np.concatenate([[0], np.cumsum(e_dim * e_dim)]).astype(np.int64)
-        self._w_ptr = np.concatenate([[0], np.cumsum(f_dim[edge_f] * e_dim[edge_e])]).astype(
-            np.int64)
-        self._cshift = L.column_shift(pattern, ed["var_at"])
         self._Cinv = np.empty(int(self._c_ptr[-1]))
-        self._B = np.empty(int(self._w_ptr[-1]))
-        k_w = np.diff(self._w_ptr[edge_ptr]) if nE else np.zeros(1, np.int64)
-        self._W = np.empty(int(k_w.max(initial=1)))  # one e's W_k = B_k C_e^-1 (scratch)
+        self._block_access(pattern, edge_e, ed["edge_p00"][srt], ed["edge_orient"][srt])
+        del ed
+        w_size = np.bincount(edge_e, weights=f_dim[edge_f], minlength=nE) * e_dim
+        self._W = np.empty(int(w_size.max(initial=1)))  # one e's W_k = B_k C_e^-1 (scratch)
         self._fast = bool(nE and np.all(e_dim == 3) and np.all(f_dim[edge_f] == 9))
         f_soff = np.zeros(nF, dtype=np.int64)  # offsets in S (rank order)
         f_soff[order] = np.concatenate([[0], np.cumsum(f_dim[order])[:-1]]) if nF else []
@@ -144,7 +140,9 @@ class SchurSolver:
             self.pcg_explicit if self.pcg_explicit is not None
             else int(np.sum(k * (k + 1) // 2)) <= 20_000_000)
         if self._explicit:
-            self._analyze_packed(mode, nF, f_dim, order, f_rank, ff_i, ff_j, a_row, a_col)
+            if co is None:
+                co = L.co_observation_pairs(edge_ptr, edge_f, nF)
+            self._analyze_packed(mode, nF, f_dim, order, f_rank, co, ff_i, ff_j, a_row, a_col)
         else:
             self._analyze_implicit(nF, f_dim, order, ff_i, ff_j, a_row, a_col)
         if mode == "pcg":
@@ -152,11 +150,31 @@ class SchurSolver:
             self._Dg = np.zeros(int(self._dg_ptr[-1]))
             self._Minv = np.zeros(int(self._dg_ptr[-1]))
 
-    def _analyze_packed(self, mode, nF, f_dim, order, f_rank, ff_i, ff_j, a_row, a_col):
+    def _block_access(self, pattern, edge_e, edge_p00, edge_orient) -> None:
+        """How the kernels read ``B_k`` (see :mod:`._schur_kernels`): from H itself when every
+        block lies in its eliminated variable's columns (the Schur layout), else from a copy
+        with the same addressing, refreshed at each factorization."""
+        if not np.any(edge_orient):
+            self._bbase, self._bshift, self._gather = np.ascontiguousarray(edge_p00), \
+                pattern.col_shift, None
+            return
+        nE, e_dim, f_dim = self._e_off.shape[0], self._e_dim, self._f_dim
+        df = f_dim[self._edge_f]
+        rows = np.bincount(edge_e, weights=df, minlength=nE).astype(np.int64)  # per e: sum df
+        start = np.concatenate([[0], np.cumsum(rows * e_dim)[:-1]]).astype(np.int64)
+        cum = np.concatenate([[0], np.cumsum(df)[:-1]]).astype(np.int64)
+        self._bbase = start[edge_e] + cum - cum[self._edge_ptr[edge_e]]
+        self._bshift = np.zeros(pattern.size, dtype=np.int64)
+        cols = np.repeat(self._e_off, e_dim) + L.ranges(e_dim)
+        self._bshift[cols] = L.ranges(e_dim) * np.repeat(rows, e_dim)
+        self._gather = (np.ascontiguousarray(edge_p00), np.ascontiguousarray(edge_orient),
+                        np.empty(int(np.sum(rows * e_dim))))
+
+    def _analyze_packed(self, mode, nF, f_dim, order, f_rank, co, ff_i, ff_j, a_row, a_col):
         """S accumulated in a packed block store (contiguous blocks: ~2x faster than writing
         into the dense / CSC matrix), then copied (lower entries) into the factored matrix."""
         pk = L.packed_blocks(nF, f_dim, self._f_soff, f_rank, self._edge_ptr, self._edge_f,
-                             ff_i, ff_j, a_row, a_col)
+                             co[0], co[1], ff_i, ff_j, a_row, a_col)
         self._pair_ptr, self._pair_blk = pk["pair_ptr"], pk["pair_blk"]
         self._blk_ptr, self._blk_base, self._a_dst = pk["blk_ptr"], pk["blk_base"], pk["a_dst"]
         self._packed = np.zeros(int(pk["pk_off"][-1]))
@@ -171,8 +189,8 @@ class SchurSolver:
             from .block_cholesky import BlockCholeskySolver
             from .cholmod import CholmodSolver
 
-            all_i = np.concatenate([pk["pi"], pk["fi"]])
-            all_j = np.concatenate([pk["pj"], pk["fj"]])
+            all_i = np.concatenate([pk["ci"], pk["fi"]])
+            all_j = np.concatenate([pk["cj"], pk["fj"]])
             keep = all_i != all_j
             spat, _ = build_pattern(f_dim, order, all_i[keep], all_j[keep])
             self._pk_dst = L.csc_positions(spat, srow, scol)
@@ -192,7 +210,7 @@ class SchurSolver:
 
     def _analyze_implicit(self, nF, f_dim, order, ff_i, ff_j, a_row, a_col):
         self._pair_ptr = np.zeros(self._edge_ptr.shape[0], dtype=np.int64)
-        self._pair_blk = np.zeros(0, dtype=np.int64)
+        self._pair_blk = np.zeros(0, dtype=np.int32)
         self._blk_ptr = np.zeros(1, dtype=np.int64)
         self._blk_base = np.zeros(0, dtype=np.int64)
         keep = ff_i != ff_j
@@ -211,19 +229,27 @@ class SchurSolver:
         t0 = self.clock()
         S = self._packed if self._explicit else self._A
         S[:] = 0.0
+        H_data = np.ascontiguousarray(H_data, dtype=np.float64)
         S[self._a_dst] = H_data[self._a_src]
+        if self._gather is None:
+            X = H_data  # the blocks are read in place: keep H until the solve
+        else:
+            p00, orient, X = self._gather
+            K.gather_blocks(H_data, self._pattern.col_shift, self._e_off, self._e_dim,
+                            self._edge_ptr, self._edge_f, self._f_hoff, self._f_dim, p00, orient,
+                            self._bbase, self._bshift, X)
+        self._X = X
         if self._fast:
             bad = K.eliminate_e3f9(
-                H_data, self._pattern.indptr, self._cshift, self._e_off, self._c_ptr,
-                self._edge_ptr, self._edge_f, self._edge_p00, self._edge_orient, self._f_hoff,
-                self._w_ptr, self._pair_ptr, self._pair_blk, self._blk_ptr, self._blk_base,
-                self._Cinv, self._B, self._W, S, self._explicit)
+                H_data, self._pattern.indptr, self._e_off, self._c_ptr, self._edge_ptr, X,
+                self._bbase, self._bshift, self._pair_ptr, self._pair_blk, self._blk_ptr,
+                self._blk_base, self._Cinv, self._W, S, self._explicit)
         else:
             bad = K.eliminate(
-                H_data, self._pattern.indptr, self._cshift, self._e_off, self._e_dim,
-                self._c_ptr, self._edge_ptr, self._edge_f, self._edge_p00, self._edge_orient,
-                self._f_hoff, self._f_dim, self._w_ptr, self._pair_ptr, self._pair_blk,
-                self._blk_ptr, self._blk_base, self._Cinv, self._B, self._W, S, self._explicit)
+                H_data, self._pattern.indptr, self._e_off, self._e_dim, self._c_ptr,
+                self._edge_ptr, self._edge_f, self._f_dim, X, self._bbase, self._bshift,
+                self._pair_ptr, self._pair_blk, self._blk_ptr, self._blk_base, self._Cinv,
+                self._W, S, self._explicit)
         if bad >= 0:
             raise NotPositiveDefiniteError(
                 f"Schur: the diagonal block of eliminated variable #{bad} is not positive "
@@ -257,9 +283,9 @@ class SchurSolver:
                                   self._dg_ptr, self._Dg)
             else:
                 self._Dg[:] = self._A[self._dg_src]
-                K.schur_block_diagonal(self._Dg, self._dg_ptr, self._e_dim, self._c_ptr,
-                                       self._Cinv, self._edge_ptr, self._edge_f, self._f_dim,
-                                       self._w_ptr, self._B)
+                K.schur_block_diagonal(self._Dg, self._dg_ptr, self._e_off, self._e_dim,
+                                       self._c_ptr, self._Cinv, self._edge_ptr, self._edge_f,
+                                       self._f_dim, self._X, self._bbase, self._bshift)
             bad = K.invert_blocks(self._Dg, self._dg_ptr, self._f_dim, self._Minv)
             if bad >= 0:
                 raise NotPositiveDefiniteError(
@@ -271,8 +297,8 @@ class SchurSolver:
         rhs = np.ascontiguousarray(rhs, dtype=np.float64)
         rS = rhs[self._s_to_h]
         K.reduce_rhs(rhs, rS, self._e_off, self._e_dim, self._c_ptr, self._Cinv,
-                     self._edge_ptr, self._edge_f, self._f_soff, self._f_dim, self._w_ptr,
-                     self._B)
+                     self._edge_ptr, self._edge_f, self._f_soff, self._f_dim, self._X,
+                     self._bbase, self._bshift)
         t1 = self.clock()
         if self._nS == 0:
             xS = rS
@@ -290,8 +316,8 @@ class SchurSolver:
         x = np.empty(self._pattern.size)
         x[self._s_to_h] = xS
         K.back_substitute(rhs, xS, x, self._e_off, self._e_dim, self._c_ptr, self._Cinv,
-                          self._edge_ptr, self._edge_f, self._f_soff, self._f_dim, self._w_ptr,
-                          self._B)
+                          self._edge_ptr, self._edge_f, self._f_soff, self._f_dim, self._X,
+                          self._bbase, self._bshift)
         tm = self.timing
         tm["reduce_rhs"] += t1 - t0
         tm["solve_S"] += t2 - t1
@@ -306,8 +332,9 @@ class SchurSolver:
             return out
         ap = self._apattern
         out = _sym_matvec(ap.indptr, ap.indices, self._A, x)
-        K.implicit_schur_matvec(x, out, self._e_dim, self._c_ptr, self._Cinv, self._edge_ptr,
-                                self._edge_f, self._f_soff, self._f_dim, self._w_ptr, self._B)
+        K.implicit_schur_matvec(x, out, self._e_off, self._e_dim, self._c_ptr, self._Cinv,
+                                self._edge_ptr, self._edge_f, self._f_soff, self._f_dim,
+                                self._X, self._bbase, self._bshift)
         return out
 
     def _precondition(self, r: np.ndarray) -> np.ndarray:
@@ -356,9 +383,10 @@ def eliminated_mask(pattern: HessianPattern, eliminate=None, blk=None) -> np.nda
         if kinds is None:
             raise FgoptError("SchurSolver: the pattern carries no variable kinds; pass "
                              "eliminate=<boolean mask or variable indices>")
-        for kid in _kinds_by_count(kinds):
+        known = pattern.independent_kinds
+        for kid in kinds_by_count(np.asarray(kinds)):
             mask = kinds == kid
-            if L.is_independent(pattern, mask, blk):
+            if kid in known if known is not None else L.is_independent(pattern, mask, blk):
                 return mask
         raise FgoptError("SchurSolver: no variable kind is independent (every kind has two "
                          "variables coupled by a factor): nothing to eliminate")
@@ -377,28 +405,22 @@ def eliminated_mask(pattern: HessianPattern, eliminate=None, blk=None) -> np.nda
     return mask
 
 
-def _kinds_by_count(kinds: np.ndarray) -> list[int]:
-    ids, counts = np.unique(kinds[kinds >= 0], return_counts=True)
-    return [int(i) for i in ids[np.argsort(-counts, kind="stable")]]
-
-
 def is_ba_shaped(pattern: HessianPattern) -> bool:
     """True when the kind with the most variables is independent (no factor couples two of
     its variables), has at least twice as many variables as all others together and at least
-    half of the tangent dimension: eliminating it leaves a much smaller reduced system."""
+    half of the tangent dimension: eliminating it leaves a much smaller reduced system
+    (:func:`fgopt.structure.ba_shaped_kind`)."""
     kinds = pattern.var_kind
     if kinds is None or pattern.size == 0:
         return False
-    by_count = _kinds_by_count(np.asarray(kinds))
-    if not by_count:
-        return False
-    mask = np.asarray(kinds) == by_count[0]
-    n_e = int(mask.sum())
-    if n_e == mask.shape[0]:  # one kind only (pose graphs): nothing would be left to reduce to
-        return False
-    if n_e < 2 * (mask.shape[0] - n_e) or 2 * int(pattern.var_dim[mask].sum()) < pattern.size:
-        return False
-    return L.is_independent(pattern, mask)
+    kinds = np.asarray(kinds)
+    known = pattern.independent_kinds
+    if known is None:  # a pattern not built by a Problem: look at its blocks
+        by_count = kinds_by_count(kinds)
+        if not by_count or not L.is_independent(pattern, kinds == by_count[0]):
+            return False
+        known = (by_count[0],)
+    return ba_shaped_kind(kinds, pattern.var_dim, known) is not None
 
 
 def choose_linear_solver(pattern: HessianPattern) -> SchurSolver | None:
