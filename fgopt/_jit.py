@@ -40,15 +40,20 @@ _mode = threading.local()
 
 
 @contextmanager
-def python_mode():
-    """Inside, every :class:`LazyKernel` runs its pure-Python function (nested kernel calls
-    too): small inputs then need no numba import, compilation or cache load."""
-    previous = getattr(_mode, "python", False)
-    _mode.python = True
+def _thread_flag(name: str):
+    """Set the per-thread flag ``name`` inside the block (restored after, also when nested)."""
+    previous = getattr(_mode, name, False)
+    setattr(_mode, name, True)
     try:
         yield
     finally:
-        _mode.python = previous
+        setattr(_mode, name, previous)
+
+
+def python_mode():
+    """Inside, every :class:`LazyKernel` runs its pure-Python function (nested kernel calls
+    too): small inputs then need no numba import, compilation or cache load."""
+    return _thread_flag("python")
 
 
 def _budget_from_environment(default: float = 0.5) -> float:
@@ -85,17 +90,11 @@ def charge_numpy(seconds: float) -> None:
     _numpy_seconds[0] += seconds
 
 
-@contextmanager
 def numpy_mode():
     """Inside, fgopt's kernels that have a NumPy form use it for every batch size (generated
     factor kernels' NumPy twins, the NumPy assembly, vectorized retracts, the NumPy reader):
     a solve that needs no numba import, compilation or cache load (see ``Problem(backend=)``)."""
-    previous = getattr(_mode, "numpy", False)
-    _mode.numpy = True
-    try:
-        yield
-    finally:
-        _mode.numpy = previous
+    return _thread_flag("numpy")
 
 
 def numpy_only() -> bool:
