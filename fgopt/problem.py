@@ -41,7 +41,7 @@ from .structure import (DENSE_MAX_SIZE, HessianPattern, ba_shaped_kind, build_pa
 from ._jit import charge_numpy, numpy_budget_left
 from ._scatter_fixed import specialize as specialized_scatter
 from ._threads import PARALLEL_MIN_BATCH, linearize_batch_threaded
-from .variables import Variables
+from .variables import _MAX_LAZY_BLOCKS, Variables, _Rows, _runs
 
 
 _UNSET = object()
@@ -729,6 +729,33 @@ class Problem:
             values.update(zip(keys, map(kind.wrap, rows)))
         for v, x in state.objects.items():
             out._values[Key(int(self.var_keys[v]))] = x
+        return out
+
+    def values_as_rows(self, state: State) -> Variables:
+        """:meth:`values` with each kind's values left as storage rows (the bulk blocks of
+        ``Variables.add_rows``): no Python object per variable until one is read, which is what a
+        result shipped to another process needs. Same keys, order and bits as :meth:`values`;
+        it is :meth:`values` when some initial keys are unused, some values take the slow path,
+        or the kinds interleave in the initial order."""
+        extra = self._extra
+        V = self.var_keys.shape[0]
+        if (len(extra) != V or self._slow_vars.shape[0]
+                or any(kind.wrap is None for kind in self.kinds)):
+            return self.values(state)
+        order = np.concatenate(  # the initial values' keys in their order (a permutation here)
+            [np.fromiter(extra._dict.keys(), dtype=np.int64, count=len(extra._dict))]
+            + [blk.keys for blk in extra._pending])
+        var = self._sorted[np.searchsorted(self.var_keys[self._sorted], order)]
+        kind_of = self.var_kind[var]
+        starts, lengths = _runs(kind_of, 0)
+        if starts.shape[0] > _MAX_LAZY_BLOCKS:
+            return self.values(state)
+        out = Variables()
+        for s, n in zip(starts.tolist(), lengths.tolist()):
+            kid = int(kind_of[s])
+            rows = state.storages[kid][self.var_row[var[s:s + n]]]  # fancy index: a copy
+            rows.flags.writeable = False
+            out._pending.append(_Rows(order[s:s + n], self.kinds[kid], rows))
         return out
 
     def locate_nonfinite(self, state: State) -> str:

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
+
+import numpy as np
 
 from ..key import key_str
 from ..variables import Variables
@@ -47,6 +49,32 @@ class IterationRecord:
         return (f"{self.iteration:5d} {self.cost:12.6e} {self.relative_decrease:10.3e} "
                 f"{self.lam:9.2e} {self.step_norm:9.2e} {self.gradient_norm:9.2e} "
                 f"{self.time:8.3f}{mark}")
+
+
+class _RecordTable:
+    """Iteration records pickled as one float64 array (a column per field; the integer and
+    boolean fields are exact in float64)."""
+
+    __slots__ = ("table",)
+    FIELDS = tuple(f.name for f in fields(IterationRecord))
+
+    def __init__(self, records: list[IterationRecord]):
+        self.table = np.array([[getattr(r, f) for f in self.FIELDS] for r in records],
+                              dtype=np.float64)
+
+    def __getstate__(self):
+        return self.table
+
+    def __setstate__(self, table) -> None:
+        self.table = table
+
+    def records(self) -> list[IterationRecord]:
+        out = []
+        for row in self.table.tolist():
+            d = dict(zip(self.FIELDS, row))
+            d["iteration"], d["accepted"] = int(d["iteration"]), bool(d["accepted"])
+            out.append(IterationRecord(**d))
+        return out
 
 
 #: A rejected step whose model predicted a decrease above this fraction of the cost was one the
@@ -109,10 +137,27 @@ class Result:
         # A pickled result carries its values, not the compiled problem (kernels, H's pattern,
         # factorization): a sphere2500 result is 0.3 MB instead of 10 MB. Marginals then need
         # graph= and values= (see fgopt.marginals).
+        # The values travel as one storage array per kind (Variables' pickling), taken from the
+        # final state without a Python object per variable; the iteration records as one array.
         state = dict(self.__dict__)
-        state["_values"] = self.values
+        if self._values is None and hasattr(self.problem, "values_as_rows"):
+            state["_values"] = self.problem.values_as_rows(self.state)
+        else:
+            state["_values"] = self.values
         state["problem"] = state["state"] = None
+        records = self.iteration_records
+        if records and all(type(r) is IterationRecord for r in records):
+            try:
+                state["iteration_records"] = _RecordTable(records)
+            except (TypeError, ValueError):  # a non-numeric field: the records as they are
+                pass
         return state
+
+    def __setstate__(self, state: dict) -> None:
+        records = state.get("iteration_records")
+        if isinstance(records, _RecordTable):
+            state = {**state, "iteration_records": records.records()}
+        self.__dict__.update(state)
 
     @property
     def success(self) -> bool:
