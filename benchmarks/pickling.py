@@ -42,13 +42,13 @@ def measure(name: str, repeat: int) -> dict:
         t0 = time.perf_counter()
         back = pickle.loads(blob)
         vals = back.values
-        for k in vals.keys():
+        for k in vals:
             vals.at(k)
         use.append(time.perf_counter() - t0)
     raw = sum(np.asarray(s).nbytes for s in result.state.storages)
     same = all(np.array_equal(np.asarray(result.values.at(k).to_storage()),
                               np.asarray(back.values.at(k).to_storage()))
-               for k in result.values.keys())
+               for k in result.values)
     return {"file": name, "variables": len(result.values), "dump_ms": min(dump) * 1e3,
             "load_ms": min(load) * 1e3, "load_use_ms": min(use) * 1e3, "bytes": len(blob),
             "raw_bytes": raw, "bitwise_equal": same}

@@ -375,10 +375,7 @@ def _packable_kind(x: Any) -> BatchKind | None:
     t = type(x)
     if t is float:
         return SCALAR_KIND
-    try:
-        kind = ops_for(x).batch_kind(x)
-    except Exception:  # a registered type whose traits fail here goes the per-value way
-        return None
+    kind = ops_for(x).batch_kind(x)  # every stored value has traits (add checks)
     if kind is None or kind.wrap is None:
         return None
     if t is np.ndarray:
