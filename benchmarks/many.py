@@ -65,7 +65,9 @@ def builders(n: int) -> list:
 
 def run(n: int, workers: int) -> dict:
     import fgopt
-    from dask.distributed import Client, LocalCluster
+    from dask.distributed import Client
+
+    from fgopt.distributed.many import local_cluster
 
     problems = builders(n)
     for name in FILES:  # warm-up: kernels compiled/loaded, files in the page cache
@@ -78,8 +80,7 @@ def run(n: int, workers: int) -> dict:
     cold = fgopt.solve_many(problems, workers=workers, progress=False)
     t_cold = time.perf_counter() - t0
 
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                           dashboard_address=":0")
+    cluster = local_cluster(workers)  # the cluster solve_many starts (cold run above)
     client = Client(cluster)
     try:
         fgopt.solve_many(builders(2 * workers), client=client, progress=False)  # warm workers

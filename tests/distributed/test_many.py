@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import builtins
 import functools
+import os
 
 import numpy as np
 import pytest
@@ -23,10 +24,11 @@ def _raises_fgopt_error():
 
 @pytest.fixture(scope="module")
 def client():
-    from dask.distributed import Client, LocalCluster
+    from dask.distributed import Client
 
-    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                           dashboard_address=":0")
+    from fgopt.distributed.many import local_cluster
+
+    cluster = local_cluster(2)  # the cluster solve_many starts without client=
     c = Client(cluster)
     yield c
     c.close()
@@ -154,3 +156,30 @@ def test_ctrl_c_closes_the_cluster_it_started(monkeypatch, data_file):
     with pytest.raises(KeyboardInterrupt):
         fgopt.solve_many([problem, problem], workers=1, progress=False)
     assert len(made) == 1 and made[0].status.name == "closed"
+
+
+def _worker_setup() -> tuple:
+    import os
+
+    import dask
+
+    return (os.environ.get("MALLOC_TRIM_THRESHOLD_"), os.environ.get("OPENBLAS_NUM_THREADS"),
+            os.environ.get("NUMBA_NUM_THREADS"),
+            dask.config.get("distributed.worker.profile.enabled"))
+
+
+def test_own_cluster_workers_are_set_up_for_numeric_work(client, monkeypatch):
+    """The workers solve_many starts run one thread per pool, without Dask's
+    MALLOC_TRIM_THRESHOLD_ (every large array a fresh mmap) and without the stack profiler; a
+    value an earlier Dask cluster left in this process's environment is hidden while they start,
+    a user's own value is kept."""
+    from fgopt.distributed import many
+
+    assert set(client.run(_worker_setup).values()) == {(None, "1", "1", False)}
+    monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "65536")  # what a Nanny writes into os.environ
+    with many._without_dask_malloc_trim():
+        assert "MALLOC_TRIM_THRESHOLD_" not in os.environ
+    assert os.environ["MALLOC_TRIM_THRESHOLD_"] == "65536"
+    monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "1000000")
+    with many._without_dask_malloc_trim():
+        assert os.environ["MALLOC_TRIM_THRESHOLD_"] == "1000000"
