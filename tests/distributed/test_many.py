@@ -159,23 +159,26 @@ def test_ctrl_c_closes_the_cluster_it_started(monkeypatch, data_file):
 
 
 def _worker_setup() -> tuple:
+    import gc
     import os
 
     import dask
 
     return (os.environ.get("MALLOC_TRIM_THRESHOLD_"), os.environ.get("OPENBLAS_NUM_THREADS"),
             os.environ.get("NUMBA_NUM_THREADS"),
-            dask.config.get("distributed.worker.profile.enabled"))
+            dask.config.get("distributed.worker.profile.enabled"),
+            dask.config.get("distributed.admin.tick.interval"), gc.get_freeze_count() > 10_000)
 
 
 def test_own_cluster_workers_are_set_up_for_numeric_work(client, monkeypatch):
     """The workers solve_many starts run one thread per pool, without Dask's
-    MALLOC_TRIM_THRESHOLD_ (every large array a fresh mmap) and without the stack profiler; a
+    MALLOC_TRIM_THRESHOLD_ (every large array a fresh mmap), without the stack profiler, with
+    slow housekeeping polls and their start-up objects frozen out of the collector's way; a
     value an earlier Dask cluster left in this process's environment is hidden while they start,
     a user's own value is kept."""
     from fgopt.distributed import many
 
-    assert set(client.run(_worker_setup).values()) == {(None, "1", "1", False)}
+    assert set(client.run(_worker_setup).values()) == {(None, "1", "1", False, "1s", True)}
     monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "65536")  # what a Nanny writes into os.environ
     with many._without_dask_malloc_trim():
         assert "MALLOC_TRIM_THRESHOLD_" not in os.environ
