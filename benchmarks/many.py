@@ -63,18 +63,27 @@ def builders(n: int) -> list:
             for i in range(n)]
 
 
+def _cpu() -> float:
+    """CPU seconds (user + system) this process has used."""
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
 def run(n: int, workers: int) -> dict:
     import fgopt
     from dask.distributed import Client
 
     from fgopt.distributed.many import local_cluster
 
+    load_start = os.getloadavg()[0]
     problems = builders(n)
     for name in FILES:  # warm-up: kernels compiled/loaded, files in the page cache
         fgopt.optimize(*perturbed(name, 10_000))
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _cpu()
     serial = [fgopt.optimize(*b()) for b in problems]
-    t_serial = time.perf_counter() - t0
+    t_serial, cpu_serial = time.perf_counter() - t0, _cpu() - c0
 
     t0 = time.perf_counter()
     cold = fgopt.solve_many(problems, workers=workers, progress=False)
@@ -84,9 +93,11 @@ def run(n: int, workers: int) -> dict:
     client = Client(cluster)
     try:
         fgopt.solve_many(builders(2 * workers), client=client, progress=False)  # warm workers
-        t0 = time.perf_counter()
+        w0, c0, t0 = client.run(_cpu), _cpu(), time.perf_counter()
         warm = fgopt.solve_many(problems, client=client, progress=False)
         t_warm = time.perf_counter() - t0
+        c1, w1 = _cpu(), client.run(_cpu)
+        cpu_workers, cpu_client = sum(w1[w] - w0[w] for w in w0), c1 - c0
     finally:
         client.close()
         cluster.close()
@@ -100,7 +111,8 @@ def run(n: int, workers: int) -> dict:
         "overhead_per_problem_s": t_warm * workers / n - per_serial,
         "serial_per_problem_s": per_serial, "results_equal": equal,
         "iterations_median": statistics.median(r.iterations for r in serial),
-        "loadavg_1min": os.getloadavg()[0],
+        "loadavg_1min": os.getloadavg()[0], "loadavg_start": load_start,
+        "cpu_serial_s": cpu_serial, "cpu_workers_s": cpu_workers, "cpu_client_s": cpu_client,
     }
 
 
@@ -109,7 +121,8 @@ def markdown(r: dict, commit: str) -> str:
         f"# solve_many: {r['problems']} problems, serial vs LocalCluster ({r['workers']} workers)",
         "",
         f"Commit {commit}; `python -m benchmarks.many --problems {r['problems']} --workers "
-        f"{r['workers']}`; load average at the end {r['loadavg_1min']:.2f}.",
+        f"{r['workers']}`; load average (1 min) {r['loadavg_start']:.2f} at the start, "
+        f"{r['loadavg_1min']:.2f} at the end (2 cores, shared).",
         "",
         "| | seconds | throughput vs serial |",
         "|---|---|---|",
@@ -122,6 +135,13 @@ def markdown(r: dict, commit: str) -> str:
         f"{r['iterations_median']:.0f} LM iterations); overhead per problem on the warm cluster "
         f"{r['overhead_per_problem_s'] * 1e3:.0f} ms. Every cluster result equals its serial "
         f"result exactly: {r['results_equal']}.",
+        "",
+        (f"CPU seconds (less sensitive to other load than wall time): serial "
+        f"{r['cpu_serial_s']:.2f}; warm cluster: workers {r['cpu_workers_s']:.2f} + client and "
+        f"scheduler {r['cpu_client_s']:.2f} = {r['cpu_workers_s'] + r['cpu_client_s']:.2f} "
+        f"(x{(r['cpu_workers_s'] + r['cpu_client_s']) / r['cpu_serial_s']:.3f} the serial CPU; "
+        f"on {r['workers']} idle cores the warm throughput ratio would be at most "
+        f"x{r['workers'] * r['cpu_serial_s'] / (r['cpu_workers_s'] + r['cpu_client_s']):.2f})."),
         "",
     ])
 
