@@ -60,15 +60,15 @@ def _without_dask_malloc_trim():
     (Dask's value) while ours start; a value of the user's own stays."""
     import dask
 
-    default = dask.config.get("distributed.nanny.pre-spawn-environ", {}).get(
-        "MALLOC_TRIM_THRESHOLD_", 65536)
+    configured = dask.config.get("distributed.nanny.pre-spawn-environ", {})
     left = os.environ.get("MALLOC_TRIM_THRESHOLD_")
-    if left is not None and left == str(default if default is not None else 65536):
+    hide = left is not None and left in {"65536", str(configured.get("MALLOC_TRIM_THRESHOLD_"))}
+    if hide:
         del os.environ["MALLOC_TRIM_THRESHOLD_"]
     try:
         yield
     finally:
-        if left is not None and "MALLOC_TRIM_THRESHOLD_" not in os.environ:
+        if hide and "MALLOC_TRIM_THRESHOLD_" not in os.environ:
             os.environ["MALLOC_TRIM_THRESHOLD_"] = left
 
 
@@ -77,9 +77,7 @@ def local_cluster(workers: int | None = None) -> Any:
     ``workers`` (default: one per core) single-threaded worker processes, set up for numeric
     work (:data:`WORKER_ENVIRON`, :data:`CLUSTER_CONFIG`)."""
     import dask
-    from dask.distributed import LocalCluster
-
-    from dask.distributed import Client
+    from dask.distributed import Client, LocalCluster
 
     n = workers or os.cpu_count() or 1
     settings = {**CLUSTER_CONFIG, "distributed.nanny.pre-spawn-environ": WORKER_ENVIRON}
