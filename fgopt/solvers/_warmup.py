@@ -84,12 +84,15 @@ _MARKED: dict = {}
 def mark_warm(problem: Any) -> None:
     """Record that ``problem``'s kernels are in numba's cache (after a numba-backend solve).
 
-    Once per process and problem shape: hashing the kernels' sources and touching the file cost
-    ~0.2 ms, a tenth of a small problem's whole solve when repeated on every call."""
+    Once per process, cache location and problem shape: hashing the kernels' sources and
+    touching the file cost ~0.2 ms, a tenth of a small problem's whole solve when repeated on
+    every call. (A marker removed by ``fgopt cache clear`` meanwhile is written again by the next
+    process; a missing marker only costs time.)"""
     from ..problem import NUMPY_MAX_BATCH
 
     pattern = problem.pattern
-    shape = (tuple((id(b.kernel), len(b.source) > NUMPY_MAX_BATCH) for b in problem.batches),
+    where = tuple(os.environ.get(v) for v in ("FGOPT_CACHE_DIR", "XDG_CACHE_HOME", "HOME"))
+    shape = (where, tuple((id(b.kernel), len(b.source) > NUMPY_MAX_BATCH) for b in problem.batches),
              tuple(id(kind) for kind in problem.kinds), pattern is not None and pattern.size > 300)
     if shape in _MARKED:
         return
