@@ -13,7 +13,8 @@ command, duration_s, protocol}, "results": <the benchmark's own JSON>}``, and th
 blocks between ``<!-- table:NAME -->`` markers are rewritten; text outside them is untouched.
 "+dirty" after the commit means files other than the README and ``benchmarks/results`` differed
 from HEAD while measuring. A table whose benchmark ``--skip`` left out keeps its saved results
-and commit, and says it was not rerun (``benchmarks/results/tables/index.json`` remembers).
+and commit, and says it was not rerun (so does one whose benchmark failed;
+``benchmarks/results/tables/index.json`` remembers which).
 """
 
 from __future__ import annotations
@@ -39,10 +40,10 @@ README = REPO / "README.md"
 def git_state(repo: Path = REPO) -> tuple[str, bool]:
     """(short HEAD, dirty?) ignoring the pipeline's own outputs."""
     head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                          text=True, cwd=repo).stdout.strip()
+                          text=True, cwd=repo, check=False).stdout.strip()
     status = subprocess.run(["git", "status", "--porcelain", "--", ".", ":(exclude)README.md",
                              ":(exclude)benchmarks/results"], capture_output=True, text=True,
-                            cwd=repo).stdout.strip()
+                            cwd=repo, check=False).stdout.strip()
     return head, bool(status)
 
 
@@ -51,13 +52,17 @@ def run_bench(name: str, results_dir: Path = RESULTS) -> dict:
     bench = BENCHES[name]
     commit, dirty = git_state()
     env = dict(os.environ)
-    env.setdefault("FGOPT_DATA", str((REPO.parent / "shared" / "data").resolve()))
+    if "FGOPT_DATA" not in env:  # the Makefile's default: ../shared/data beside the checkout
+        env["FGOPT_DATA"] = str((REPO.parent / "shared" / "data").resolve())
+    if not Path(env["FGOPT_DATA"]).is_dir():
+        raise RuntimeError(f"benchmark {name!r}: no data directory {env['FGOPT_DATA']} "
+                           "(set FGOPT_DATA)")
     with tempfile.TemporaryDirectory(prefix=f"fgopt-table-{name}-") as tmp:
         out = [a.replace("{dir}", tmp) for a in bench.out]
         argv = [sys.executable, "-m", bench.module, *bench.args, *out]
         load0, t0, started = os.getloadavg()[0], time.perf_counter(), dt.datetime.now()
         print(f"[{started:%H:%M:%S}] {name}: {bench.command()}", file=sys.stderr, flush=True)
-        proc = subprocess.run(argv, cwd=REPO, env=env)
+        proc = subprocess.run(argv, cwd=REPO, env=env, check=False)
         duration, load1 = time.perf_counter() - t0, os.getloadavg()[0]
         if proc.returncode != 0:
             raise RuntimeError(f"benchmark {name!r} failed (exit {proc.returncode}): "
@@ -89,13 +94,13 @@ def load_doc(name: str, results_dir: Path = RESULTS) -> dict | None:
     return json.loads(path.read_text()) if path.is_file() else None
 
 
-def render_table(table: str, doc: dict, skipped_at: str | None = None) -> str:
+def render_table(table: str, doc: dict, not_rerun: dict | None = None) -> str:
     """One table's block: caption (the benchmark's declared protocol), the rendered table and
     summary, then the commit line."""
     caption = protocol_caption(doc["meta"])
     body = TABLES[table].render(doc)
     parts = ([caption, ""] if caption else []) + [body, "", commit_line(doc["meta"], table,
-                                                                          skipped_at)]
+                                                                          not_rerun)]
     return "\n".join(parts)
 
 
@@ -104,14 +109,14 @@ def render_readme(text: str, tables: list[str], results_dir: Path = RESULTS) -> 
     results are left as they are (returned in the second value)."""
     index = json.loads((results_dir / "index.json").read_text()) \
         if (results_dir / "index.json").is_file() else {}
-    skipped = index.get("skipped", {})
+    stale = index.get("not_rerun", {})
     bodies, missing = {}, []
     for t in tables:
         doc = load_doc(TABLES[t].bench, results_dir)
         if doc is None:
             missing.append(t)
             continue
-        bodies[t] = render_table(t, doc, skipped.get(TABLES[t].bench))
+        bodies[t] = render_table(t, doc, stale.get(TABLES[t].bench))
     return markers.replace_blocks(text, bodies), missing
 
 
@@ -148,18 +153,25 @@ def main(argv: list[str] | None = None) -> int:
     readme = Path(args.readme)
     text = readme.read_text()
     markers.find_blocks(text)  # malformed markers fail before hours of benchmarks
-    if run:
+    failed = []
+    if not args.render_only:
         head, dirty = git_state()
         for name in run:
-            run_bench(name, results_dir)
+            try:
+                run_bench(name, results_dir)
+            except RuntimeError as e:  # keep going: the others' tables still get regenerated
+                print(f"FAILED: {e}; its table keeps its saved results", file=sys.stderr)
+                failed.append(name)
         index_path = results_dir / "index.json"
         index = json.loads(index_path.read_text()) if index_path.is_file() else {}
-        skipped = index.get("skipped", {})
+        stale = index.get("not_rerun", {})
+        at = head + ("+dirty" if dirty else "")
         for b in run:  # measured now: no longer "not rerun"
-            skipped.pop(b, None)
-        for b in (s for s in skip if s in selected):
-            skipped[b] = head + ("+dirty" if dirty else "")
-        index["skipped"] = skipped
+            stale.pop(b, None)
+        for b in [b for b in skip if b in selected] + failed:
+            stale[b] = {"at": at, "why": "failed" if b in failed else "skipped"}
+        index["not_rerun"] = stale
+        results_dir.mkdir(parents=True, exist_ok=True)
         index_path.write_text(json.dumps(index, indent=1, sort_keys=True) + "\n")
     new, missing = render_readme(text, tables_of(selected), results_dir)
     if new != text:
@@ -168,4 +180,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"table {t}: no saved results in {results_dir}; left as it was", file=sys.stderr)
     print(f"rendered {len(tables_of(selected)) - len(missing)} table(s) into {readme}",
           file=sys.stderr)
+    if failed:
+        print(f"benchmarks that failed: {', '.join(failed)}", file=sys.stderr)
+        return 1
     return 0

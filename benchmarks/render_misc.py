@@ -74,9 +74,9 @@ def startup(doc: dict) -> str:
                                         ("edited", "body edited, re-run < 3 s", 3.0)):
                 row(f"custom {kind}: definition to result, {label}", r[which]["median"],
                     r["gtsam"]["median"], r[which]["median"] < limit, comparable=False)
-    lines += ["", "⁽ˢ⁾ GTSAM's figure is a `CustomFactor` with numerical Jacobians (no derivation "
+    lines += ["", ("⁽ˢ⁾ GTSAM's figure is a `CustomFactor` with numerical Jacobians (no derivation "
               "step): for scale only, no ratio. Empty caches: GTSAM has no cache; its figure is "
-              "its one solve of the same file.", losses.line()]
+              "its one solve of the same file."), losses.line()]
     if missed:
         lines.append(f"Targets missed: {'; '.join(missed)}.")
     return "\n".join(lines)
@@ -118,10 +118,10 @@ def navigation(doc: dict) -> str:
         t = b["times"]
         g = t["gtsam"]["cpu_s"]
         its = f"{b['fgopt_iterations']} / {b['gtsam_iterations']}"
-        for key, what in (("fgopt", "`fgopt.optimize` (compile + LM) vs GTSAM's optimizer "
-                                    "construction + LM"),
-                          ("fgopt_compiled", "LM on an already compiled problem (fgopt's setup "
-                                             "EXCLUDED, GTSAM's included: not like for like)")):
+        for key, what in (("fgopt", ("`fgopt.optimize` (compile + LM) vs GTSAM's optimizer "
+                                    "construction + LM")),
+                          ("fgopt_compiled", ("LM on an already compiled problem (fgopt's setup "
+                                             "EXCLUDED, GTSAM's included: not like for like)"))):
             q = t[key]["cpu_s"] / g
             lines.append(_row([f"{b['factor']} example: {what}", f"{1e3 * t[key]['cpu_s']:.2f} ms",
                                f"{1e3 * g:.2f} ms", fmt_ratio(q), its]))
@@ -150,8 +150,8 @@ def numpy_backend(doc: dict) -> str:
                            cell(it["numpy/cholmod"]) if "numpy/cholmod" in it else "—",
                            cell(it["numpy/ldlt"]), f"{e['numba']['median']:.2f}",
                            f"{e['numpy']['median']:.2f}", stop]))
-    return "\n".join(lines + ["", "Milliseconds per iteration in a warm process: linearize + "
-                              "assemble / factorize + solve / retract. fgopt only (no peer)."])
+    return "\n".join(lines + ["", ("Milliseconds per iteration in a warm process: linearize + "
+                              "assemble / factorize + solve / retract. fgopt only (no peer).")])
 
 
 # ------------------------------------------------------------------------------- incremental
@@ -174,13 +174,13 @@ def incremental(doc: dict) -> str:
         qt = f["total_cpu"] / g["total_cpu"]
         qu = f["update_cpu"]["p99"] / g["update_cpu"]["p99"]
 
-        def above(c):
+        def above(c, opt=opt):
             return f"{100 * (c - opt) / opt:+.4g} %"
 
         best = f" ({above(g['cost_best'])})" if g.get("cost_best") is not None else ""
         lines.append(_row([name, f"{f['total_cpu']:.3g} / {g['total_cpu']:.3g}", fmt_ratio(qt),
-                           f"{1e3 * f['update_cpu']['p99']:.3g} / "
-                           f"{1e3 * g['update_cpu']['p99']:.3g}", fmt_ratio(qu),
+                           (f"{1e3 * f['update_cpu']['p99']:.3g} / "
+                           f"{1e3 * g['update_cpu']['p99']:.3g}"), fmt_ratio(qu),
                            f"{1e3 * f['step_cpu']['p99']:.3g} / {1e3 * g['step_cpu']['p99']:.3g}",
                            f"{above(f['cost'])} / {above(g['cost'])}{best}"]))
         losses.check("GTSAM", f"{name} total", qt)
@@ -228,8 +228,8 @@ def scale(doc: dict) -> str:
             its = max(f["iterations"], 1)
             lines.append(_row([name, "fgopt", f"{f['read_s']:.2f} ({f['read_cpu_s']:.2f})",
                                f"{f['setup_s']:.2f} ({f['setup_cpu_s']:.2f})",
-                               f"{(f['optimize_s'] - f['setup_s']) / its:.2f} "
-                               f"({f['iterations_cpu_s'] / its:.2f})", f"{f['peak_rss_mb']:.0f}",
+                               (f"{(f['optimize_s'] - f['setup_s']) / its:.2f} "
+                               f"({f['iterations_cpu_s'] / its:.2f})"), f"{f['peak_rss_mb']:.0f}",
                                ""]))
     lines += ["", "Wall seconds, CPU seconds in parentheses; exactly 5 iterations each. "
               + losses.line()]

@@ -181,8 +181,8 @@ def render(doc: dict) -> str:
         table_5it(doc), "",
         "#### To convergence (each library's default stopping rules)", "",
         table_converge(doc), "",
-        "#### Final cost, one yardstick (0.5 Σ squared whitened residuals over the problem's own "
-        "measurements, GTSAM's residuals, no gauge prior; BAL: every observation)", "",
+        ("#### Final cost, one yardstick (0.5 Σ squared whitened residuals over the problem's own "
+        "measurements, GTSAM's residuals, no gauge prior; BAL: every observation)"), "",
         table_costs(doc), "",
-        f"Seconds, median of {meta['args'].get('repeats')} runs after a warm-up, one process per "
-        f"library × problem × mode, single thread. Versions: {versions}."])
+        (f"Seconds, median of {meta['args'].get('repeats')} runs after a warm-up, one process per "
+        f"library × problem × mode, single thread. Versions: {versions}.")])

@@ -57,7 +57,7 @@ def protocol_caption(meta: dict) -> str:
     return " ".join(parts)
 
 
-def commit_line(meta: dict, table: str, skipped_at: str | None = None) -> str:
+def commit_line(meta: dict, table: str, not_rerun: dict | None = None) -> str:
     """The line under every generated table: commit, date, load, the exact command."""
     commit = meta.get("commit") or "not recorded"
     where = f"commit `{commit}`" if meta.get("commit") else "a commit that was not recorded"
@@ -80,7 +80,7 @@ def commit_line(meta: dict, table: str, skipped_at: str | None = None) -> str:
         line += (f" (imported from `{meta['imported_from']}`, measured before the tables "
                  f"pipeline: {meta.get('import_note', 'figures as saved then')})")
     line += f". Regenerate: `python -m benchmarks.run --only {table}`._"
-    if skipped_at:
-        line += (f" **Not rerun** by the last `--all` at `{skipped_at}` (skipped): these figures "
-                 "are from the commit above.")
+    if not_rerun:
+        line += (f" **Not rerun** by the last run at `{not_rerun['at']}` ({not_rerun['why']}): "
+                 "these figures are from the commit above.")
     return line

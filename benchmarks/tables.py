@@ -12,9 +12,9 @@ timings include for every library and how each run stops; the caption is taken f
 from __future__ import annotations
 
 import ast
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 from . import render_misc, render_peers
 
