@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
+import json
 import os
 import subprocess
 import time
@@ -178,6 +179,14 @@ def _confusion(bad, num_clean: int, values) -> tuple[int, int]:
     return rej_added, rej_true
 
 
+# What the README table's timings include and how runs stop (benchmarks/tables.py).
+TABLE_PROTOCOL = {
+    "includes": ("fgopt only (no peer): CPU time of `fgopt.optimize(method=\"gnc\")`, compiling, chordal "
+        "starts and consistency passes included."),
+    "stopping": ("GNC's own schedule and stopping rules (`GNCParams(loss=\"tls\")` defaults)."),
+}
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--datasets", default="m3500,sphere2500")
@@ -187,6 +196,7 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-plain", action="store_true", help="skip plain LM")
     ap.add_argument("--out", default=None)
+    ap.add_argument("--json", default=None, help="also write the records to this JSON file")
     args = ap.parse_args(argv)
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True, cwd=Path(__file__).parent).stdout.strip()
@@ -200,9 +210,14 @@ def main(argv=None):
              "| rejected (added / true) | max position error (m) | s |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     print("\n".join(lines), flush=True)
+    records = []
     for name in args.datasets.split(","):
-        run(name, args.generators.split(","), [float(x) for x in args.fractions.split(",")],
-            args.loss.split(","), args.seed, lines, plain=not args.no_plain)
+        records += run(name, args.generators.split(","),
+                       [float(x) for x in args.fractions.split(",")], args.loss.split(","),
+                       args.seed, lines, plain=not args.no_plain)
+    if args.json:
+        Path(args.json).write_text(json.dumps({"commit": commit, "seed": args.seed,
+                                               "records": records}, indent=1, default=float))
     md = "\n".join(lines) + "\n"
     if args.out:
         Path(args.out).write_text(md)

@@ -422,6 +422,16 @@ def table(results: list[dict]) -> str:
     return "\n".join(rows)
 
 
+# What the README table's timings include and how runs stop (benchmarks/tables.py).
+TABLE_PROTOCOL = {
+    "includes": ("CPU time of the thread over the whole replay, for both libraries: per step the "
+        "estimate queries that initialize new variables plus `update`; factor objects built "
+        "before the timed loop and the warm-up steps untimed for both."),
+    "stopping": ("no stopping rule: one `update` per pose in both libraries, default parameters "
+        "(relinearize threshold 0.1, relinearize skip 10)."),
+}
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--datasets", default="m3500,sphere2500,w20000,victoria")

@@ -205,6 +205,17 @@ def render(res: dict) -> str:
     return "\n".join(lines)
 
 
+# What the README table's timings include and how runs stop (benchmarks/tables.py).
+TABLE_PROTOCOL = {
+    "includes": ("process CPU time, median; the factor graph is built outside the timing for both "
+        "libraries; `fgopt.optimize` includes compiling the problem and GTSAM's time includes "
+        "constructing its optimizer; the \"compiled\" rows exclude fgopt's setup only (stated "
+        "in the row)."),
+    "stopping": ("each library's default LM parameters and stopping rules (iterations in the last "
+        "column)."),
+}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeats", type=int, default=7)

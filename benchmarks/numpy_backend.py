@@ -86,6 +86,16 @@ def end_to_end(path: Path, repeats: int, out_dir: Path) -> dict:
             for b, v in samples.items()}
 
 
+# What the README table's timings include and how runs stop (benchmarks/tables.py).
+TABLE_PROTOCOL = {
+    "includes": ("fgopt only (no peer): per-iteration medians in a warm process, setup excluded for "
+        "both backends; `fgopt solve --backend B` end to end in a new process (start-up, "
+        "read, compile, solve, write included, warm caches, no switch)."),
+    "stopping": ("per iteration: a fixed number of LM iterations; end to end: fgopt's default stopping "
+        "rules (how it ended in the last column)."),
+}
+
+
 def main(argv: list[str] | None = None) -> int:
     import tempfile
 

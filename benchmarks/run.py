@@ -2,6 +2,8 @@
 
     python -m benchmarks.run [--datasets m3500,intel,...] [--peers gtsam,ceres,symforce,scipy]
                              [--repeats 3] [--quick]
+    python -m benchmarks.run --all | --only TABLE[,TABLE] | --render-only | --list
+                             (regenerate the README's tables: benchmarks/pipeline.py)
 
 Every library x problem x mode runs in a fresh ``python -m benchmarks.worker`` subprocess (thread
 pools pinned to one thread before numpy loads; peak RSS per process) under a time cap. Problems are
@@ -28,6 +30,21 @@ from .peers import MODES
 from .problems import DEFAULT_DATASETS, PROBLEMS, data_dir
 
 REPO = Path(__file__).resolve().parent.parent
+
+# What the README table's timings include and how runs stop (benchmarks/tables.py).
+TABLE_PROTOCOL = {
+    "includes": ("the solve from the file's initial guess, setup included for every library: fgopt's "
+        "`optimize` with compiling the problem (ordering, pattern, scatter map) and its "
+        "default `initialization=\"auto\"` (a second, chordal start only where its chi-square "
+        "test fires), GTSAM's optimizer construction + `optimize`, Ceres' `Solve` with its "
+        "preprocessor; reading the file and building factor objects excluded for every "
+        "library (the load time, kept in the JSON)."),
+    "stopping": ("\"5 it\": exactly 5 LM iterations with every stopping test off in every library; "
+        "\"converge\": each library's own default stopping rules and iteration limit (fgopt "
+        "100, GTSAM 100, Ceres 50, 200 on pose graphs as Ceres' examples), and \"converged\" "
+        "only where the library's own convergence test stopped the run. fgopt and Ceres count "
+        "every trial step as an iteration, GTSAM its outer iterations."),
+}
 RESULTS = Path(__file__).resolve().parent / "results"
 ALL_PEERS = ["gtsam", "ceres", "ceres_cpp", "symforce", "scipy"]
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS",
@@ -331,6 +348,11 @@ def cpu_name() -> str:
 
 
 def main(argv=None) -> int:
+    table_flags = ("--all", "--only", "--skip", "--render-only", "--list")
+    if any(a.split("=")[0] in table_flags for a in (sys.argv[1:] if argv is None else argv)):
+        from .pipeline import main as tables_main  # README tables (benchmarks/tables.py)
+
+        return tables_main(argv)
     ap = argparse.ArgumentParser(prog="python -m benchmarks.run", description=__doc__.split("\n")[0])
     ap.add_argument("--datasets", default=",".join(DEFAULT_DATASETS),
                     help=f"comma list of {', '.join(PROBLEMS)}")

@@ -174,6 +174,15 @@ def markdown(rows: dict, args, commit: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+# What the README table's timings include and how runs stop (benchmarks/tables.py).
+TABLE_PROTOCOL = {
+    "includes": ("one process per library; read = the library's file reader; setup = fgopt's problem "
+        "compile vs Ceres' preprocessor; per iteration = fgopt's time after setup (initial "
+        "linearization included) vs Ceres' minimizer time, divided by the iterations."),
+    "stopping": ("exactly 5 LM iterations with the stopping tests off, both libraries."),
+}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cameras", type=int, default=1780)
@@ -182,6 +191,7 @@ def main() -> None:
     ap.add_argument("--grid", type=int, default=100_000)
     ap.add_argument("--workdir", default="/tmp/fgopt-scale")
     ap.add_argument("--out", default=None)
+    ap.add_argument("--json", default=None, help="also write the numbers to this JSON file")
     args = ap.parse_args()
     workdir = Path(args.workdir)
     workdir.mkdir(parents=True, exist_ok=True)
@@ -203,6 +213,8 @@ def main() -> None:
     md = markdown(rows, args, commit)
     print(md)
     print(json.dumps(rows, indent=1, default=str))
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1, default=str))
     out = args.out or str(HERE / "results" / f"scale-{dt.date.today()}.md")
     Path(out).write_text(md)
     print(f"wrote {out}")

@@ -244,6 +244,16 @@ def render(results: dict, meta: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+# What the README table's timings include and how runs stop (benchmarks/tables.py).
+TABLE_PROTOCOL = {
+    "includes": ("wall clock of a new process per sample for both libraries: interpreter start, "
+        "imports, reading, solving and writing included."),
+    "stopping": ("`fgopt solve` and the GTSAM script (`startup_scripts/gtsam_solve.py`) each use their "
+        "library's default LM stopping rules (GTSAM at most 100 iterations); the stopping "
+        "column says how each run ended."),
+}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--only", default=",".join(SECTIONS), help=f"sections: {','.join(SECTIONS)}")

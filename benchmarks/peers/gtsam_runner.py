@@ -22,6 +22,16 @@ def lm_params(mode: str):
         params.setErrorTol(0.0)
     return params
 
+def lm_status(opt, params) -> str:
+    """Why GTSAM's LM stopped: its iteration limit, its lambda bound (it gave up), or else its
+    own convergence test fired (relative / absolute error decrease below tolerance)."""
+    if opt.iterations() >= params.getMaxIterations():
+        return "max iterations"
+    if opt.lambda_() > params.getlambdaUpperBound():
+        return "gave up (lambda above its upper bound)"
+    return "converged"
+
+
 class GtsamRunner:
     name = "gtsam"
     pinning = "wheel has no TBB (single thread); BLAS env vars = 1"
@@ -119,7 +129,8 @@ class GtsamRunner:
                                                 lm_params(mode))
         initial_error = opt.error()  # computed by the constructor already
         values = opt.optimize()
-        return SolveOutput(values, opt.iterations(), initial_error, opt.error(), "")
+        return SolveOutput(values, opt.iterations(), initial_error, opt.error(),
+                           lm_status(opt, lm_params(mode)))
 
     def estimate(self, state, out):
         import gtsam

@@ -22,8 +22,8 @@ def main(path: str, out: str) -> None:
         else:
             model = gtsam.noiseModel.Diagonal.Variances(np.array([1e-6, 1e-6, 1e-8]))
             graph.add(gtsam.PriorFactorPose2(first, initial.atPose2(first), model))
-        result = gtsam.LevenbergMarquardtOptimizer(graph, initial,
-                                                   gtsam.LevenbergMarquardtParams()).optimize()
+        opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, gtsam.LevenbergMarquardtParams())
+        result = opt.optimize()
         gtsam.writeG2o(graph, result, out)
     else:
         from gtsam.symbol_shorthand import C, P
@@ -40,8 +40,8 @@ def main(path: str, out: str) -> None:
             initial.insert(P(j), track.point3())
         for i in range(scene.numberCameras()):
             initial.insert(C(i), scene.camera(i))
-        result = gtsam.LevenbergMarquardtOptimizer(graph, initial,
-                                                   gtsam.LevenbergMarquardtParams()).optimize()
+        opt = gtsam.LevenbergMarquardtOptimizer(graph, initial, gtsam.LevenbergMarquardtParams())
+        result = opt.optimize()
         solved = gtsam.SfmData()  # the python wrapper has no writeBALfromValues
         for i in range(scene.numberCameras()):
             solved.addCamera(result.atPinholeCameraCal3Bundler(C(i)))
@@ -50,7 +50,19 @@ def main(path: str, out: str) -> None:
             track.p = result.atPoint3(P(j))
             solved.addTrack(track)
         gtsam.writeBAL(out, solved)
-    print(f"cost {graph.error(initial):.6e} -> {graph.error(result):.6e}")
+    print(f"cost {graph.error(initial):.6e} -> {graph.error(result):.6e}, {opt.iterations()} "
+          f"iterations, {lm_status(opt)}")
+
+
+def lm_status(opt) -> str:
+    """Why GTSAM's LM stopped: its iteration limit, its lambda bound (it gave up), or else its
+    own convergence test (relative / absolute error decrease)."""
+    params = gtsam.LevenbergMarquardtParams()
+    if opt.iterations() >= params.getMaxIterations():
+        return "max iterations"
+    if opt.lambda_() > params.getlambdaUpperBound():
+        return "gave up (lambda above its upper bound)"
+    return "converged"
 
 
 if __name__ == "__main__":

@@ -76,12 +76,31 @@ def is_warm(problem: Any) -> bool:
         return False
 
 
+#: Problem shapes this process has already marked warm (see :func:`mark_warm`) -> the kernels
+#: and kinds of the shape, held so that their ids are not reused while the entry exists.
+_MARKED: dict = {}
+
+
 def mark_warm(problem: Any) -> None:
-    """Record that ``problem``'s kernels are in numba's cache (after a numba-backend solve)."""
+    """Record that ``problem``'s kernels are in numba's cache (after a numba-backend solve).
+
+    Once per process, cache location and problem shape: hashing the kernels' sources and
+    touching the file cost ~0.2 ms, a tenth of a small problem's whole solve when repeated on
+    every call. (A marker removed by ``fgopt cache clear`` meanwhile is written again by the next
+    process; a missing marker only costs time.)"""
+    from ..problem import NUMPY_MAX_BATCH
+
+    pattern = problem.pattern
+    where = tuple(os.environ.get(v) for v in ("FGOPT_CACHE_DIR", "XDG_CACHE_HOME", "HOME"))
+    shape = (where, tuple((id(b.kernel), len(b.source) > NUMPY_MAX_BATCH) for b in problem.batches),
+             tuple(id(kind) for kind in problem.kinds), pattern is not None and pattern.size > 300)
+    if shape in _MARKED:
+        return
     try:
         marker(problem).touch()
     except Exception:  # noqa: BLE001, S110 - best effort
-        pass
+        return
+    _MARKED[shape] = ([b.kernel for b in problem.batches], list(problem.kinds))
 
 
 #: A warm-up lock older than this is taken to be left by a process that died.

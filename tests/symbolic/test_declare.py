@@ -319,3 +319,90 @@ def test_declaration_key_follows_the_code():
     assert a._KEY == b._KEY != c._KEY
     assert b is a  # declaring the same code again (a re-run notebook cell) gives the same type
     assert D.DECLARED[c._KEY] is c
+
+
+# ------------------------------------------------------------------- NumPy twins of the kernels
+def _declared(name: str):
+    if name in ("Circle", "NavLike"):
+        return {"Circle": Circle, "NavLike": NavLike}[name]
+    from fgopt.symbolic import geometry
+
+    return getattr(geometry, name)
+
+
+@pytest.mark.parametrize("name", ["Circle", "NavLike", "Unit3", "OrientedPlane3", "SE23"])
+def test_numpy_twins_equal_numba_kernels(name):
+    """Each generated kernel (retract, local, storage_D_tangent, normalize) has a NumPy twin
+    (Unit3's `where` / `Abs` basis included) whose numbers equal the numba kernel's, and a small
+    batch runs the twin: the numba kernel is not compiled by it."""
+    kind = _declared(name).Value.batch_kind()
+    ns = kind.retract.__globals__
+    rng = np.random.default_rng(11)
+    n = 64
+    identity = np.asarray(ns["IDENTITY"], dtype=float)
+    x = ns["normalize_batch"](identity + 0.3 * rng.normal(size=(n, identity.size))) \
+        if "normalize_batch" in ns else identity + 0.3 * rng.normal(size=(n, identity.size))
+    d = 0.5 * rng.normal(size=(n, ns["DIM"]))
+    d[:4] *= 1e-9  # near the identity: the series / epsilon branches
+    y = kind.retract(x, d)
+    assert not ns["_retract_kernel"].compiled and not ns["_local_kernel"].compiled
+    for op, args in [("retract", (x, d)), ("local", (x, y)), ("storage_D_tangent", (x,)),
+                     ("normalize", (x,))]:
+        if f"_{op}_kernel" not in ns:
+            continue
+        assert f"_{op}_numpy" in ns, f"{name}.{op} has no NumPy twin"
+        shape = {"retract": x.shape, "local": d.shape,
+                 "storage_D_tangent": (n, x.shape[1], d.shape[1]), "normalize": x.shape}[op]
+        twin, compiled = np.empty(shape), np.empty(shape)
+        with np.errstate(all="ignore"):
+            ns[f"_{op}_numpy"](*args, twin)
+        ns[f"_{op}_kernel"](*args, compiled)
+        np.testing.assert_allclose(twin, compiled, rtol=1e-12, atol=1e-14, err_msg=f"{op}")
+
+
+def test_declaring_and_solving_imports_no_numba(tmp_path):
+    """A new declaration and the first solve of a small graph over it (empty kernel cache) run
+    on NumPy twins and plain Python: numba is never imported in that process."""
+    code = textwrap.dedent("""
+        import sys
+        import numpy as np
+        import fgopt
+        from fgopt import key
+        from fgopt.symbolic import V2, atan2, cos, sin
+
+        @fgopt.manifold
+        class TwinCircle:
+            storage_dim = 2
+            dim = 1
+            def identity():
+                return V2(1, 0)
+            def retract(x, d):
+                c, s = cos(d[0]), sin(d[0])
+                return V2(x[0] * c - x[1] * s, x[0] * s + x[1] * c)
+            def local(x, y):
+                return fgopt.symbolic.V1(atan2(x[0] * y[1] - x[1] * y[0],
+                                               x[0] * y[0] + x[1] * y[1]))
+
+        @fgopt.factor
+        def twin_circle_between(a: TwinCircle, b: TwinCircle, angle: fgopt.symbolic.V1) \\
+                -> fgopt.symbolic.V1:
+            return a.local(b) - angle
+
+        graph, initial = fgopt.FactorGraph(), fgopt.Variables()
+        noise = fgopt.noise.Isotropic.sigma(1, 0.1)
+        for i in range(5):
+            graph.add(twin_circle_between(key("c", i), key("c", i + 1), np.array([0.2]),
+                                          loss=noise))
+        graph.add(fgopt.PriorFactor(key("c", 0), TwinCircle.Value([1.0, 0.0]), noise))
+        for i in range(6):
+            initial.add(key("c", i), TwinCircle.Value([np.cos(0.25 * i), np.sin(0.25 * i)]))
+        r = fgopt.optimize(graph, initial)
+        assert r.success and r.final_cost < 1e-16, r
+        assert "numba" not in sys.modules, "numba imported"
+        print("ok")
+    """)
+    env = dict(os.environ, PYTHONPATH=str(REPO), FGOPT_CACHE_DIR=str(tmp_path),
+               FGOPT_BACKGROUND_WARMUP="0")
+    out = subprocess.run([sys.executable, "-c", code], check=False, cwd=tmp_path, env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0 and "ok" in out.stdout, out.stderr[-3000:]

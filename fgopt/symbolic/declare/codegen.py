@@ -4,7 +4,13 @@ One module per declaration (cached on disk like factor kernels, :mod:`fgopt.symb
 
 * ``_retract_kernel(_x, _d, _out)``, ``_local_kernel(_a, _b, _out)``,
   ``_storage_D_tangent_kernel(_x, _out)`` and ``_normalize_kernel(_x, _out)`` (when declared):
-  one loop over rows with flat CSE'd code, ``numba.njit(cache=True)``;
+  one loop over rows with flat CSE'd code, compiled with ``numba.njit(cache=True)`` through
+  :func:`fgopt._jit.njit` (numba is imported, and the kernel compiled or loaded, on first call);
+* their NumPy twins ``_retract_numpy`` ... (the same program on whole columns), run by the
+  wrappers under the same rule as factor kernels (:func:`fgopt.symbolic.runtime.use_numpy`:
+  small batches while the process's twin budget lasts), so declaring a manifold and solving its
+  first small graph imports no numba and compiles nothing; a kernel whose program has no NumPy
+  form (:func:`~fgopt.symbolic.printer.to_numpy_source`) keeps its numba kernel only;
 * wrappers ``retract_batch(x, d)``, ``local_batch(a, b)``, ``storage_D_tangent_batch(x)``,
   ``normalize_batch(x)`` over ``(n, storage_dim)`` / ``(n, dim)`` arrays (the
   :class:`~fgopt.manifolds.base.BatchKind` entries);
@@ -27,7 +33,7 @@ from ..cse import Program, optimize, total_ops
 from .derive import Programs
 
 #: Bump when the layout of generated manifold modules changes (part of every declaration key).
-DECLARE_CODEGEN_VERSION = "1"
+DECLARE_CODEGEN_VERSION = "2"  # 2: deferred numba (fgopt._jit), NumPy twins
 
 
 def _program(exprs: list) -> Program:
@@ -49,7 +55,7 @@ def _kernel(name: str, prog: Program, inputs: Sequence[tuple[str, list]], out: s
 
     used = _used(prog)
     params = ", ".join([arr for arr, _ in inputs] + [out])
-    lines = ['@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)',
+    lines = ['@njit(cache=True, fastmath=False, error_model="numpy", nogil=True)',
              f"def {name}({params}):", f'    """{doc}"""',
              f"    # total ops: {total_ops(prog)}",
              f"    for _i in range({out}.shape[0]):"]
@@ -58,6 +64,30 @@ def _kernel(name: str, prog: Program, inputs: Sequence[tuple[str, list]], out: s
     lines += [f"        {s.name} = {to_source(e)}" for s, e in prog.stmts]
     lines += [f"        {out}[_i, {index(k)}] = {to_source(e)}"
               for k, e in enumerate(prog.outputs["out"])]
+    return "\n".join(lines) + "\n"
+
+
+def _numpy_twin(name: str, prog: Program, inputs: Sequence[tuple[str, list]], out: str,
+                index: Any, kernel: str) -> str | None:
+    """The NumPy twin of :func:`_kernel`'s loop (rows -> whole columns), or ``None`` when an
+    expression has no NumPy form."""
+    from ..printer import to_numpy_source
+
+    used = _used(prog)
+    params = ", ".join([arr for arr, _ in inputs] + [out])
+    lines = [f"def {name}({params}):", f'    """NumPy twin of ``{kernel}`` (small batches)."""']
+    for arr, syms in inputs:
+        lines += [f"    {s.name} = {arr}[:, {k}]" for k, s in enumerate(syms) if s in used]
+    for s, e in prog.stmts:
+        src = to_numpy_source(e)
+        if src is None:
+            return None
+        lines.append(f"    {s.name} = {src}")
+    for k, e in enumerate(prog.outputs["out"]):
+        src = to_numpy_source(e)
+        if src is None:
+            return None
+        lines.append(f"    {out}[:, {index(k)}] = {src}")
     return "\n".join(lines) + "\n"
 
 
@@ -71,14 +101,24 @@ def _python(name: str, prog: Program, params: list, doc: str) -> str:
 
 
 def _wrapper(name: str, kernel: str, args: Sequence[tuple[str, str]], out_shape: str,
-             doc: str) -> str:
+             doc: str, twin: str | None = None) -> str:
     lines = [f"def {name}({', '.join(a for a, _ in args)}):", f'    """{doc}"""']
     first = args[0][0]
     for a, cols in args:
         rows = "None" if a == first else f"{first}.shape[0]"
         lines.append(f"    {a} = as_rows({a}, {cols}, NAME, {a!r}, {rows})")
     lines.append(f"    _out = np.empty(({first}.shape[0], {out_shape}))")
-    lines.append(f"    {kernel}({', '.join(a for a, _ in args)}, _out)")
+    call = f"({', '.join(a for a, _ in args)}, _out)"
+    if twin is None:
+        lines.append(f"    {kernel}{call}")
+    else:
+        lines += [f"    if use_numpy({first}.shape[0]):",
+                  "        t0 = perf_counter()",
+                  "        with np.errstate(all='ignore'):  # as numba's error_model='numpy'",
+                  f"            {twin}{call}",
+                  "        charge_numpy(perf_counter() - t0)",
+                  "    else:",
+                  f"        {kernel}{call}"]
     lines.append("    return _out")
     return "\n".join(lines) + "\n"
 
@@ -140,9 +180,11 @@ def module_source(cls: type, progs: Programs, origin: str) -> tuple[str, str, di
         "# fmt: off",
         f'"""Generated kernels of the declared manifold ``{name}``."""',
         "",
-        "import numba",
+        "from time import perf_counter",
         "",
+        "from fgopt._jit import njit",
         "from fgopt.symbolic.declare.runtime import as_rows",
+        "from fgopt.symbolic.runtime import charge_numpy, use_numpy",
         "",
         f"NAME = {name!r}",
         f"STORAGE_DIM = {n}",
@@ -150,29 +192,32 @@ def module_source(cls: type, progs: Programs, origin: str) -> tuple[str, str, di
         f"META = {meta!r}",
         "",
     ]
-    row = "Rows: _x (n, {n}), _d (n, {dim})".format(n=n, dim=dim)
-    parts = [
-        "\n".join(header),
-        python_part,
-        _kernel("_retract_kernel", retract, [("_x", progs.x), ("_d", progs.d)], "_out",
-                lambda k: k, f"{row} -> _out (n, {n}) = normalize(retract(x, d))."),
-        _kernel("_local_kernel", local, [("_a", progs.a), ("_b", progs.b)], "_out",
-                lambda k: k, f"_a, _b (n, {n}) -> _out (n, {dim}) = local(a, b)."),
-        _kernel("_storage_D_tangent_kernel", sdt, [("_x", progs.x)], "_out",
-                lambda k: f"{k // dim}, {k % dim}", f"_x (n, {n}) -> _out (n, {n}, {dim})."),
-        _wrapper("retract_batch", "_retract_kernel", [("x", "STORAGE_DIM"), ("d", "DIM")],
-                 "STORAGE_DIM", "Batched retract: (n, storage_dim), (n, dim) -> (n, storage_dim)."),
-        _wrapper("local_batch", "_local_kernel", [("a", "STORAGE_DIM"), ("b", "STORAGE_DIM")],
-                 "DIM", "Batched local: (n, storage_dim) x 2 -> (n, dim)."),
-        _wrapper("storage_D_tangent_batch", "_storage_D_tangent_kernel",
-                 [("x", "STORAGE_DIM")], "STORAGE_DIM, DIM",
-                 "Batched storage_D_tangent: (n, storage_dim) -> (n, storage_dim, dim)."),
+    row = f"Rows: _x (n, {n}), _d (n, {dim})"
+    # (op, program, inputs, output index, kernel doc, wrapper args, output shape, wrapper doc)
+    specs = [
+        ("retract", retract, [("_x", progs.x), ("_d", progs.d)], lambda k: k,
+         f"{row} -> _out (n, {n}) = normalize(retract(x, d)).",
+         [("x", "STORAGE_DIM"), ("d", "DIM")], "STORAGE_DIM",
+         "Batched retract: (n, storage_dim), (n, dim) -> (n, storage_dim)."),
+        ("local", local, [("_a", progs.a), ("_b", progs.b)], lambda k: k,
+         f"_a, _b (n, {n}) -> _out (n, {dim}) = local(a, b).",
+         [("a", "STORAGE_DIM"), ("b", "STORAGE_DIM")], "DIM",
+         "Batched local: (n, storage_dim) x 2 -> (n, dim)."),
+        ("storage_D_tangent", sdt, [("_x", progs.x)], lambda k: f"{k // dim}, {k % dim}",
+         f"_x (n, {n}) -> _out (n, {n}, {dim}).", [("x", "STORAGE_DIM")], "STORAGE_DIM, DIM",
+         "Batched storage_D_tangent: (n, storage_dim) -> (n, storage_dim, dim)."),
     ]
     if normalize is not None:
-        parts += [
-            _kernel("_normalize_kernel", normalize, [("_x", progs.x)], "_out", lambda k: k,
-                    f"_x (n, {n}) -> _out (n, {n}) = normalize(x)."),
-            _wrapper("normalize_batch", "_normalize_kernel", [("x", "STORAGE_DIM")],
-                     "STORAGE_DIM", "Batched normalize: (n, storage_dim) -> (n, storage_dim)."),
-        ]
+        specs.append(("normalize", normalize, [("_x", progs.x)], lambda k: k,
+                      f"_x (n, {n}) -> _out (n, {n}) = normalize(x).", [("x", "STORAGE_DIM")],
+                      "STORAGE_DIM", "Batched normalize: (n, storage_dim) -> (n, storage_dim)."))
+    parts = ["\n".join(header), python_part]
+    for op, prog, inputs, index, kdoc, wargs, shape, wdoc in specs:
+        kernel = f"_{op}_kernel"
+        parts.append(_kernel(kernel, prog, inputs, "_out", index, kdoc))
+        twin = _numpy_twin(f"_{op}_numpy", prog, inputs, "_out", index, kernel)
+        if twin is not None:
+            parts.append(twin)
+        parts.append(_wrapper(f"{op}_batch", kernel, wargs, shape, wdoc,
+                              f"_{op}_numpy" if twin is not None else None))
     return "\n\n".join(parts), python_part, meta
