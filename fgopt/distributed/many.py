@@ -32,15 +32,19 @@ def _as_fgopt_error(exc: BaseException, where: str) -> FgoptError:
     return FgoptError(f"{where}: {tb}")
 
 
-#: Environment of the worker processes of the cluster :func:`local_cluster` starts (Dask's
-#: ``distributed.nanny.pre-spawn-environ``). One thread for every thread pool (BLAS, OpenMP,
-#: numba): a worker is one core. And not Dask's default ``MALLOC_TRIM_THRESHOLD_=65536``
-#: (``None`` unsets it): setting it turns glibc's dynamic mmap threshold off, so every array over
-#: 128 KiB is a fresh ``mmap`` whose pages fault in on first touch (16 M3500 / sphere2500 solves
-#: in one process: 139,000 page faults instead of 1,100, and 0.30 s of system time instead of
-#: 0.02 s).
+#: Environment of the worker processes of the cluster :func:`local_cluster` starts, set before
+#: they start (Dask's ``distributed.nanny.pre-spawn-environ``, which a Nanny also writes into this
+#: process's ``os.environ``). One thread for every BLAS / OpenMP pool (Dask's own values): a
+#: worker is one core. And not Dask's default ``MALLOC_TRIM_THRESHOLD_=65536`` (``None`` unsets
+#: it): setting it turns glibc's dynamic mmap threshold off, so every array over 128 KiB is a
+#: fresh ``mmap`` whose pages fault in on first touch (16 M3500 / sphere2500 solves in one
+#: process: 139,000 page faults instead of 1,100, and 0.30 s of system time instead of 0.02 s).
 WORKER_ENVIRON = {"MALLOC_TRIM_THRESHOLD_": None, "OMP_NUM_THREADS": "1",
-                  "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1"}
+                  "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+#: Set inside each worker process as it starts (Nanny ``env=``), never in this one: numba refuses
+#: a changed ``NUMBA_NUM_THREADS`` once its threads run, so it must not leak into the caller.
+WORKER_PROCESS_ENV = {"NUMBA_NUM_THREADS": "1"}
 
 #: Dask settings of that cluster (its scheduler runs in this process): no statistical profiler
 #: on the workers (it samples the solving thread's stack every 10 ms, for a dashboard nobody
@@ -75,7 +79,7 @@ def _without_dask_malloc_trim():
 def local_cluster(workers: int | None = None) -> Any:
     """The :class:`dask.distributed.LocalCluster` :func:`solve_many` starts without ``client=``:
     ``workers`` (default: one per core) single-threaded worker processes, set up for numeric
-    work (:data:`WORKER_ENVIRON`, :data:`CLUSTER_CONFIG`)."""
+    work (:data:`WORKER_ENVIRON`, :data:`WORKER_PROCESS_ENV`, :data:`CLUSTER_CONFIG`)."""
     import dask
     from dask.distributed import Client, LocalCluster
 
@@ -83,7 +87,7 @@ def local_cluster(workers: int | None = None) -> Any:
     settings = {**CLUSTER_CONFIG, "distributed.nanny.pre-spawn-environ": WORKER_ENVIRON}
     with dask.config.set(settings), _without_dask_malloc_trim():
         cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                               dashboard_address=":0")
+                               dashboard_address=":0", env=WORKER_PROCESS_ENV)
     try:
         with Client(cluster) as client:
             client.run(settle_worker)

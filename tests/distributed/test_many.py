@@ -17,6 +17,9 @@ from fgopt.io import read
 
 pytest.importorskip("dask.distributed")
 
+#: This process's NUMBA_NUM_THREADS before any cluster started (a cluster must not change it).
+NUMBA_THREADS_BEFORE = os.environ.get("NUMBA_NUM_THREADS")
+
 
 def _raises_fgopt_error():
     raise FgoptError("this problem cannot be built")
@@ -179,6 +182,8 @@ def test_own_cluster_workers_are_set_up_for_numeric_work(client, monkeypatch):
     from fgopt.distributed import many
 
     assert set(client.run(_worker_setup).values()) == {(None, "1", "1", False, "1s", True)}
+    # numba in this process would refuse a changed NUMBA_NUM_THREADS
+    assert os.environ.get("NUMBA_NUM_THREADS") == NUMBA_THREADS_BEFORE
     monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "65536")  # what a Nanny writes into os.environ
     with many._without_dask_malloc_trim():
         assert "MALLOC_TRIM_THRESHOLD_" not in os.environ
