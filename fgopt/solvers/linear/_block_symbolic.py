@@ -336,6 +336,7 @@ def build_hmap(indptr, indices, new_of_old, var_of_new, sn_of, off, sn, rvp, rvi
     """Position in the panels of every stored entry of H's lower CSC (pattern order), written
     into ``hmap`` (int32 when the panels allow: half the bytes)."""
     n = indptr.shape[0] - 1
+    last_vI, last_vJ, s, lo = -1, -1, 0, 0
     for j in range(n):
         for p in range(indptr[j], indptr[j + 1]):
             I = new_of_old[indices[p]]
@@ -344,14 +345,18 @@ def build_hmap(indptr, indices, new_of_old, var_of_new, sn_of, off, sn, rvp, rvi
                 I, J = J, I
             vJ = var_of_new[J]
             vI = var_of_new[I]
-            s = sn_of[vJ]
+            if vI != last_vI or vJ != last_vJ:
+                # a new block: the entries of one block column come in a run, so the search
+                # runs once per block column instead of once per entry
+                s = sn_of[vJ]
+                lo, hi = rvp[s], rvp[s + 1]
+                while hi - lo > 1:                 # binary search of vI in s's sorted rows
+                    mid = (lo + hi) // 2
+                    if rvi[mid] <= vI:
+                        lo = mid
+                    else:
+                        hi = mid
+                last_vI, last_vJ = vI, vJ
             c = J - off[sn[s]]
-            lo, hi = rvp[s], rvp[s + 1]
-            while hi - lo > 1:                 # binary search of vI in s's sorted rows
-                mid = (lo + hi) // 2
-                if rvi[mid] <= vI:
-                    lo = mid
-                else:
-                    hi = mid
             hmap[p] = pstart[s] + c * rows[s] + rpos[lo] + (I - off[vI])
     return hmap
