@@ -13,6 +13,10 @@ instead of 6; ais2klinik: a worse minimum, 20,354 vs 86.4). So ``initialization=
    "wrong basin" (or wrong noise models);
 3. only then solve again from the chordal relaxation (pose graphs) and keep the lower cost.
 
+A first run that ended at its iteration limit (or by its callback) is not at an optimum and is
+returned as it is: the test does not apply, and a caller who capped the iterations asked for
+that many (exactly 5 with the stopping tests off, in benchmarks), not for a second run.
+
 Measured on 24 public 2D/3D pose graphs (``benchmarks/initialization.py``): the test fires on
 exactly the files where the chordal start reaches a lower minimum (torus3D, MIT, M3500a/b/c,
 sphere_bignoise), and on none of the others, where the given guess was as good or better
@@ -100,6 +104,14 @@ def optimize_auto(graph: Any, initial: Any, params: Any,
     t0 = time.perf_counter()
     first = run(initial, params)
     first.info["initialization"] = "given"
+    if first.status in (Status.MAX_ITERATIONS, Status.STOPPED):
+        # The test judges an optimum; a run cut short is not one, and its caller asked for at
+        # most that many iterations (e.g. exactly 5 with the stopping tests off), not for a
+        # relaxation plus a second run.
+        first.info["initialization_reason"] = (
+            f"given values: the run ended by {first.status.value} before converging, and the "
+            "chi-square test applies to optima only: no second start")
+        return first
     why = implausible(first)
     if why is None:
         first.info["initialization_reason"] = (

@@ -137,3 +137,32 @@ def test_manhattan_is_not_m3500(data_file):
     c = fgopt.optimize(graph, values, initialization="chordal")
     assert r.final_cost == pytest.approx(1774.52, rel=1e-5)
     assert c.final_cost == pytest.approx(r.final_cost, rel=1e-6)
+
+
+def test_auto_keeps_a_run_cut_short_by_its_iteration_limit():
+    """initialization="auto" judges optima only: a first run that stopped at max_iterations is
+    returned as it is (no chordal relaxation, no second run), with the reason stated."""
+    from fgopt import key
+    from fgopt.manifolds import SE2
+
+    graph, initial = fgopt.FactorGraph(), fgopt.Variables()
+    noise = fgopt.noise.Isotropic.sigma(3, 0.01)
+    graph.add(fgopt.PriorFactor(key("x", 0), SE2(), noise))
+    rng = np.random.default_rng(4)
+    n = 40
+    for i in range(n):  # a ring: a loop closure makes the odometry guess implausible
+        j = (i + 1) % n
+        graph.add(fgopt.BetweenFactor(key("x", i), key("x", j),
+                                      SE2.from_xytheta(1.0, 0.0, 2 * np.pi / n), noise))
+    pose = SE2()
+    for i in range(n):
+        initial.add(key("x", i), pose)
+        pose = pose * SE2.from_xytheta(1.0, 0.0, 2 * np.pi / n + rng.normal(0, 0.2))
+    capped = fgopt.optimize(graph, initial, max_iterations=2)
+    assert capped.status is fgopt.Status.MAX_ITERATIONS
+    assert capped.info["initialization"] == "given"
+    assert "no second start" in capped.info["initialization_reason"]
+    assert "iterations_all_starts" not in capped.info
+    full = fgopt.optimize(graph, initial)  # converges: the test applies (and may restart)
+    assert full.status is fgopt.Status.CONVERGED
+    assert "no second start" not in full.info["initialization_reason"]
