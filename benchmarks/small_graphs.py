@@ -23,6 +23,10 @@ import os
 
 for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
     os.environ[_v] = "1"
+# Warm-process figures: numba kernels and assembly from the first timed solve (a process reaches
+# this after 0.5 s of NumPy-twin work, see fgopt/_jit.py); without it the first small graphs of
+# the run would be timed on the twins while the budget lasts.
+os.environ.setdefault("FGOPT_NUMPY_BUDGET", "0")
 
 import argparse  # noqa: E402
 import datetime as dt  # noqa: E402
