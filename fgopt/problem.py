@@ -29,7 +29,7 @@ from . import _assembly as asm
 from . import _jit
 from . import _assembly_np as asm_np
 from .batch import FactorBatch, batch_from_factors
-from .errors import (DimensionMismatchError, EmptyProblemError, FgoptError, KeyNotFoundError,
+from .errors import (EmptyProblemError, FgoptError, KeyNotFoundError,
                      ManifoldError, NonFiniteError)
 from .factors.base import Factor
 from .noise.models import base_noise, loss_code_and_param
