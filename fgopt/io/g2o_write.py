@@ -69,16 +69,19 @@ def write_g2o(path: str | os.PathLike, graph: Any, values: Any) -> None:
     owner: dict[int, int] = {}
     vertex_lines: list[str] = []
     kinds = {}
-    for k in values.keys():
-        v = values.at(k)
-        kind = ops_for(v).batch_kind(v)
-        for d in (2, 3):
-            if kind is pose_kind(d) or kind is vector_kind(d):
-                dims.add(d)
-                break
-        else:
+    writable = {pose_kind(2): 2, vector_kind(2): 2, pose_kind(3): 3, vector_kind(3): 3}
+    kind_of_type: dict = {}  # (type, shape) -> kind: traits looked up once per type, not per key
+    for k, v in values.items():
+        t = type(v)
+        tkey = (t, v.shape) if t is np.ndarray else t
+        kind = kind_of_type.get(tkey)
+        if kind is None:
+            kind = kind_of_type[tkey] = ops_for(v).batch_kind(v)
+        d = writable.get(kind)
+        if d is None:
             raise FgoptError(f"write_g2o: {key_str(k)} is a {type(v).__name__}; g2o stores SE2 / "
                              "SE3 poses and 2- / 3-vector points only")
+        dims.add(d)
         vid = key_index(k)
         if vid in owner:
             raise FgoptError(f"write_g2o: {key_str(k)} and {key_str(owner[vid])} would both get "
