@@ -183,63 +183,19 @@ def section_custom(results: dict, args) -> None:
 
 
 # ----------------------------------------------------------------------------------- report
-def _f(x: float) -> str:
-    return f"{x:.2f}"
-
-
 def render(results: dict, meta: dict) -> str:
+    """The run's markdown: the README's two start-up tables (the one renderer of
+    :mod:`benchmarks.render_misc`, so the results file and the README read alike)."""
+    from .render_misc import startup, startup_overheads
+
+    doc = {"results": {"meta": meta, "results": results}}
     lines = [f"# Start-up benchmark ({meta['date']})", "",
              f"`{meta['command']}`; {meta['machine']}; load average at start {meta['load']}.",
-             "Seconds, wall clock of new processes, median of the samples; ratio = GTSAM / fgopt "
-             "(> 1: fgopt faster).", "",
-             "| target | fgopt | GTSAM | ratio | met |", "|---|---|---|---|---|"]
-
-    def row(label, fg, gt, target_ok):
-        ratio = gt / fg if fg > 0 else float("nan")
-        lines.append(f"| {label} | {_f(fg)} | {_f(gt)} | x{ratio:.2f} | "
-                     f"{'yes' if target_ok else 'no'} |")
-
+             "Seconds, wall clock of new processes, median of the samples.", "", startup(doc)]
+    if any(k.startswith("overheads ") for k in results):
+        lines += ["", "Per-process overheads (inside one process):", "", startup_overheads(doc)]
     if "import" in results:
-        r = results["import"]
-        row("`import fgopt` <= `import gtsam`", r["fgopt"]["median"], r["gtsam"]["median"],
-            r["fgopt"]["median"] <= r["gtsam"]["median"])
-    for dim in ("2d", "3d"):
-        r = results.get(f"tiny {dim}")
-        if r:
-            row(f"tiny {dim.upper()} script, warm caches", r["fgopt"]["median"],
-                r["gtsam"]["median"], r["fgopt"]["median"] <= r["gtsam"]["median"])
-    for name in FILES:
-        r = results.get(f"solve {name}")
-        if r and "fgopt" in r:
-            row(f"`fgopt solve` {name} --out, warm caches", r["fgopt"]["median"],
-                r["gtsam"]["median"], r["fgopt"]["median"] <= r["gtsam"]["median"])
-    for name in ("M3500", "sphere2500", "demo"):
-        r = results.get(f"empty caches {name}")
-        if r:
-            row(f"empty caches: first {'`fgopt solve` ' + name if name != 'demo' else 'demo'}"
-                " < 5 s", r["fgopt"]["median"], r["gtsam"]["median"], r["fgopt"]["median"] < 5.0)
-    for kind in ("range_bearing", "pose3_between"):
-        r = results.get(f"custom {kind}")
-        if r:
-            row(f"custom factor {kind}: definition to result, cold < 3 s", r["cold"]["median"],
-                r["gtsam"]["median"], r["cold"]["median"] < 3.0)
-            row(f"custom factor {kind}: warm < 0.5 s", r["warm"]["median"],
-                r["gtsam"]["median"], r["warm"]["median"] < 0.5)
-            row(f"custom factor {kind}: edited, re-run < 3 s (the cold target)",
-                r["edited"]["median"], r["gtsam"]["median"], r["edited"]["median"] < 3.0)
-    over = [k for k in results if k.startswith("overheads")]
-    if over:
-        lines += ["", "Per-process overheads (inside one process; seconds):", "",
-                  "| problem | library | import | first read | second read | first optimize | "
-                  "second optimize |", "|---|---|---|---|---|---|---|"]
-        for k in over:
-            for lib, v in results[k].items():
-                imp = v.get("import fgopt (+ io)", v.get("import gtsam", float("nan")))
-                lines.append(f"| {k.split(' ', 1)[1]} | {lib} | {_f(imp)} | {_f(v['first read'])} | "
-                             f"{_f(v['second read'])} | {_f(v['first optimize'])} | "
-                             f"{_f(v['second optimize'])} |")
-    if "import" in results:
-        lines += ["", f"`python -c pass`: {_f(results['import']['python']['median'])} s; modules "
+        lines += ["", f"`python -c pass`: {results['import']['python']['median']:.2f} s; modules "
                   f"loaded by `import fgopt`: {results['import']['fgopt modules loaded']['stdout'].strip()}"]
     return "\n".join(lines) + "\n"
 
