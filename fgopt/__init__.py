@@ -24,6 +24,12 @@ from . import _cache_root
 
 _cache_root.route_numba_cache()
 
+# scipy's numpy namespace (imported by scipy.sparse) touches numpy.f2py / testing / ma, ~60 ms
+# of every sparse solve's start: they stay unloaded until something uses them (an import hook).
+from . import _lazy_numpy
+
+_lazy_numpy.install()
+
 # ``fgopt.key`` is both a submodule and the function: import it eagerly (it is tiny) so the
 # function, not the module the import system binds, is what ``fgopt.key`` names.
 from .errors import FgoptError as FgoptError

@@ -74,3 +74,32 @@ def test_parallel_kernel_uses_numba_prange():
 
     assert _parallel_double.py_func.__globals__["prange"] is numba.prange
 
+
+
+def _run(code: str) -> str:
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          cwd=REPO, check=True).stdout.strip()
+
+
+def test_scipy_sparse_leaves_numpys_test_and_fortran_tooling_unloaded():
+    """After ``import fgopt``, importing scipy.sparse (whose array-API shim clones numpy's
+    namespace) does not load numpy.f2py / numpy.testing / numpy.ma (~60 ms); numpy's own
+    attributes are numpy's again afterwards, and the clone's stand-ins forward to the real
+    submodules."""
+    out = _run(
+        "import sys, fgopt, numpy, scipy.sparse\n"
+        "print(sorted(m for m in ('numpy.f2py', 'numpy.testing', 'numpy.ma') if m in sys.modules))\n"
+        "print(sorted(n for n in ('f2py', 'testing', 'ma') if n in vars(numpy)))\n"
+        "from scipy._lib.array_api_compat import numpy as xp\n"
+        "xp.testing.assert_allclose(1.0, 1.0)\n"
+        "print(xp.ma.masked_array([1, 2], [0, 1]).sum(), numpy.testing is sys.modules['numpy.testing'])\n"
+        "print(numpy.ma.MaskedArray is xp.ma.MaskedArray, callable(numpy.f2py.run_main))\n")
+    assert out.splitlines() == ["[]", "[]", "1 True", "True True"]
+
+
+def test_numpy_submodules_imported_before_scipy_stay_as_they_are():
+    """A submodule already imported is left alone (nothing to save) and scipy.sparse works."""
+    out = _run("import numpy.testing, fgopt, numpy, scipy.sparse, sys\n"
+               "print(numpy.testing is sys.modules['numpy.testing'], "
+               "scipy.sparse.eye(3).tocsc().nnz)")
+    assert out == "True 3"
