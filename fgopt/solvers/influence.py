@@ -47,15 +47,7 @@ def _sparse_leverages(F):
 def _solve_leverages(problem: Problem):
     """``h = B^T H^-1 B`` blocks by a multi-right-hand-side solve with fgopt's own solver (no
     CHOLMOD): the same leverages as ``Z^T Z``, with dense right-hand sides."""
-    pattern = problem.pattern
-    solver = make_linear_solver("auto", pattern=pattern)
-    solver.analyze(pattern)
-    H_data = problem.H_data.copy()
-    try:
-        solver.factorize(H_data)
-    except NotPositiveDefiniteError:  # no prior: a tiny ridge fixes the gauge
-        H_data[pattern.diag_pos] += 1e-9 * max(1.0, float(np.abs(H_data[pattern.diag_pos]).max()))
-        solver.factorize(H_data)
+    solver = _factorized(problem, make_linear_solver("auto", pattern=problem.pattern))
 
     def leverages(B, c, m):
         X = np.asarray(solver.solve(np.asarray(B.todense()))).reshape(B.shape)
@@ -174,16 +166,21 @@ def _covariance_fn(problem: Problem, state: State):
     from .linear.block_cholesky import BlockCholeskySolver
 
     problem.linearize(state)
+    return _factorized(problem, BlockCholeskySolver()).covariance_blocks
+
+
+def _factorized(problem: Problem, solver: Any) -> Any:
+    """``solver`` analyzed and factorized on the problem's current H; a tiny ridge fixes a free
+    gauge (no prior)."""
     pattern = problem.pattern
-    solver = BlockCholeskySolver()
     solver.analyze(pattern)
     H_data = problem.H_data.copy()
     try:
         solver.factorize(H_data)
-    except NotPositiveDefiniteError:  # no prior: a tiny ridge fixes the gauge
+    except NotPositiveDefiniteError:
         H_data[pattern.diag_pos] += 1e-9 * max(1.0, float(np.abs(H_data[pattern.diag_pos]).max()))
         solver.factorize(H_data)
-    return solver.covariance_blocks
+    return solver
 
 
 def _leverage_fn(problem: Problem, state: State):
