@@ -10,8 +10,10 @@ deleted residual, Baarda's data snooping)::
 A factor whose measurement the rest of the graph contradicts but which bent the estimate to fit
 itself (an outlier accepted in a weakly constrained region) has a small ``r_e`` and a leverage
 near the identity, so a large ``r_loo``: that is how GNC's result is checked (see
-:mod:`fgopt.solvers.gnc`). The cost is one multi-right-hand-side solve with ``dim(r_e)`` columns
-per factor examined.
+:mod:`fgopt.solvers.gnc`). For factors in the problem the leverages come from the selected
+inverse of one factorization (every factor's variables are coupled in H, so their block of
+``H^-1`` is on L's pattern); for factors left out (:func:`prediction_sq_norms`), whose variables
+need not be coupled, from multi-right-hand-side solves with ``dim(r_e)`` columns per factor.
 """
 
 from __future__ import annotations
