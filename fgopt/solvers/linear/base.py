@@ -88,6 +88,7 @@ def make_linear_solver(name: "str | LinearSolver", pattern: HessianPattern | Non
     if name == "dense":
         from .dense import DenseCholeskySolver
 
+        options.setdefault("numba", backend != "numpy")
         return DenseCholeskySolver(**options)
     raise FgoptError(
         f"unknown linear solver {name!r}: choose 'auto', 'block', 'cholmod', 'schur', "
