@@ -97,9 +97,14 @@ def batch_from_factors(kernel: FactorKernel, factors: list[KernelFactor],
                            count=n * k).reshape(n, k)
     consts = (np.array([f.constants for f in factors], dtype=float).reshape(n, kernel.num_constants))
     code, param, shape = loss_code_and_param(factors[0].loss)
-    return FactorBatch(kernel, keys, consts, _stacked_sqrt_information([base_noise(f.loss)
-                                                                        for f in factors]),
-                       code, param, shape)
+    R = _stacked_sqrt_information([base_noise(f.loss) for f in factors])
+    # The factors and their noise models checked their values when they were made (finite
+    # constants of the kernel's size, finite square R): the batch is assembled as it is,
+    # without FactorBatch's checks of arrays from outside.
+    b = object.__new__(FactorBatch)
+    b.kernel, b.keys, b.constants, b.sqrt_information = kernel, keys, consts, R
+    b.loss_code, b.loss_param, b.loss_shape, b.origin = code, param, shape, None
+    return b
 
 
 def _stacked_sqrt_information(noises: list[NoiseModel]) -> np.ndarray | None:
@@ -109,8 +114,7 @@ def _stacked_sqrt_information(noises: list[NoiseModel]) -> np.ndarray | None:
     if all(m is first for m in noises):
         if first.is_unit:
             return None
-        R = first.sqrt_information
-        return np.broadcast_to(R, (len(noises),) + R.shape)
+        return np.repeat(first.sqrt_information[None], len(noises), axis=0)
     if all(m.is_unit for m in noises):
         return None
     return np.array([m.sqrt_information for m in noises], dtype=float)

@@ -33,7 +33,7 @@ from .batch import FactorBatch, batch_from_factors
 from .errors import (EmptyProblemError, FgoptError, KeyNotFoundError,
                      ManifoldError, NonFiniteError)
 from .factors.base import Factor
-from .noise.models import base_noise, loss_code_and_param
+from .noise.models import RobustLoss, base_noise, loss_code_and_param
 from .key import Key, key_str
 from .manifolds.base import SCALAR_KIND, BatchKind, is_vector_kind, ops_for
 from .structure import (DENSE_MAX_SIZE, HessianPattern, ba_shaped_kind, build_pattern,
@@ -392,24 +392,43 @@ class Problem:
     # ----------------------------------------------------------------- compile: factors
     def _collect_factors(self, graph: Any) -> None:
         factors = graph.factors
-        groups: dict[tuple, list[int]] = {}
+        # batches: factors grouped by kernel (in order of first appearance; ids numbered in
+        # C-level passes), then by robust loss (:meth:`_by_loss`)
+        kernel_ids = list(map(id, [f.kernel for f in factors]))
+        number = {k: j for j, k in enumerate(dict.fromkeys(kernel_ids))}
+        gid = np.fromiter(map(number.__getitem__, kernel_ids), dtype=np.int64,
+                          count=len(kernel_ids))
+        by_group = np.argsort(gid, kind="stable")
+        ends = np.cumsum(np.bincount(gid, minlength=len(number)))
         self._slow: list[_SlowFactor] = []
-        for i, f in enumerate(factors):
-            if f.kernel is not None:
-                groups.setdefault((id(f.kernel),) + loss_code_and_param(f.loss), []).append(i)
-            else:
-                self._slow.append(self._make_slow(f))
         self.batches = []
-        for rows in groups.values():
-            fs = [factors[i] for i in rows]
-            k = len(fs[0].kernel.arg_kinds)
-            # the factors' variables, from the keys collected with the variables
-            at = self._key_start[np.array(rows, dtype=np.int64)]
-            var_idx = self._key_var[at[:, None] + np.arange(k)]
-            source = batch_from_factors(fs[0].kernel, fs, self.var_keys[var_idx])
-            # a Factor rejects a repeated key when it is made: no check per batch here
-            self.batches.append(self._make_batch(source, var_idx))
+        for kernel_id, rows in zip(number, np.split(by_group, ends[:-1])):
+            if kernel_id == id(None):  # Python factors: the slow path, one by one
+                self._slow += [self._make_slow(factors[i]) for i in rows.tolist()]
+                continue
+            for rows, fs in self._by_loss(rows, [factors[i] for i in rows.tolist()]):
+                self._add_factor_batch(rows, fs)
         self.batches += [self._make_batch(b, check_repeats=True) for b in graph.batches]
+
+    @staticmethod
+    def _by_loss(rows: np.ndarray, fs: list) -> list[tuple[np.ndarray, list]]:
+        """Factors of one kernel split by robust loss (code and parameters): one batch each."""
+        losses = [f.loss for f in fs]
+        if not any(issubclass(t, RobustLoss) for t in set(map(type, losses))):
+            return [(rows, fs)]
+        parts: dict[tuple, list[int]] = {}
+        for j, code in enumerate(map(loss_code_and_param, losses)):
+            parts.setdefault(code, []).append(j)
+        return [(rows[js], [fs[j] for j in js]) for js in parts.values()]
+
+    def _add_factor_batch(self, rows: np.ndarray, fs: list) -> None:
+        """A batch of the individually added factors ``fs`` (positions ``rows`` in the graph)."""
+        k = len(fs[0].kernel.arg_kinds)
+        # the factors' variables, from the keys collected with the variables
+        var_idx = self._key_var[self._key_start[rows][:, None] + np.arange(k)]
+        source = batch_from_factors(fs[0].kernel, fs, self.var_keys[var_idx])
+        # a Factor rejects a repeated key when it is made: no check per batch here
+        self.batches.append(self._make_batch(source, var_idx))
 
     def _make_batch(self, b: FactorBatch, var_idx: np.ndarray | None = None,
                     check_repeats: bool = False) -> _Batch:
