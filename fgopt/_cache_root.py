@@ -234,48 +234,17 @@ def _install_locator(caching: Any) -> None:
     impl._locator_classes.insert(0, FgoptCacheLocator)
 
 
-class _AfterNumbaCaching:
-    """Import hook: installs the locator as soon as ``numba.core.caching`` has executed."""
-
-    def find_spec(self, fullname: str, path: Any, target: Any = None) -> Any:
-        if fullname != "numba.core.caching":
-            return None
-        for finder in sys.meta_path:
-            if finder is self or not hasattr(finder, "find_spec"):
-                continue
-            spec = finder.find_spec(fullname, path, target)
-            if spec is not None and spec.loader is not None:
-                spec.loader = _Loader(spec.loader)
-                return spec
-        return None
-
-
-class _Loader:
-    """Runs numba's loader, then installs the locator (attributes pass through)."""
-
-    def __init__(self, inner: Any):
-        self._inner = inner
-
-    def create_module(self, spec: Any) -> Any:
-        return self._inner.create_module(spec)
-
-    def exec_module(self, module: Any) -> None:
-        self._inner.exec_module(module)
-        _install_locator(module)
-        _remove_hook()
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._inner, name)
-
-
-def _remove_hook() -> None:
-    sys.meta_path[:] = [f for f in sys.meta_path if not isinstance(f, _AfterNumbaCaching)]
-
-
 def route_numba_cache() -> None:
     """numba's cache of fgopt's functions goes under the root (see the module docstring)."""
     caching = sys.modules.get("numba.core.caching")
     if caching is not None:
         _install_locator(caching)
-    elif not any(isinstance(f, _AfterNumbaCaching) for f in sys.meta_path):
-        sys.meta_path.insert(0, _AfterNumbaCaching())
+    else:  # as soon as numba.core.caching has executed
+        from ._import_hook import on_import
+
+        on_import("numba.core.caching", _then_install_locator)
+
+
+def _then_install_locator(run, module: Any) -> None:
+    run()
+    _install_locator(module)

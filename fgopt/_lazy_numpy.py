@@ -11,8 +11,8 @@ every process that solves a sparse problem, e.g. ``fgopt solve``.
 While (and only while) that one module executes, the three names on numpy are bound to stand-ins
 that import the real submodule on first attribute access; afterwards numpy's own attributes are
 restored, so numpy itself is unchanged and only the clone holds stand-ins (it forwards every
-attribute to the real module).  Installed by ``import fgopt``; an import hook, like
-:mod:`fgopt._cache_root`'s, that removes itself after its one use.
+attribute to the real module).  Installed by ``import fgopt``: a one-shot import hook
+(:mod:`fgopt._import_hook`).
 """
 
 from __future__ import annotations
@@ -21,6 +21,8 @@ import importlib
 import sys
 import types
 from typing import Any
+
+from ._import_hook import on_import
 
 #: The module whose execution clones numpy's namespace.
 CLONING_MODULE = "scipy._lib.array_api_compat.numpy"
@@ -63,50 +65,15 @@ def _unbind(bound: dict[str, DeferredModule]) -> None:
             delattr(numpy, short)
 
 
-class _BeforeCloning:
-    """Import hook: wraps the loader of :data:`CLONING_MODULE` (once)."""
-
-    def find_spec(self, fullname: str, path: Any, target: Any = None) -> Any:
-        if fullname != CLONING_MODULE:
-            return None
-        _remove_hook()
-        for finder in sys.meta_path:
-            if not hasattr(finder, "find_spec"):
-                continue
-            spec = finder.find_spec(fullname, path, target)
-            if spec is not None and spec.loader is not None:
-                spec.loader = _Loader(spec.loader)
-                return spec
-        return None
-
-
-class _Loader:
-    """Runs scipy's loader with the stand-ins bound (other attributes pass through)."""
-
-    def __init__(self, inner: Any):
-        self._inner = inner
-
-    def create_module(self, spec: Any) -> Any:
-        return self._inner.create_module(spec)
-
-    def exec_module(self, module: Any) -> None:
-        bound = _bind_stand_ins()
-        try:
-            self._inner.exec_module(module)
-        finally:
-            _unbind(bound)
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._inner, name)
-
-
-def _remove_hook() -> None:
-    sys.meta_path[:] = [f for f in sys.meta_path if not isinstance(f, _BeforeCloning)]
+def _with_stand_ins(run, module: Any) -> None:
+    bound = _bind_stand_ins()
+    try:
+        run()
+    finally:
+        _unbind(bound)
 
 
 def install() -> None:
     """Defer the three submodules when scipy's numpy clone is first imported (idempotent)."""
-    if CLONING_MODULE in sys.modules:
-        return
-    if not any(isinstance(f, _BeforeCloning) for f in sys.meta_path):
-        sys.meta_path.insert(0, _BeforeCloning())
+    if CLONING_MODULE not in sys.modules:
+        on_import(CLONING_MODULE, _with_stand_ins)

@@ -762,8 +762,16 @@ class Problem:
 
     def values(self, state: State) -> Variables:
         """The state as a new ``Variables`` (keys the graph does not use are copied unchanged)."""
-        out = self._extra.copy()
-        values = out._values  # holds every key already: assignments keep its Key objects
+        extra = self._extra
+        out = Variables()
+        # every key of the initial values in their order, without building the initial values'
+        # bulk rows as objects (a file's poses: ~1 us each) only to overwrite them below
+        values = out._dict = dict(extra._dict)  # assignments keep its Key objects
+        for blk in extra._pending:
+            values.update(dict.fromkeys(map(Key, blk.keys.tolist())))
+        for k in self.unused_keys:  # not optimized: returned unchanged
+            if values[k] is None:
+                values[k] = extra.at(k)
         for kid, kind in enumerate(self.kinds):
             vars_ = self._kind_vars[kid]
             keys = self.var_keys[vars_].tolist()

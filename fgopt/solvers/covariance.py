@@ -18,6 +18,12 @@ from ..key import Key, as_key, key_str
 from .linear.base import make_linear_solver
 
 
+#: Up to this many tangent columns, marginals come from solves with the identity's columns;
+#: above, from the selected inverse of fgopt's block Cholesky (sphere2500, all 2,500 poses:
+#: 17.7 s and a 15,000^2 dense right-hand side with CHOLMOD solves, 0.1 s this way).
+SOLVE_MAX_COLUMNS = 256
+
+
 def marginals(result: Any, keys: Iterable[int] | None = None, graph: Any = None,
               values: Any = None, linear_solver: str | None = None) -> dict[Key, np.ndarray]:
     """``{key: covariance}`` in each key's tangent space.
@@ -26,8 +32,11 @@ def marginals(result: Any, keys: Iterable[int] | None = None, graph: Any = None,
         result: a :class:`~fgopt.Result` (its compiled problem and final state are reused), or
             ``None`` together with ``graph`` and ``values``.
         keys: the variables to report (default: all).
-        linear_solver: backend for the factorization of H (default: CHOLMOD when the
-            ``fgopt[cholmod]`` extra is installed, else fgopt's block Cholesky; or ``"dense"``...).
+        linear_solver: backend for the factorization of H (default: fgopt's block Cholesky,
+            whose selected inverse holds every marginal, when the keys have more than
+            ``SOLVE_MAX_COLUMNS`` tangent dimensions in all or CHOLMOD is not installed, else
+            CHOLMOD; or ``"dense"``...). With ``"block"`` the marginals always come from the
+            selected inverse; with the others, from solves with the identity's columns.
     """
     if result is not None:
         problem, state = result.problem, result.state
@@ -43,8 +52,14 @@ def marginals(result: Any, keys: Iterable[int] | None = None, graph: Any = None,
         state = problem.initial_state()
     problem.set_weights(None)
     problem.linearize(state)
+    key_list = [as_key(k) for k in keys] if keys is not None else [
+        Key(int(k)) for k in problem.var_keys]
     if linear_solver is None:
-        linear_solver = "cholmod" if have_extra("sksparse") else "block"
+        # many keys: every marginal from the selected inverse of one block factorization;
+        # a few: a few solves (CHOLMOD when installed)
+        many = sum(int(problem.var_dim[problem._var_of_key[k]]) for k in key_list
+                   if k in problem._var_of_key) > SOLVE_MAX_COLUMNS
+        linear_solver = "block" if many or not have_extra("sksparse") else "cholmod"
     solver = make_linear_solver(linear_solver, pattern=problem.pattern)
     solver.analyze(problem.pattern)
     try:
@@ -53,8 +68,6 @@ def marginals(result: Any, keys: Iterable[int] | None = None, graph: Any = None,
         raise NotPositiveDefiniteError(
             "marginals: the information matrix H is singular at the solution; fix the gauge "
             "with a prior (e.g. PriorFactor on the first pose)") from None
-    key_list = [as_key(k) for k in keys] if keys is not None else [
-        Key(int(k)) for k in problem.var_keys]
     off, dim = problem.pattern.var_offset, problem.var_dim
     cols, spans = [], []
     for k in key_list:
@@ -64,6 +77,16 @@ def marginals(result: Any, keys: Iterable[int] | None = None, graph: Any = None,
         spans.append((len(cols), int(dim[v])))
         cols.extend(range(int(off[v]), int(off[v] + dim[v])))
     out: dict[Key, np.ndarray] = {}
+    if hasattr(solver, "covariance_blocks"):  # the diagonal blocks of the selected inverse
+        var = np.array([problem._var_of_key[k] for k in key_list], dtype=np.int64)
+        blocks: list = [None] * len(key_list)
+        for d in np.unique(dim[var]).tolist():
+            at = np.nonzero(dim[var] == d)[0]
+            for i, block in zip(at.tolist(), solver.covariance_blocks(var[at][:, None], [d])):
+                blocks[i] = block
+        for k, block in zip(key_list, blocks):
+            out[k] = 0.5 * (block + block.T)
+        return out
     n = problem.pattern.size
     chunk = 256  # columns per multi-right-hand-side solve
     X_cols = []

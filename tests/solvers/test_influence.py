@@ -1,7 +1,6 @@
 """Leave-one-out residuals from one factorization equal removing the factor and re-solving."""
 
 import numpy as np
-import pytest
 
 import fgopt
 from fgopt import BetweenFactor, PriorFactor, key
@@ -67,10 +66,22 @@ def test_mask_selects_factors_and_others_are_zero():
     graph, values = linear_graph(seed=1)
     problem = Problem(graph, values)
     masks = [np.zeros(len(b.source), dtype=bool) for b in problem.batches]
-    masks[0][:2] = True
+    between = next(i for i, b in enumerate(problem.batches) if len(b.source) > 2)
+    masks[between][:2] = True
     loo = leave_one_out_sq_norms(problem, problem.initial_state(), masks)
-    assert np.all(loo[0][2:] == 0) and np.all(loo[0][:2] > 0)
-    assert all(np.all(x == 0) for x in loo[1:])
+    assert np.all(loo[between][2:] == 0) and np.all(loo[between][:2] > 0)
+    assert all(np.all(x == 0) for i, x in enumerate(loo) if i != between)
+
+
+def test_a_bridge_has_no_leave_one_out_residual():
+    """The only prior (the gauge: without it nothing predicts the pose) is a bridge, h = I:
+    its leave-one-out residual is 0, not a division by ~0."""
+    graph, values = linear_graph(seed=1)
+    problem = Problem(graph, values)
+    masks = [np.ones(len(b.source), dtype=bool) for b in problem.batches]
+    loo = leave_one_out_sq_norms(problem, problem.initial_state(), masks)
+    prior = next(i for i, b in enumerate(problem.batches) if len(b.source) == 1)
+    assert loo[prior][0] < 1e-12 and all(np.all(np.isfinite(x)) for x in loo)
 
 
 def test_prediction_of_a_left_out_factor_matches_dense_algebra():

@@ -9,6 +9,7 @@ import pytest
 
 import fgopt
 from fgopt import SE2, BetweenFactor, FactorGraph, PriorFactor, Variables, key
+from fgopt.manifolds.base import ops_for
 from fgopt.noise import Diagonal
 
 
@@ -46,3 +47,26 @@ def test_no_warning_when_every_key_is_used():
         warnings.simplefilter("error")
         r = fgopt.optimize(g, v)
     assert r.unused_keys == () and "unused" not in repr(r)
+
+
+def test_values_from_bulk_rows_keep_the_initial_order_and_unused_rows():
+    """Initial values added in bulk (``add_rows``, what file readers do) with an unused key in
+    the middle: the result has every key in the initial order, the unused one unchanged, the
+    others optimized, and the caller's Variables still holds its bulk rows untouched."""
+    g, _ = graph_and_values()
+    x1, x2, x3 = key("x", 1), key("x", 2), key("x", 3)
+    v = Variables()
+    v.add(key("l", 0), np.array([1.0, 2.0]))
+    first = SE2.from_xytheta(0.2, -0.3, 0.2)
+    kind = ops_for(first).batch_kind(first)
+    rows = np.array([first.to_storage(), SE2.from_xytheta(9, 9, 0).to_storage(),
+                     SE2.from_xytheta(5.1, 0.3, -0.1).to_storage()])
+    v.add_rows(np.array([x1, x3, x2]), kind, rows)
+    with pytest.warns(fgopt.FgoptWarning):
+        r = fgopt.optimize(g, v)
+    assert r.success
+    assert list(r.values.keys()) == [key("l", 0), x1, x3, x2]
+    assert r.values.at(x3).equals(SE2.from_xytheta(9, 9, 0), 0.0)
+    assert r.values.at(x2).equals(SE2.from_xytheta(5, 0, 0), 1e-6)
+    assert len(v._pending) == 1 and v._pending[0].rows is not None
+    assert np.array_equal(v._pending[0].rows, rows)

@@ -130,6 +130,7 @@ class BlockCholeskySolver:
         self.relax = relax
         self.symbolic: BlockSymbolic | None = None
         self._ok = False
+        self._sigma: np.ndarray | None = None  # selected inverse of the current factor
 
     def analyze(self, pattern: HessianPattern) -> None:
         from . import _block_kernels as k
@@ -167,6 +168,7 @@ class BlockCholeskySolver:
         self._buf = np.zeros(max(1, int(r.max(initial=0))))
         self._iw, self._fw = k.blas_workspace()
         self._ok = False
+        self._sigma = None
 
     @property
     def nnz_factor(self) -> int:
@@ -196,6 +198,46 @@ class BlockCholeskySolver:
                 f"block Cholesky: H is not positive definite (non-positive pivot in the supernode "
                 f"starting at variable {v}); increase the damping")
         self._ok = True
+        self._sigma = None
+
+    def covariance_blocks(self, var_idx: np.ndarray, dims: np.ndarray,
+                          loc: np.ndarray | None = None) -> np.ndarray:
+        """``(c, D, D)``: the block of ``H^-1`` over each row of ``var_idx`` (``(c, k)`` pattern
+        variables of dimensions ``dims``; variable ``p`` at rows / columns ``loc[p]:loc[p] +
+        dims[p]``, by default one after the other, ``D = sum(dims)``), read from the selected
+        inverse (:mod:`._selected_inverse`; computed once per factorization). Every pair of a
+        row must be coupled in H (as a factor's variables are)."""
+        from . import _selected_inverse as si
+
+        if not self._ok:
+            raise NotPositiveDefiniteError("block Cholesky: covariance_blocks() before a "
+                                           "successful factorize()")
+        sy = self.symbolic
+        if self._sigma is None:
+            S = sy.sn.shape[0] - 1
+            self._sn_of = np.repeat(np.arange(S, dtype=np.int64), np.diff(sy.sn))
+            self._ipost = np.empty(sy.n_var, np.int64)
+            self._ipost[sy.post_var] = np.arange(sy.n_var)
+            sigma = np.zeros_like(self.L)
+            bad = si.selected_inverse(self.L, sy.pstart, sy.width, sy.rows, sy.sn, sy.rvp,
+                                      sy.rvi, sy.rpos, sy.dim, sy.off, self._sn_of, sigma)
+            if bad >= 0:
+                raise FgoptError(f"block Cholesky: selected inverse: supernode {bad} misses an "
+                                 "ancestor block (inconsistent symbolic factor)")
+            self._sigma = sigma
+        dims = np.asarray(dims, np.int64)
+        if loc is None:
+            loc = np.concatenate([[0], np.cumsum(dims)[:-1]])
+        loc = np.asarray(loc, np.int64)
+        var_p = np.ascontiguousarray(self._ipost[np.asarray(var_idx, np.int64)])
+        out = np.empty((var_p.shape[0], int(dims.sum()), int(dims.sum())))
+        bad = si.factor_covariances(self._sigma, sy.pstart, sy.rows, sy.sn, self._sn_of,
+                                    sy.off, sy.rvp, sy.rvi, sy.rpos, sy.dim, var_p, loc, out)
+        if bad >= 0:
+            raise FgoptError("block Cholesky: covariance_blocks: variables "
+                             f"{var_idx[bad].tolist()} are not coupled in H (not on the "
+                             "factor's pattern)")
+        return out
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
         from . import _block_kernels as k
