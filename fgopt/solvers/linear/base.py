@@ -88,7 +88,12 @@ def make_linear_solver(name: "str | LinearSolver", pattern: HessianPattern | Non
     if name == "dense":
         from .dense import DenseCholeskySolver
 
-        options.setdefault("numba", backend != "numpy")
+        from ..._jit import is_numba_loaded, numpy_budget_left
+
+        # numba's kernels once numba is in use (or the process's NumPy-twin budget is spent,
+        # as for the factor kernels): a small solve in a fresh script imports no numba
+        options.setdefault("numba", backend != "numpy"
+                           and (is_numba_loaded() or not numpy_budget_left()))
         return DenseCholeskySolver(**options)
     raise FgoptError(
         f"unknown linear solver {name!r}: choose 'auto', 'block', 'cholmod', 'schur', "
