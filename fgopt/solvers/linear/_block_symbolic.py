@@ -12,32 +12,9 @@ import numpy as np
 from ..._jit import njit
 
 
-@njit(cache=True)
-def block_graph(var_off_r, indptr, indices, col2rank):
-    """Lower adjacency of the block graph: for rank ``k`` the ranks ``> k`` coupled to it.
-
-    Every coupled block of H is stored dense, so the first scalar column of a variable lists
-    all its lower row variables.
-    """
-    n = var_off_r.shape[0]
-    ap = np.zeros(n + 1, np.int64)
-    ai = np.empty(indices.shape[0], np.int64)
-    nt = 0
-    for k in range(n):
-        c = var_off_r[k]
-        last = k
-        for p in range(indptr[c], indptr[c + 1]):
-            v = col2rank[indices[p]]
-            if v != last:
-                ai[nt] = v
-                nt += 1
-                last = v
-        ap[k + 1] = nt
-    return ap, ai[:nt].copy()
-
-
 def block_graph_of_codes(codes, V, rank_of_var, order):
-    """:func:`block_graph` from a pattern's sorted block codes (``rank(column var) * V +
+    """Lower adjacency of the block graph (for rank ``k``: the ranks ``> k`` coupled to it, as
+    CSR ``ap, ai``), from a pattern's sorted block codes (``rank(column var) * V +
     rank(row var)`` in the pattern's order): no scalar row indices needed. ``rank_of_var``:
     each pattern variable's position in offset order (the analysis' rank)."""
     col = rank_of_var[order[codes // V]]
@@ -355,8 +332,9 @@ def _grow(a, cap):
 @njit(cache=True)
 def build_hmap_blocks(codes, V, order, p00, col_shift, var_offset, var_dim, new_var, sn_of, off,
                       sn, rvp, rvi, rpos, pstart, rows, hmap):
-    """:func:`build_hmap` block by block from the pattern's block list (``codes``, ``p00``;
-    :class:`fgopt.structure.HessianPattern`): each column of a block is a run of consecutive
+    """Position in the panels of every stored entry of H's lower CSC (pattern order), written
+    into ``hmap`` (int32 when the panels allow: half the bytes), block by block from the
+    pattern's block list (``codes``, ``p00``; :class:`fgopt.structure.HessianPattern`): each column of a block is a run of consecutive
     entries of H and, unless the new order transposes the block, of its panel too.
     ``new_var``: the postorder label of each pattern variable."""
     for b in range(codes.shape[0]):
@@ -388,36 +366,4 @@ def build_hmap_blocks(codes, V, order, p00, col_shift, var_offset, var_dim, new_
                 t = base + cb * m
                 for a in range(a0, var_dim[r]):
                     hmap[h + a] = t + a
-    return hmap
-
-
-@njit(cache=True)
-def build_hmap(indptr, indices, new_of_old, var_of_new, sn_of, off, sn, rvp, rvi, rpos,
-               pstart, rows, hmap):
-    """Position in the panels of every stored entry of H's lower CSC (pattern order), written
-    into ``hmap`` (int32 when the panels allow: half the bytes)."""
-    n = indptr.shape[0] - 1
-    last_vI, last_vJ, s, lo = -1, -1, 0, 0
-    for j in range(n):
-        for p in range(indptr[j], indptr[j + 1]):
-            I = new_of_old[indices[p]]
-            J = new_of_old[j]
-            if I < J:
-                I, J = J, I
-            vJ = var_of_new[J]
-            vI = var_of_new[I]
-            if vI != last_vI or vJ != last_vJ:
-                # a new block: the entries of one block column come in a run, so the search
-                # runs once per block column instead of once per entry
-                s = sn_of[vJ]
-                lo, hi = rvp[s], rvp[s + 1]
-                while hi - lo > 1:                 # binary search of vI in s's sorted rows
-                    mid = (lo + hi) // 2
-                    if rvi[mid] <= vI:
-                        lo = mid
-                    else:
-                        hi = mid
-                last_vI, last_vJ = vI, vJ
-            c = J - off[sn[s]]
-            hmap[p] = pstart[s] + c * rows[s] + rpos[lo] + (I - off[vI])
     return hmap
