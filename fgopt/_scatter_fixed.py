@@ -17,13 +17,18 @@ from __future__ import annotations
 
 from typing import Any, Callable
 
+from ._assembly import WIDE_RESIDUAL
+
 #: Set False to use the generic kernel everywhere (A/B measurements).
 ENABLED = True
 MAX_ARGS = 3
+#: Arguments of a specialized kernel with a wide residual (its local product is one D x D
+#: array; an IMU factor has 5 arguments, a combined one 6).
+MAX_ARGS_WIDE = 6
 MAX_DIM = 16
 #: Batches smaller than this keep the generic kernel (its compile is already paid for).
 MIN_FACTORS = 64
-_VERSION = "2"
+_VERSION = "3"
 _cache: dict[tuple, Callable] = {}
 
 
@@ -42,6 +47,8 @@ def _source(m: int, dims: tuple[int, ...], unit: bool) -> str:
     a("def scatter(res, jac, sqrt_info, loss_code, loss_param, loss_shape, toff, pos, col_shift, "
       "H_data, g, weights, cost):")
     a("    n = res.shape[0]")
+    if m >= WIDE_RESIDUAL:
+        a(f"    Hl = np.empty(({D}, {D}))")
     if not unit:
         a(f"    r = np.empty({m})")
         a(f"    J = np.empty(({m}, {D}))")
@@ -53,16 +60,30 @@ def _source(m: int, dims: tuple[int, ...], unit: bool) -> str:
         a("        R = sqrt_info[i]")
         a("        e = res[i]")
         a("        Jr = jac[i]")
-        a(f"        for t in range({m}):")
-        a("            acc = 0.0")
-        a(f"            for c in range(t, {m}):")
-        a("                acc += R[t, c] * e[c]")
-        a("            r[t] = acc")
-        a(f"            for col in range({D}):")
-        a("                acc = 0.0")
-        a(f"                for c in range(t, {m}):")
-        a("                    acc += R[t, c] * Jr[c, col]")
-        a("                J[t, col] = acc")
+        if m >= WIDE_RESIDUAL:  # row by row, as _assembly._whiten_rows (same sums)
+            a(f"        for t in range({m}):")
+            a("            acc = 0.0")
+            a(f"            for col in range({D}):")
+            a("                J[t, col] = 0.0")
+            a(f"            for c in range(t, {m}):")
+            a("                coef = R[t, c]")
+            a("                if coef == 0.0:")
+            a("                    continue")
+            a("                acc += coef * e[c]")
+            a(f"                for col in range({D}):")
+            a("                    J[t, col] += coef * Jr[c, col]")
+            a("            r[t] = acc")
+        else:
+            a(f"        for t in range({m}):")
+            a("            acc = 0.0")
+            a(f"            for c in range(t, {m}):")
+            a("                acc += R[t, c] * e[c]")
+            a("            r[t] = acc")
+            a(f"            for col in range({D}):")
+            a("                acc = 0.0")
+            a(f"                for c in range(t, {m}):")
+            a("                    acc += R[t, c] * Jr[c, col]")
+            a("                J[t, col] = acc")
     a("        s = 0.0")
     a(f"        for t in range({m}):")
     a("            s += r[t] * r[t]")
@@ -78,6 +99,10 @@ def _source(m: int, dims: tuple[int, ...], unit: bool) -> str:
         a(f"            for t in range({m}):")
         a(f"                acc += J[t, {offs[p]} + x] * r[t]")
         a("            g[gb + x] += w * acc")
+    if m >= WIDE_RESIDUAL:
+        _wide_blocks(a, m, dims, offs, D)
+        a("    return cost")
+        return "\n".join(L) + "\n"
     for p in range(k):
         for q in range(k):
             if p == q:  # diagonal block: lower triangle, column y starts at the diagonal
@@ -105,6 +130,40 @@ def _source(m: int, dims: tuple[int, ...], unit: bool) -> str:
     return "\n".join(L) + "\n"
 
 
+def _wide_blocks(a: Callable, m: int, dims: tuple[int, ...], offs: list[int], D: int) -> None:
+    """The H part for residuals of ``WIDE_RESIDUAL`` rows or more, as the generic kernel's wide
+    path (``_assembly._scatter_wide``): the local ``D x D`` product ``J^T J`` by row outer
+    products (zeros of J skipped; same summation order), then its blocks scattered."""
+    k = len(dims)
+    a("        for x in range(%d):" % D)
+    a("            for y in range(%d):" % D)
+    a("                Hl[x, y] = 0.0")
+    a(f"        for t in range({m}):")
+    a(f"            for x in range({D}):")
+    a("                jx = J[t, x]")
+    a("                if jx == 0.0:")
+    a("                    continue")
+    a(f"                for y in range({D}):")
+    a("                    Hl[x, y] += jx * J[t, y]")
+    for p in range(k):
+        for q in range(k):
+            if p == q:
+                a(f"        pq = pos[i, {p}, {p}]")
+                a(f"        tq = toff[i, {q}]")
+                a(f"        for y in range({dims[q]}):")
+                a("            base = pq + col_shift[tq + y]")
+                a(f"            for x in range(y, {dims[p]}):")
+                a(f"                H_data[base + x] += w * Hl[{offs[p]} + x, {offs[q]} + y]")
+            else:
+                a(f"        pq = pos[i, {p}, {q}]")
+                a("        if pq >= 0:")
+                a(f"            tq = toff[i, {q}]")
+                a(f"            for y in range({dims[q]}):")
+                a("                base = pq + col_shift[tq + y]")
+                a(f"                for x in range({dims[p]}):")
+                a(f"                    H_data[base + x] += w * Hl[{offs[p]} + x, {offs[q]} + y]")
+
+
 def scatter_kernel(m: int, dims: tuple[int, ...], unit: bool, n: int) -> Callable | None:
     """The specialized scatter for this shape, or ``None`` (use the generic kernel).
 
@@ -112,7 +171,8 @@ def scatter_kernel(m: int, dims: tuple[int, ...], unit: bool, n: int) -> Callabl
     H_data, g, weights, cost) -> cost`` plus this slice's cost, the same computation as
     ``scatter_batch`` (scatter map ``(pos, col_shift)``, :func:`fgopt.structure.scatter_positions`).
     """
-    if not ENABLED or n < MIN_FACTORS or not 0 < len(dims) <= MAX_ARGS or max(dims) > MAX_DIM or m > MAX_DIM:
+    max_args = MAX_ARGS_WIDE if m >= WIDE_RESIDUAL else MAX_ARGS
+    if not ENABLED or n < MIN_FACTORS or not 0 < len(dims) <= max_args or max(dims) > MAX_DIM or m > MAX_DIM:
         return None
     shape = (int(m), tuple(int(d) for d in dims), bool(unit))
     fn = _cache.get(shape)

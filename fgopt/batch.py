@@ -85,17 +85,36 @@ class FactorBatch:
                             self.loss_of(i))
 
 
-def batch_from_factors(kernel: FactorKernel, factors: list[KernelFactor]) -> FactorBatch:
-    """Stack kernel factors that share ``kernel`` and a loss kind into one batch."""
+def batch_from_factors(kernel: FactorKernel, factors: list[KernelFactor],
+                       keys: np.ndarray | None = None) -> FactorBatch:
+    """Stack kernel factors that share ``kernel`` and a loss kind into one batch (``keys``:
+    their ``(n, k)`` keys, when the caller has them already)."""
     n = len(factors)
-    k = len(kernel.arg_kinds)
-    # fromiter over the flat keys: ~4x faster than np.array on tuples of Key (an int subclass)
-    keys = np.fromiter((q for f in factors for q in f.keys), dtype=np.int64,
-                       count=n * k).reshape(n, k)
+    if keys is None:
+        k = len(kernel.arg_kinds)
+        # fromiter over the flat keys: ~4x faster than np.array on tuples of Key (an int subclass)
+        keys = np.fromiter((q for f in factors for q in f.keys), dtype=np.int64,
+                           count=n * k).reshape(n, k)
     consts = (np.array([f.constants for f in factors], dtype=float).reshape(n, kernel.num_constants))
     code, param, shape = loss_code_and_param(factors[0].loss)
-    if all(base_noise(f.loss).is_unit for f in factors):
-        R = None
-    else:
-        R = np.array([base_noise(f.loss).sqrt_information for f in factors], dtype=float)
-    return FactorBatch(kernel, keys, consts, R, code, param, shape)
+    R = _stacked_sqrt_information([base_noise(f.loss) for f in factors])
+    # The factors and their noise models checked their values when they were made (finite
+    # constants of the kernel's size, finite square R): the batch is assembled as it is,
+    # without FactorBatch's checks of arrays from outside.
+    b = object.__new__(FactorBatch)
+    b.kernel, b.keys, b.constants, b.sqrt_information = kernel, keys, consts, R
+    b.loss_code, b.loss_param, b.loss_shape, b.origin = code, param, shape, None
+    return b
+
+
+def _stacked_sqrt_information(noises: list[NoiseModel]) -> np.ndarray | None:
+    """``(n, r, r)`` square-root information of ``noises``, or None when all are unit. Factors
+    often share one noise model object: its R is then broadcast, not gathered n times."""
+    first = noises[0]
+    if all(m is first for m in noises):
+        if first.is_unit:
+            return None
+        return np.repeat(first.sqrt_information[None], len(noises), axis=0)
+    if all(m.is_unit for m in noises):
+        return None
+    return np.array([m.sqrt_information for m in noises], dtype=float)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import functools
 import time
+from itertools import chain
 from contextlib import nullcontext
 from dataclasses import dataclass, field
 from typing import Any
@@ -32,7 +33,7 @@ from .batch import FactorBatch, batch_from_factors
 from .errors import (EmptyProblemError, FgoptError, KeyNotFoundError,
                      ManifoldError, NonFiniteError)
 from .factors.base import Factor
-from .noise.models import base_noise, loss_code_and_param
+from .noise.models import RobustLoss, base_noise, loss_code_and_param
 from .key import Key, key_str
 from .manifolds.base import SCALAR_KIND, BatchKind, is_vector_kind, ops_for
 from .structure import (DENSE_MAX_SIZE, HessianPattern, ba_shaped_kind, build_pattern,
@@ -235,16 +236,21 @@ class Problem:
 
     # ----------------------------------------------------------------- compile: variables
     def _collect_variables(self, graph: Any, values: Variables) -> None:
-        # keys in order of first use (one dict build, no Python call per key)
-        used: dict[int, None] = dict.fromkeys(k for f in graph.factors for k in f.keys)
-        if not all(k in values for k in used):
-            for f in graph.factors:
-                for k in f.keys:
-                    if k not in values:
-                        raise KeyNotFoundError(
-                            f"{f.describe()} uses {key_str(k)}, which is not in the initial "
-                            f"values: add it with Variables.add({key_str(k)}, value)")
-        factor_keys = np.fromiter(used, dtype=np.int64, count=len(used))
+        # Every key of the individually added factors in one flat array (one Python pass over
+        # the factors), and the variable each one names: factor keys are numbered in order of
+        # first use. _collect_factors reads the factors' variables from it.
+        key_lists = [f.keys for f in graph.factors]
+        counts = np.fromiter(map(len, key_lists), dtype=np.int64, count=len(key_lists))
+        self._key_start = np.zeros(counts.shape[0] + 1, dtype=np.int64)
+        np.cumsum(counts, out=self._key_start[1:])
+        flat = np.fromiter(chain.from_iterable(key_lists), dtype=np.int64,
+                           count=int(self._key_start[-1]))
+        uniq, first, inverse = np.unique(flat, return_index=True, return_inverse=True)
+        by_use = np.argsort(first)  # first uses are distinct positions: any sort is stable
+        use_rank = np.empty_like(by_use)
+        use_rank[by_use] = np.arange(by_use.shape[0])
+        self._key_var = use_rank[inverse.reshape(-1)]
+        factor_keys = uniq[by_use]
         batch_keys = np.zeros(0, dtype=np.int64)
         if graph.batches:
             batch_keys = unique_int(np.concatenate([b.keys.reshape(-1) for b in graph.batches]))
@@ -261,6 +267,7 @@ class Problem:
         xs = [value_of.get(k) for k in var_keys[per_key].tolist()]
         missing = next((i for i, x in enumerate(xs) if x is None), None)
         if missing is not None:
+            self._raise_missing(graph, values)
             k = int(var_keys[per_key[missing]])
             b, row = self._find_key_row(graph, k)
             raise KeyNotFoundError(
@@ -361,6 +368,16 @@ class Problem:
             len(xs), kind.storage_dim)
 
     @staticmethod
+    def _raise_missing(graph: Any, values: Variables) -> None:
+        """Name the first individually added factor that uses a key without a value (if any)."""
+        for f in graph.factors:
+            for k in f.keys:
+                if k not in values:
+                    raise KeyNotFoundError(
+                        f"{f.describe()} uses {key_str(k)}, which is not in the initial "
+                        f"values: add it with Variables.add({key_str(k)}, value)")
+
+    @staticmethod
     def _find_key_row(graph: Any, k: int) -> tuple[FactorBatch, int]:
         for b in graph.batches:
             hit = np.nonzero((b.keys == k).any(axis=1))[0]
@@ -374,34 +391,63 @@ class Problem:
 
     # ----------------------------------------------------------------- compile: factors
     def _collect_factors(self, graph: Any) -> None:
-        groups: dict[tuple, list] = {}
+        factors = graph.factors
+        # batches: factors grouped by kernel (in order of first appearance; ids numbered in
+        # C-level passes), then by robust loss (:meth:`_by_loss`)
+        kernel_ids = list(map(id, [f.kernel for f in factors]))
+        number = {k: j for j, k in enumerate(dict.fromkeys(kernel_ids))}
+        gid = np.fromiter(map(number.__getitem__, kernel_ids), dtype=np.int64,
+                          count=len(kernel_ids))
+        by_group = np.argsort(gid, kind="stable")
+        ends = np.cumsum(np.bincount(gid, minlength=len(number)))
         self._slow: list[_SlowFactor] = []
-        for f in graph.factors:
-            if f.kernel is not None:
-                groups.setdefault((id(f.kernel),) + loss_code_and_param(f.loss), []).append(f)
-            else:
-                self._slow.append(self._make_slow(f))
-        sources = [batch_from_factors(fs[0].kernel, fs) for fs in groups.values()]
-        sources += list(graph.batches)
-        self.batches = [self._make_batch(b) for b in sources]
+        self.batches = []
+        for kernel_id, rows in zip(number, np.split(by_group, ends[:-1])):
+            if kernel_id == id(None):  # Python factors: the slow path, one by one
+                self._slow += [self._make_slow(factors[i]) for i in rows.tolist()]
+                continue
+            for rows, fs in self._by_loss(rows, [factors[i] for i in rows.tolist()]):
+                self._add_factor_batch(rows, fs)
+        self.batches += [self._make_batch(b, check_repeats=True) for b in graph.batches]
 
-    def _make_batch(self, b: FactorBatch) -> _Batch:
+    @staticmethod
+    def _by_loss(rows: np.ndarray, fs: list) -> list[tuple[np.ndarray, list]]:
+        """Factors of one kernel split by robust loss (code and parameters): one batch each."""
+        losses = [f.loss for f in fs]
+        if not any(issubclass(t, RobustLoss) for t in set(map(type, losses))):
+            return [(rows, fs)]
+        parts: dict[tuple, list[int]] = {}
+        for j, code in enumerate(map(loss_code_and_param, losses)):
+            parts.setdefault(code, []).append(j)
+        return [(rows[js], [fs[j] for j in js]) for js in parts.values()]
+
+    def _add_factor_batch(self, rows: np.ndarray, fs: list) -> None:
+        """A batch of the individually added factors ``fs`` (positions ``rows`` in the graph)."""
+        k = len(fs[0].kernel.arg_kinds)
+        # the factors' variables, from the keys collected with the variables
+        var_idx = self._key_var[self._key_start[rows][:, None] + np.arange(k)]
+        source = batch_from_factors(fs[0].kernel, fs, self.var_keys[var_idx])
+        # a Factor rejects a repeated key when it is made: no check per batch here
+        self.batches.append(self._make_batch(source, var_idx))
+
+    def _make_batch(self, b: FactorBatch, var_idx: np.ndarray | None = None,
+                    check_repeats: bool = False) -> _Batch:
+        """The compiled form of batch ``b`` (``var_idx``: its variables, when known)."""
         kernel = b.kernel
-        var_idx = self._vars_of(b.keys)
-        kind_ids = []
-        for j, kind in enumerate(kernel.arg_kinds):
-            kid = self._kind_id.get(id(kind), -2)
-            bad = self.var_kind[var_idx[:, j]] != kid
-            if np.any(bad):
-                row = int(np.nonzero(bad)[0][0])
-                k = Key(int(b.keys[row, j]))
-                x = self._extra.at(k)
-                raise ManifoldError(
-                    f"{kernel.name}({', '.join(key_str(Key(int(q))) for q in b.keys[row])}) "
-                    f"(factor {b._where(row)}): argument {j} expects {kind.name}, but "
-                    f"{key_str(k)} is a {type(x).__name__}")
-            kind_ids.append(kid)
-        if var_idx.shape[1] > 1:
+        if var_idx is None:
+            var_idx = self._vars_of(b.keys)
+        kind_ids = tuple(self._kind_id.get(id(kind), -2) for kind in kernel.arg_kinds)
+        bad = self.var_kind[var_idx] != np.array(kind_ids, dtype=np.int64)
+        if bad.any():
+            row, j = (int(x[0]) for x in np.nonzero(bad))
+            kind = kernel.arg_kinds[j]
+            k = Key(int(b.keys[row, j]))
+            x = self._extra.at(k)
+            raise ManifoldError(
+                f"{kernel.name}({', '.join(key_str(Key(int(q))) for q in b.keys[row])}) "
+                f"(factor {b._where(row)}): argument {j} expects {kind.name}, but "
+                f"{key_str(k)} is a {type(x).__name__}")
+        if check_repeats and var_idx.shape[1] > 1:
             srt = np.sort(var_idx, axis=1)
             dup = np.any(srt[:, 1:] == srt[:, :-1], axis=1)
             if np.any(dup):
@@ -411,7 +457,7 @@ class Problem:
         unit = b.sqrt_information is None
         R = np.eye(r)[None] if unit else b.sqrt_information
         dims = np.array([k.dim for k in kernel.arg_kinds], dtype=np.int64)
-        return _Batch(kernel, b, var_idx, tuple(kind_ids),
+        return _Batch(kernel, b, var_idx, kind_ids,
                       [np.ascontiguousarray(self.var_row[var_idx[:, j]])
                        for j in range(var_idx.shape[1])],
                       np.ascontiguousarray(R), unit, dims,

@@ -117,7 +117,7 @@ def _densely_banded(num_vars: int, pairs_i: np.ndarray, pairs_j: np.ndarray) -> 
     if width == 0 or width > BANDED:
         return False
     lo, hi = np.minimum(a, b), np.maximum(a, b)
-    coupled = np.unique(lo[lo != hi] * num_vars + hi[lo != hi]).shape[0]
+    coupled = unique_int(lo[lo != hi] * num_vars + hi[lo != hi]).shape[0]
     return coupled >= 0.5 * num_vars * width
 
 
@@ -172,16 +172,20 @@ def independent_kinds(var_kind: np.ndarray, pairs_i: np.ndarray,
                       pairs_j: np.ndarray) -> tuple[int, ...]:
     """Kind ids (>= 0) of which no pair ``(pairs_i, pairs_j)`` joins two variables."""
     var_kind = np.asarray(var_kind)
-    kinds = np.unique(var_kind[var_kind >= 0])
+    # per kind id: has variables / has a pair within the kind (bincounts: a few kinds)
+    size = int(var_kind.max(initial=-1)) + 1
+    present = np.bincount(var_kind[var_kind >= 0], minlength=size) > 0
     ki, kj = var_kind[pairs_i], var_kind[pairs_j]
-    joined = np.unique(ki[(ki == kj) & (np.asarray(pairs_i) != np.asarray(pairs_j))])
-    return tuple(int(k) for k in np.setdiff1d(kinds, joined))
+    within = ki[(ki == kj) & (ki >= 0) & (np.asarray(pairs_i) != np.asarray(pairs_j))]
+    joined = np.bincount(within, minlength=size) > 0
+    return tuple(int(k) for k in np.flatnonzero(present & ~joined))
 
 
 def kinds_by_count(var_kind: np.ndarray) -> list[int]:
     """Kind ids (>= 0), the most numerous first (ties: smaller id first)."""
-    ids, counts = np.unique(var_kind[var_kind >= 0], return_counts=True)
-    return [int(i) for i in ids[np.argsort(-counts, kind="stable")]]
+    counts = np.bincount(var_kind[var_kind >= 0])
+    ids = np.flatnonzero(counts)
+    return [int(i) for i in ids[np.argsort(-counts[ids], kind="stable")]]
 
 
 def ba_shaped_kind(var_kind: np.ndarray, var_dim: np.ndarray,

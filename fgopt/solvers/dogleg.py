@@ -77,19 +77,16 @@ class Dogleg:
             step_norm = float(np.linalg.norm(h))
             predicted = -float(g @ h) - 0.5 * float(h @ pattern.matvec(H, h))
             candidate = problem.retract(run.state, h)
-            new_cost = problem.cost(candidate)
+            # Linearize the trial point right away (its cost comes with it, NaN when a value,
+            # residual or Jacobian is not finite): steps are usually accepted, and the next one
+            # needs the Jacobian there, so the residuals are not evaluated twice.
+            new_cost = problem.linearize_candidate(candidate)
             rho = (old - new_cost) / predicted if predicted > 0 else -math.inf
             accepted = math.isfinite(new_cost) and rho > 0
-            done = None
             # a step the trust region cut short whose gain ratio is poor: its small decrease
             # says nothing about convergence (the region, not the optimum, made it small)
             poor = rho < 0.25 and step_norm < (1.0 - 1e-9) * float(np.linalg.norm(h_gn))
-            if accepted:
-                done = None if poor else run.converged_by_decrease(old, new_cost)
-                if done is None:
-                    # the next step needs the Jacobian here: a non-finite one rejects the point
-                    new_cost = problem.linearize_candidate(candidate)
-                    accepted = math.isfinite(new_cost)
+            done = run.converged_by_decrease(old, new_cost) if accepted and not poor else None
             used_radius = radius
             if not accepted:
                 # shrink below the rejected step, not only the radius: a Gauss-Newton step well
@@ -101,8 +98,8 @@ class Dogleg:
                 radius = 0.5 * radius
             if accepted:
                 run.state = candidate
+                problem.accept_candidate()
                 if done is None:
-                    problem.accept_candidate()
                     done = run.converged_by_gradient()
                 run.cost = new_cost
                 h_gn = None

@@ -28,7 +28,7 @@ def _case(rng, n, m, dims, unit):
     return res, jac, sqrt_info, toff, pos, col_shift
 
 
-@pytest.mark.parametrize("dims", [(3,), (3, 3), (6, 6), (9, 3), (2, 3, 1)])
+@pytest.mark.parametrize("dims", [(3,), (3, 3), (6, 6), (9, 3), (2, 3, 1), (6, 3, 6, 3, 6)])
 @pytest.mark.parametrize("unit", [True, False])
 @pytest.mark.parametrize("robust", [False, True])
 def test_specialized_equals_generic(dims, unit, robust):
@@ -59,8 +59,11 @@ def test_specialized_equals_generic(dims, unit, robust):
 
 
 def test_small_or_wide_batches_keep_the_generic_kernel():
+    """Small batches and batches of many arguments are not specialized (wide residuals allow
+    up to ``MAX_ARGS_WIDE`` arguments)."""
     assert sf.scatter_kernel(3, (3, 3), True, sf.MIN_FACTORS - 1) is None
     assert sf.scatter_kernel(2, (6,) * (sf.MAX_ARGS + 1), True, 1000) is None
+    assert sf.scatter_kernel(9, (3,) * (sf.MAX_ARGS_WIDE + 1), True, 1000) is None
 
 
 def test_problem_linearization_is_unchanged(monkeypatch):

@@ -12,28 +12,21 @@ import numpy as np
 from ..._jit import njit
 
 
-@njit(cache=True)
-def block_graph(var_off_r, indptr, indices, col2rank):
-    """Lower adjacency of the block graph: for rank ``k`` the ranks ``> k`` coupled to it.
-
-    Every coupled block of H is stored dense, so the first scalar column of a variable lists
-    all its lower row variables.
-    """
-    n = var_off_r.shape[0]
-    ap = np.zeros(n + 1, np.int64)
-    ai = np.empty(indices.shape[0], np.int64)
-    nt = 0
-    for k in range(n):
-        c = var_off_r[k]
-        last = k
-        for p in range(indptr[c], indptr[c + 1]):
-            v = col2rank[indices[p]]
-            if v != last:
-                ai[nt] = v
-                nt += 1
-                last = v
-        ap[k + 1] = nt
-    return ap, ai[:nt].copy()
+def block_graph_of_codes(codes, V, rank_of_var, order):
+    """Lower adjacency of the block graph (for rank ``k``: the ranks ``> k`` coupled to it, as
+    CSR ``ap, ai``), from a pattern's sorted block codes (``rank(column var) * V +
+    rank(row var)`` in the pattern's order): no scalar row indices needed. ``rank_of_var``:
+    each pattern variable's position in offset order (the analysis' rank)."""
+    col = rank_of_var[order[codes // V]]
+    row = rank_of_var[order[codes % V]]
+    strict = row != col
+    col, row = col[strict], row[strict]
+    if col.shape[0] > 1 and np.any(col[1:] < col[:-1]):  # offset order differs from the ranks
+        srt = np.lexsort((row, col))
+        col, row = col[srt], row[srt]
+    ap = np.zeros(V + 1, np.int64)
+    np.cumsum(np.bincount(col, minlength=V), out=ap[1:])
+    return ap, np.ascontiguousarray(row, dtype=np.int64)
 
 
 @njit(cache=True)
@@ -109,8 +102,14 @@ def symbolic_columns(n, ap, ai, parent):
             new = np.empty(cap, np.int64)
             new[:lp[j]] = li[:lp[j]]
             li = new
-        srt = np.sort(buf[:cnt])
-        li[lp[j]:lp[j] + cnt] = srt
+        base = lp[j]
+        for t in range(cnt):  # insertion sort into li: the lists are short
+            v = buf[t]
+            u = base + t
+            while u > base and li[u - 1] > v:
+                li[u] = li[u - 1]
+                u -= 1
+            li[u] = v
         lp[j + 1] = lp[j] + cnt
     return lp, li[:lp[n]].copy()
 
@@ -331,32 +330,40 @@ def _grow(a, cap):
 
 
 @njit(cache=True)
-def build_hmap(indptr, indices, new_of_old, var_of_new, sn_of, off, sn, rvp, rvi, rpos,
-               pstart, rows, hmap):
+def build_hmap_blocks(codes, V, order, p00, col_shift, var_offset, var_dim, new_var, sn_of, off,
+                      sn, rvp, rvi, rpos, pstart, rows, hmap):
     """Position in the panels of every stored entry of H's lower CSC (pattern order), written
-    into ``hmap`` (int32 when the panels allow: half the bytes)."""
-    n = indptr.shape[0] - 1
-    last_vI, last_vJ, s, lo = -1, -1, 0, 0
-    for j in range(n):
-        for p in range(indptr[j], indptr[j + 1]):
-            I = new_of_old[indices[p]]
-            J = new_of_old[j]
-            if I < J:
-                I, J = J, I
-            vJ = var_of_new[J]
-            vI = var_of_new[I]
-            if vI != last_vI or vJ != last_vJ:
-                # a new block: the entries of one block column come in a run, so the search
-                # runs once per block column instead of once per entry
-                s = sn_of[vJ]
-                lo, hi = rvp[s], rvp[s + 1]
-                while hi - lo > 1:                 # binary search of vI in s's sorted rows
-                    mid = (lo + hi) // 2
-                    if rvi[mid] <= vI:
-                        lo = mid
-                    else:
-                        hi = mid
-                last_vI, last_vJ = vI, vJ
-            c = J - off[sn[s]]
-            hmap[p] = pstart[s] + c * rows[s] + rpos[lo] + (I - off[vI])
+    into ``hmap`` (int32 when the panels allow: half the bytes), block by block from the
+    pattern's block list (``codes``, ``p00``; :class:`fgopt.structure.HessianPattern`): each column of a block is a run of consecutive
+    entries of H and, unless the new order transposes the block, of its panel too.
+    ``new_var``: the postorder label of each pattern variable."""
+    for b in range(codes.shape[0]):
+        c = order[codes[b] // V]
+        r = order[codes[b] % V]
+        J = new_var[c]
+        I = new_var[r]
+        flip = I < J
+        if flip:
+            I, J = J, I
+        s = sn_of[J]
+        lo, hi = rvp[s], rvp[s + 1]
+        while hi - lo > 1:                 # binary search of I in s's sorted rows
+            mid = (lo + hi) // 2
+            if rvi[mid] <= I:
+                lo = mid
+            else:
+                hi = mid
+        m = rows[s]
+        base = pstart[s] + (off[J] - off[sn[s]]) * m + rpos[lo]
+        oc = var_offset[c]
+        for cb in range(var_dim[c]):
+            h = p00[b] + col_shift[oc + cb]
+            a0 = cb if c == r else 0
+            if flip:   # entry (a, cb) is (cb, a) of the panel's block
+                for a in range(a0, var_dim[r]):
+                    hmap[h + a] = base + a * m + cb
+            else:
+                t = base + cb * m
+                for a in range(a0, var_dim[r]):
+                    hmap[h + a] = t + a
     return hmap

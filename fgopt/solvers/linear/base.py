@@ -88,6 +88,11 @@ def make_linear_solver(name: "str | LinearSolver", pattern: HessianPattern | Non
     if name == "dense":
         from .dense import DenseCholeskySolver
 
+        from ..._jit import numpy_budget_left
+
+        # numba's kernels once the process's NumPy-twin budget is spent, the rule small factor
+        # batches follow (fgopt._jit): a small solve in a fresh script imports no numba
+        options.setdefault("numba", backend != "numpy" and not numpy_budget_left())
         return DenseCholeskySolver(**options)
     raise FgoptError(
         f"unknown linear solver {name!r}: choose 'auto', 'block', 'cholmod', 'schur', "

@@ -49,25 +49,17 @@ class BlockSymbolic:
     sparent: np.ndarray      # (S,) parent supernode (-1: root)
 
 
-def rows_of(pattern: HessianPattern) -> np.ndarray:
-    """H's row indices for the analysis, not kept by the pattern when it had not built them
-    (one int64 per entry of H: as large as H's data)."""
-    return pattern.row_indices(cache=False)
-
-
-def analyze_blocks(pattern: HessianPattern, relax=DEFAULT_RELAX,
-                   rows: np.ndarray | None = None) -> BlockSymbolic:
+def analyze_blocks(pattern: HessianPattern, relax=DEFAULT_RELAX) -> BlockSymbolic:
     var_offset = np.asarray(pattern.var_offset, np.int64)
     var_dim = np.asarray(pattern.var_dim, np.int64)
     V = var_offset.shape[0]
     if V == 0 or pattern.size == 0:
         raise FgoptError("block Cholesky: the pattern has no variables")
     vorder = np.argsort(var_offset, kind="stable")
-    off_r, dim_r = var_offset[vorder], var_dim[vorder]
-    col2rank = np.repeat(np.arange(V, dtype=np.int64), dim_r)
-    rows = rows_of(pattern) if rows is None else rows
-    ap, ai = sym.block_graph(off_r, pattern.indptr, rows, col2rank)
-    del rows
+    dim_r = var_dim[vorder]
+    rank_of_var = np.empty(V, np.int64)
+    rank_of_var[vorder] = np.arange(V)
+    ap, ai = sym.block_graph_of_codes(pattern.block_codes, V, rank_of_var, pattern.order)
     parent = sym.etree(V, ap, ai)
     lp, li = sym.symbolic_columns(V, ap, ai, parent)
     cnt = np.diff(lp)
@@ -99,6 +91,21 @@ def analyze_blocks(pattern: HessianPattern, relax=DEFAULT_RELAX,
                          sparent)
 
 
+def analyze_dense(pattern: HessianPattern) -> BlockSymbolic:
+    """One supernode holding every variable in the pattern's order: a dense factor, no
+    symbolic analysis (what a small system wants; see ``BlockCholeskySolver(dense=True)``)."""
+    var_offset = np.asarray(pattern.var_offset, np.int64)
+    V, n = var_offset.shape[0], int(pattern.size)
+    if V == 0 or n == 0:
+        raise FgoptError("block Cholesky: the pattern has no variables")
+    vorder = np.argsort(var_offset, kind="stable")
+    one = np.array([0, V], np.int64)
+    return BlockSymbolic(V, vorder, np.asarray(pattern.var_dim, np.int64)[vorder],
+                         var_offset[vorder], one, one.copy(), np.arange(V, dtype=np.int64),
+                         var_offset[vorder], np.array([n], np.int64), np.array([n], np.int64),
+                         np.array([0, n * n], np.int64), np.array([-1], np.int64))
+
+
 class BlockCholeskySolver:
     """Supernodal Cholesky on the variable-block structure of H (numba + BLAS).
 
@@ -113,7 +120,9 @@ class BlockCholeskySolver:
     name = "block"
 
     def __init__(self, small_panel: int = 8, tile_panel: int = 192, small_syrk: int = 96,
-                 chunk: int = 512, relax=DEFAULT_RELAX):
+                 chunk: int = 512, relax=DEFAULT_RELAX, dense: bool = False):
+        #: One supernode for the whole system (:func:`analyze_dense`): small systems.
+        self.dense = bool(dense)
         self.tile_panel = int(tile_panel)
         self.chunk = int(chunk)
         self.small_panel = int(small_panel)
@@ -126,8 +135,7 @@ class BlockCholeskySolver:
     def analyze(self, pattern: HessianPattern) -> None:
         from . import _block_kernels as k
 
-        rows = rows_of(pattern)
-        sy = analyze_blocks(pattern, self.relax, rows)
+        sy = analyze_dense(pattern) if self.dense else analyze_blocks(pattern, self.relax)
         self.symbolic = sy
         S = sy.sn.shape[0] - 1
         sn_of = np.repeat(np.arange(S, dtype=np.int64), np.diff(sy.sn))
@@ -136,15 +144,15 @@ class BlockCholeskySolver:
         # scalar permutation: new (factor) order -> pattern order
         old_off = np.asarray(pattern.var_offset, np.int64)[sy.post_var]
         self._perm = np.repeat(old_off - sy.off, sy.dim) + np.arange(pattern.size)
-        new_of_old = np.empty(pattern.size, np.int64)
-        new_of_old[self._perm] = np.arange(pattern.size)
-        var_of_new = np.repeat(np.arange(sy.n_var, dtype=np.int64), sy.dim)
+        new_var = np.empty(sy.n_var, np.int64)
+        new_var[sy.post_var] = np.arange(sy.n_var)
         # int32 positions when the factor's panels have fewer than 2^31 entries (H-sized: 4
         # bytes per entry of H saved)
         self._hmap = np.empty(pattern.nnz, np.int32 if sy.pstart[-1] < 2**31 - 16 else np.int64)
-        sym.build_hmap(pattern.indptr, rows, new_of_old, var_of_new, sn_of, sy.off, sy.sn,
-                       sy.rvp, sy.rvi, sy.rpos, sy.pstart, sy.rows, self._hmap)
-        del rows
+        sym.build_hmap_blocks(pattern.block_codes, sy.n_var, pattern.order, pattern.block_p00,
+                              pattern.col_shift, np.asarray(pattern.var_offset, np.int64),
+                              np.asarray(pattern.var_dim, np.int64), new_var, sn_of, sy.off,
+                              sy.sn, sy.rvp, sy.rvi, sy.rpos, sy.pstart, sy.rows, self._hmap)
         self._col0 = sy.off[sy.sn[:-1]]
         # global (factor-order) scalar index of every panel row
         rix_len = sy.rows

@@ -9,15 +9,33 @@ from ...structure import HessianPattern
 
 
 class DenseCholeskySolver:
+    """Dense Cholesky of H. ``numba=True`` (what ``"auto"`` picks on the numba backend): the
+    block solver's kernels on one supernode (:func:`~.block_cholesky.analyze_dense`), one
+    compiled call per factorization and per solve; measured 13 us instead of 99 us per
+    factorization and solve at 72 unknowns (SFMExample). Otherwise NumPy's LAPACK (no numba)."""
+
     name = "dense"
 
+    def __init__(self, numba: bool = False):
+        self._block = None
+        if numba:
+            from .block_cholesky import BlockCholeskySolver
+
+            self._block = BlockCholeskySolver(dense=True)
+
     def analyze(self, pattern: HessianPattern) -> None:
+        if self._block is not None:
+            self._block.analyze(pattern)
+            return
         self._pattern = pattern
         n = pattern.size
         cols = np.repeat(np.arange(n), np.diff(pattern.indptr))
         self._rows, self._cols = pattern.indices, cols
 
     def factorize(self, H_data: np.ndarray) -> None:
+        if self._block is not None:
+            self._block.factorize(H_data)
+            return
         n = self._pattern.size
         H = np.zeros((n, n))
         H[self._rows, self._cols] = H_data
@@ -30,6 +48,8 @@ class DenseCholeskySolver:
         self._L = L
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
+        if self._block is not None:
+            return self._block.solve(rhs)
         # L L^T x = rhs; numpy has no triangular solver, and its general solve (LU; no pivoting
         # happens on a triangular matrix with a positive diagonal) costs little at <= 300 unknowns
         return np.linalg.solve(self._L.T, np.linalg.solve(self._L, rhs))
