@@ -1,11 +1,11 @@
 """Keep numpy's test and Fortran tooling unloaded while scipy builds its numpy namespace.
 
 numpy loads ``numpy.f2py``, ``numpy.testing`` and ``numpy.ma`` only when first touched (PEP 562).
-scipy >= 1.15 vendors array-api-compat, whose numpy namespace
+scipy (1.17 here) vendors array-api-compat, whose numpy namespace
 (``scipy._lib.array_api_compat.numpy``, imported by ``scipy.sparse``) is a clone made with
 ``from numpy import *`` and ``getattr`` over ``dir(numpy)``, which touches all three: f2py's
 Fortran parser compiles ~60 regular expressions and numpy.testing imports unittest, ~60 ms of
-the ~100 ms ``import scipy.sparse`` costs (scipy 1.17, measured in benchmarks/startup.py) in
+the ~100 ms ``import scipy.sparse`` costs (scipy 1.17, ``python -X importtime``) in
 every process that solves a sparse problem, e.g. ``fgopt solve``.
 
 While (and only while) that one module executes, the three names on numpy are bound to stand-ins

@@ -101,8 +101,23 @@ def _source(m: int, dims: tuple[int, ...], unit: bool) -> str:
         a("            g[gb + x] += w * acc")
     if m >= WIDE_RESIDUAL:
         _wide_blocks(a, m, dims, offs, D)
-        a("    return cost")
-        return "\n".join(L) + "\n"
+    else:  # each entry of the block: its column of J^T J summed in place
+        def entry(ind: str, p: int, q: int) -> None:
+            a(f"{ind}acc = 0.0")
+            a(f"{ind}for t in range({m}):")
+            a(f"{ind}    acc += J[t, {offs[p]} + x] * J[t, {offs[q]} + y]")
+            a(f"{ind}H_data[base + x] += w * acc")
+
+        _scatter_blocks(a, dims, entry)
+    a("    return cost")
+    return "\n".join(L) + "\n"
+
+
+def _scatter_blocks(a: Callable, dims: tuple[int, ...], entry: Callable) -> None:
+    """The loops adding each argument pair's block of ``w J^T J`` into H through the scatter map
+    (diagonal blocks: lower triangle; off-diagonal ones stored in one orientation only, ``pos <
+    0`` in the other); ``entry(indent, p, q)`` emits the statements for entry ``(x, y)``."""
+    k = len(dims)
     for p in range(k):
         for q in range(k):
             if p == q:  # diagonal block: lower triangle, column y starts at the diagonal
@@ -111,30 +126,21 @@ def _source(m: int, dims: tuple[int, ...], unit: bool) -> str:
                 a(f"        for y in range({dims[q]}):")
                 a("            base = pq + col_shift[tq + y]")
                 a(f"            for x in range(y, {dims[p]}):")
-                a("                acc = 0.0")
-                a(f"                for t in range({m}):")
-                a(f"                    acc += J[t, {offs[p]} + x] * J[t, {offs[q]} + y]")
-                a("                H_data[base + x] += w * acc")
-            else:  # stored in one orientation only (pos < 0 in the other)
+                entry("                ", p, q)
+            else:
                 a(f"        pq = pos[i, {p}, {q}]")
                 a("        if pq >= 0:")
                 a(f"            tq = toff[i, {q}]")
                 a(f"            for y in range({dims[q]}):")
                 a("                base = pq + col_shift[tq + y]")
                 a(f"                for x in range({dims[p]}):")
-                a("                    acc = 0.0")
-                a(f"                    for t in range({m}):")
-                a(f"                        acc += J[t, {offs[p]} + x] * J[t, {offs[q]} + y]")
-                a("                    H_data[base + x] += w * acc")
-    a("    return cost")
-    return "\n".join(L) + "\n"
+                entry("                    ", p, q)
 
 
 def _wide_blocks(a: Callable, m: int, dims: tuple[int, ...], offs: list[int], D: int) -> None:
     """The H part for residuals of ``WIDE_RESIDUAL`` rows or more, as the generic kernel's wide
     path (``_assembly._scatter_wide``): the local ``D x D`` product ``J^T J`` by row outer
     products (zeros of J skipped; same summation order), then its blocks scattered."""
-    k = len(dims)
     a("        for x in range(%d):" % D)
     a("            for y in range(%d):" % D)
     a("                Hl[x, y] = 0.0")
@@ -145,23 +151,8 @@ def _wide_blocks(a: Callable, m: int, dims: tuple[int, ...], offs: list[int], D:
     a("                    continue")
     a(f"                for y in range({D}):")
     a("                    Hl[x, y] += jx * J[t, y]")
-    for p in range(k):
-        for q in range(k):
-            if p == q:
-                a(f"        pq = pos[i, {p}, {p}]")
-                a(f"        tq = toff[i, {q}]")
-                a(f"        for y in range({dims[q]}):")
-                a("            base = pq + col_shift[tq + y]")
-                a(f"            for x in range(y, {dims[p]}):")
-                a(f"                H_data[base + x] += w * Hl[{offs[p]} + x, {offs[q]} + y]")
-            else:
-                a(f"        pq = pos[i, {p}, {q}]")
-                a("        if pq >= 0:")
-                a(f"            tq = toff[i, {q}]")
-                a(f"            for y in range({dims[q]}):")
-                a("                base = pq + col_shift[tq + y]")
-                a(f"                for x in range({dims[p]}):")
-                a(f"                    H_data[base + x] += w * Hl[{offs[p]} + x, {offs[q]} + y]")
+    _scatter_blocks(a, dims, lambda ind, p, q: a(
+        f"{ind}H_data[base + x] += w * Hl[{offs[p]} + x, {offs[q]} + y]"))
 
 
 def scatter_kernel(m: int, dims: tuple[int, ...], unit: bool, n: int) -> Callable | None:
@@ -172,7 +163,8 @@ def scatter_kernel(m: int, dims: tuple[int, ...], unit: bool, n: int) -> Callabl
     ``scatter_batch`` (scatter map ``(pos, col_shift)``, :func:`fgopt.structure.scatter_positions`).
     """
     max_args = MAX_ARGS_WIDE if m >= WIDE_RESIDUAL else MAX_ARGS
-    if not ENABLED or n < MIN_FACTORS or not 0 < len(dims) <= max_args or max(dims) > MAX_DIM or m > MAX_DIM:
+    if (not ENABLED or n < MIN_FACTORS or not 0 < len(dims) <= max_args or max(dims) > MAX_DIM
+            or m > MAX_DIM):
         return None
     shape = (int(m), tuple(int(d) for d in dims), bool(unit))
     fn = _cache.get(shape)
