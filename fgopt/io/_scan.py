@@ -418,8 +418,12 @@ def read_bytes(path: str | os.PathLike) -> bytes:
 
 def write_text(path: str | os.PathLike, text: str) -> None:
     """Write ``text``; ``.gz`` / ``.bz2`` paths are compressed."""
+    write_bytes(path, text.encode("utf-8"))
+
+
+def write_bytes(path: str | os.PathLike, data: bytes) -> None:
+    """Write ``data``; ``.gz`` / ``.bz2`` paths are compressed."""
     p = os.fspath(path)
-    data = text.encode("utf-8")
     opener = bz2.open if p.endswith(".bz2") else gzip.open if p.endswith(".gz") else open
     with opener(p, "wb") as f:
         f.write(data)

@@ -26,14 +26,12 @@ from ..manifolds.base import ops_for, vector_kind
 from . import _information as im
 from ._graph_build import FIX_SIGMA, pose_kind
 from ._poses import se2_file, se3_file
-from ._scan import write_text
+from ._format import format_rows
+from ._scan import write_bytes
 
 log = logging.getLogger("fgopt.io")
 
-
-def _fmt(tag: str, ids: np.ndarray, nums: np.ndarray) -> list[str]:
-    return [f"{tag} {' '.join(map(str, i))} {' '.join(map(repr, r))}"
-            for i, r in zip(ids.tolist(), nums.tolist())]
+_ID_BITS = key_index(-1)  # key_index(k) == k & _ID_BITS: the index bits of a key
 
 
 def _factor_blocks(graph: Any):
@@ -64,55 +62,61 @@ def write_g2o(path: str | os.PathLike, graph: Any, values: Any) -> None:
     from ..factors.library.prior_between import prior_kernel_for as prior_kernel
     from ..factors.library.pose_point import pose_point_kernel
 
-    dims = set()
-    id_of: dict[int, int] = {}
-    owner: dict[int, int] = {}
-    vertex_lines: list[str] = []
-    kinds = {}
+    # kinds looked up once per value type, storage rows stacked per kind (no per-key lookups)
     writable = {pose_kind(2): 2, vector_kind(2): 2, pose_kind(3): 3, vector_kind(3): 3}
-    kind_of_type: dict = {}  # (type, shape) -> kind: traits looked up once per type, not per key
+    kind_of_type: dict = {}  # (type, shape) -> kind
+    members: dict = {}  # kind -> ([keys], [values]), in the values' order
     for k, v in values.items():
         t = type(v)
         tkey = (t, v.shape) if t is np.ndarray else t
         kind = kind_of_type.get(tkey)
         if kind is None:
             kind = kind_of_type[tkey] = ops_for(v).batch_kind(v)
-        d = writable.get(kind)
-        if d is None:
-            raise FgoptError(f"write_g2o: {key_str(k)} is a {type(v).__name__}; g2o stores SE2 / "
-                             "SE3 poses and 2- / 3-vector points only")
-        dims.add(d)
-        vid = key_index(k)
-        if vid in owner:
-            raise FgoptError(f"write_g2o: {key_str(k)} and {key_str(owner[vid])} would both get "
-                             f"g2o id {vid} (g2o has one id space); rename one of the keys")
-        owner[vid] = int(k)
-        id_of[int(k)] = vid
-        kinds[int(k)] = kind
+            if kind not in writable:
+                raise FgoptError(f"write_g2o: {key_str(k)} is a {type(v).__name__}; g2o stores "
+                                 "SE2 / SE3 poses and 2- / 3-vector points only")
+            members[kind] = ([], [])
+        ks, vs = members[kind]
+        ks.append(k)
+        vs.append(v)
+    dims = {writable[kind] for kind in members}
     if len(dims) > 1:
         raise FgoptError("write_g2o: the values mix 2D and 3D variables; g2o files are one or "
                          "the other")
     dim = dims.pop() if dims else 2
     pkind, vkind = pose_kind(dim), vector_kind(dim)
-    keys_all = list(values.keys())
+    all_keys = [k for ks, _ in members.values() for k in ks]
+    all_ids = np.array([key_index(k) for k in all_keys], dtype=np.int64)
+    order = np.argsort(all_ids, kind="stable")
+    same = np.flatnonzero(all_ids[order][1:] == all_ids[order][:-1])
+    if same.shape[0]:
+        a, b = (all_keys[order[i]] for i in (same[0], same[0] + 1))
+        raise FgoptError(f"write_g2o: {key_str(b)} and {key_str(a)} would both get g2o id "
+                         f"{key_index(a)} (g2o has one id space); rename one of the keys")
+    # factor keys are int64: keys past that have no factor
+    sorted_keys = np.sort(np.array([k for k in all_keys if k < 2 ** 63], dtype=np.int64))
+    vertex_parts: list[bytes] = []
     for kind, tag in ((pkind, "VERTEX_SE2" if dim == 2 else "VERTEX_SE3:QUAT"),
                       (vkind, "VERTEX_XY" if dim == 2 else "VERTEX_TRACKXYZ")):
-        ks = [int(k) for k in keys_all if kinds[int(k)] is kind]
-        if not ks:
+        if kind not in members:
             continue
-        rows = np.array([kind.to_storage(values.at(k)) for k in ks], dtype=float)
+        ks, vs = members[kind]
+        rows = np.array([kind.to_storage(v) for v in vs], dtype=float)
         if kind is pkind:
             rows = se2_file(rows) if dim == 2 else se3_file(rows)
-        vertex_lines += _fmt(tag, np.array([[id_of[k]] for k in ks]), rows)
+        ids = np.array([key_index(k) for k in ks], dtype=np.int64)
+        vertex_parts.append(format_rows(tag, ids[:, None], rows))
 
     def ids_of(keys: np.ndarray) -> np.ndarray:
-        try:
-            return np.array([[id_of[k] for k in row] for row in keys.tolist()], dtype=np.int64)
-        except KeyError as exc:
-            raise FgoptError(f"write_g2o: a factor uses {key_str(exc.args[0])}, which has no "
-                             "value") from None
+        keys = np.asarray(keys, dtype=np.int64)
+        at = np.minimum(np.searchsorted(sorted_keys, keys), max(sorted_keys.shape[0] - 1, 0))
+        missing = ~(sorted_keys[at] == keys) if sorted_keys.shape[0] else np.ones(keys.shape, bool)
+        if missing.any():
+            raise FgoptError(f"write_g2o: a factor uses {key_str(int(keys[missing][0]))}, which "
+                             "has no value")
+        return keys & _ID_BITS
 
-    edge_lines: list[str] = []
+    edge_parts: list[bytes] = []
     fixed: list[int] = []
     params_needed = False
     skipped: Counter = Counter()
@@ -141,16 +145,17 @@ def write_g2o(path: str | os.PathLike, graph: Any, values: Any) -> None:
                 params_needed = True
                 ids = np.column_stack([ids, np.zeros(n, np.int64)])
                 nums, tag = np.hstack([consts, im.pack_upper(info)]), "EDGE_SE3_TRACKXYZ"
-            edge_lines += _fmt(tag, ids, nums)
+            edge_parts.append(format_rows(tag, ids, nums))
         elif kernel in priors and R is not None:
             kind = priors[kernel]
             fix_R = np.eye(r) / FIX_SIGMA
             for row in range(n):
                 k = int(keys[row, 0])
-                at_value = (k in kinds and kinds[k] is kind and np.allclose(
-                    kind.to_storage(values.at(k)), consts[row], rtol=0, atol=1e-9))
+                v = values.at(k) if k in values else None
+                at_value = (v is not None and ops_for(v).batch_kind(v) is kind and np.allclose(
+                    kind.to_storage(v), consts[row], rtol=0, atol=1e-9))
                 if at_value and np.allclose(R[row], fix_R, rtol=1e-9, atol=0):
-                    fixed.append(id_of[k])
+                    fixed.append(key_index(k))
                 else:
                     skipped[kernel.name] += 1
         else:
@@ -162,11 +167,9 @@ def write_g2o(path: str | os.PathLike, graph: Any, values: Any) -> None:
     if robust_total:
         log.warning("write_g2o: %d factor(s) have robust losses; g2o files have no loss field, "
                     "the losses were not written", robust_total)
-    out = []
-    if params_needed:
-        out.append("PARAMS_SE3OFFSET 0 0 0 0 0 0 0 1")
-    out += vertex_lines
+    out = [b"PARAMS_SE3OFFSET 0 0 0 0 0 0 0 1\n"] if params_needed else []
+    out += vertex_parts
     if fixed:
-        out.append("FIX " + " ".join(map(str, dict.fromkeys(fixed))))
-    out += edge_lines
-    write_text(path, "\n".join(out) + "\n")
+        out.append(("FIX " + " ".join(map(str, dict.fromkeys(fixed))) + "\n").encode())
+    out += edge_parts
+    write_bytes(path, b"".join(out) if out else b"\n")
