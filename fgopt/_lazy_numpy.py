@@ -27,8 +27,9 @@ from ._import_hook import on_import
 #: The module whose execution clones numpy's namespace.
 CLONING_MODULE = "scipy._lib.array_api_compat.numpy"
 #: numpy submodules the clone touches that scipy never uses through it (f2py, testing ~25-30 ms
-#: each, ma ~14 ms).  numpy.random is not here: scipy itself uses it at import.
-DEFERRED = ("f2py", "testing", "ma")
+#: each, ma ~14 ms; polynomial, char, strings, ctypeslib, rec ~4 ms together).  numpy.random and
+#: numpy.fft are not here: scipy itself imports them.
+DEFERRED = ("f2py", "testing", "ma", "polynomial", "char", "strings", "ctypeslib", "rec")
 
 
 class DeferredModule(types.ModuleType):

@@ -1,11 +1,11 @@
 """The ``fgopt`` command line: ``fgopt solve FILE``, ``fgopt info FILE`` and ``fgopt cache``.
 
-``solve`` reads a g2o / TORO / BAL / Bundler file, fixes the gauge of pose graphs with a tight prior on the
-lowest pose (GTSAM-style; BA relies on LM damping, as Ceres' BAL example), optimizes while
-printing one row per iteration, then a summary. Costs in the summary are measured on the file's
-own edges (``0.5 * sum`` of squared whitened residuals, no prior, no robust loss), the yardstick
-GTSAM's ``graph.error`` uses. Exit status: 0 converged, 1 not converged (reason on stderr),
-2 bad input or usage (the error message on stderr).
+``solve`` reads a g2o / TORO / BAL / Bundler file, fixes the gauge of pose graphs with a tight
+prior on the lowest pose (GTSAM-style; BA relies on LM damping, as Ceres' BAL example), optimizes
+while printing one row per iteration, then a summary. Costs in the summary are measured on the
+file's own edges (``0.5 * sum`` of squared whitened residuals, no prior, no robust loss), the
+yardstick GTSAM's ``graph.error`` uses. Exit status: 0 converged, 1 not converged (reason on
+stderr), 2 bad input or usage (the error message on stderr).
 
 ``info`` prints variable and factor counts by type, the initial cost, connected components and
 whether the gauge is fixed.
@@ -84,7 +84,8 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("solve", help="optimize a file and print the iterations")
     file_options(s)
     s.add_argument("--method", choices=["lm", "gn", "dogleg", "gnc"], default="lm",
-                   help="gnc: graduated non-convexity (truncated least squares) against outlier edges")
+                   help="gnc: graduated non-convexity (truncated least squares) against "
+                   "outlier edges")
     s.add_argument("--solver", choices=["auto", "cholmod", "ldlt", "pcg", "dense"],
                    default="auto", help="linear solver (default: chosen from the problem)")
     s.add_argument("--max-iterations", type=_positive_int, default=100)
@@ -210,7 +211,7 @@ def _with_loss(graph: Any, robust: tuple[str, int, float] | None):
 
 def cmd_solve(args: argparse.Namespace) -> int:
     from . import optimize
-    from .io import add_gauge_prior, write_bal, write_g2o
+    from .io import add_gauge_prior
     from .key import key_str
 
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
@@ -250,7 +251,9 @@ def cmd_solve(args: argparse.Namespace) -> int:
     if args.out is not None and fmt == "bundler":
         print("fgopt: --out: writing Bundler files is not supported", file=sys.stderr)
     elif args.out is not None:
-        (write_bal if fmt == "bal" else write_g2o)(args.out, graph, result.values)
+        from . import io  # the writer's module only: write_bal loads the cameras package
+
+        (io.write_bal if fmt == "bal" else io.write_g2o)(args.out, graph, result.values)
         say(f"wrote {args.out}")
     if args.plot is not None:
         from .plot import save_result_plot

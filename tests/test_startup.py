@@ -97,6 +97,23 @@ def test_scipy_sparse_leaves_numpys_test_and_fortran_tooling_unloaded():
     assert out.splitlines() == ["[]", "[]", "1 True", "True True"]
 
 
+def test_scipy_sparse_leaves_numpys_other_unused_submodules_unloaded():
+    """numpy.polynomial / char / strings / ctypeslib / rec (cloned by scipy's array-API shim,
+    never used by scipy.sparse or CHOLMOD) stay unloaded through a sparse solve's imports, and
+    load on first use through numpy and through the clone."""
+    import pytest
+
+    pytest.importorskip("sksparse")
+    out = _run(
+        "import sys, fgopt, numpy, scipy.sparse, sksparse.cholmod\n"
+        "names = ('polynomial', 'char', 'strings', 'ctypeslib', 'rec')\n"
+        "print(sorted(n for n in names if 'numpy.' + n in sys.modules))\n"
+        "print(sorted(n for n in names if n in vars(numpy)))\n"
+        "from scipy._lib.array_api_compat import numpy as xp\n"
+        "print(xp.polynomial.Polynomial([1, 2])(1.0), numpy.char.upper('a'))\n")
+    assert out.splitlines() == ["[]", "[]", "3.0 A"]
+
+
 def test_numpy_submodules_imported_before_scipy_stay_as_they_are():
     """A submodule already imported is left alone (nothing to save) and scipy.sparse works."""
     out = _run("import numpy.testing, fgopt, numpy, scipy.sparse, sys\n"

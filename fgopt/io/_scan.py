@@ -26,6 +26,7 @@ progress bar (tqdm) when that takes over a second.
 from __future__ import annotations
 
 import bz2
+import functools
 import gzip
 import math
 import os
@@ -62,7 +63,13 @@ def _pow10_table() -> tuple[np.ndarray, np.ndarray]:
 
 
 _EXP_RANGE = 250
-_P10_HI, _P10_LO = _pow10_table()
+
+
+@functools.lru_cache(maxsize=1)
+def _pow10() -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_pow10_table`, made on the numba scan's first use (the NumPy scan does not need
+    it: ~3 ms of rational arithmetic a new process skips)."""
+    return _pow10_table()
 
 
 @njit(cache=True, inline="always")
@@ -484,7 +491,7 @@ def _scan_numba(buf: np.ndarray, has_tag: bool, cm: int, bar=None) -> tuple:
     try:
         while state[0] <= n:
             done = int(state[0])
-            _scan_part(buf, min(done + SCAN_SLICE, n + 1), has_tag, cm, _P10_HI, _P10_LO,
+            _scan_part(buf, min(done + SCAN_SLICE, n + 1), has_tag, cm, *_pow10(),
                        values, slow, tok_start, rec[0], rec[1], rec[2], tags[0], tags[1],
                        tags[2], state)
             if bar is not None:

@@ -64,10 +64,6 @@ def read(path: str | os.PathLike, *, format: str | None = None, add_prior: bool 
         progress: show a progress bar on stderr (tqdm, when installed) if scanning the file
             takes over a second.
     """
-    from .bal import read_bal
-    from .bundler import read_bundler
-    from .g2o import read_g2o
-
     p = os.fspath(path)
     data = read_bytes(p)
     if format is None:
@@ -77,17 +73,23 @@ def read(path: str | os.PathLike, *, format: str | None = None, add_prior: bool 
             raise FileFormatError("the extension says g2o but the file starts with a number; "
                                   "pass format='bal' if it is a BAL file", p, 1)
     if format == "g2o":
+        from .g2o import read_g2o
+
         return read_g2o(p, add_prior=add_prior, skip_unknown=skip_unknown,
                         repair_information=repair_information, data=data, progress=progress)
     if format == "bal":
         if add_prior or skip_unknown or repair_information is not None:
             raise FgoptError("read: add_prior, skip_unknown and repair_information apply to g2o "
                              f"files; {p} is a BAL file")
+        from .bal import read_bal
+
         return read_bal(p, data=data, progress=progress)
     if format == "bundler":
         if add_prior or skip_unknown or repair_information is not None:
             raise FgoptError("read: add_prior, skip_unknown and repair_information apply to g2o "
                              f"files; {p} is a Bundler file")
+        from .bundler import read_bundler
+
         return read_bundler(p, data=data)
     if format == "load2d":
         if add_prior or skip_unknown or repair_information is not None:

@@ -8,13 +8,9 @@ from typing import Any
 
 from ..errors import FgoptError
 from .dogleg import Dogleg as Dogleg
-from .gnc import GNC as GNC
-from .gnc import GNCParams as GNCParams
 from .gauss_newton import GaussNewton as GaussNewton
 from .initialization import check as check_initialization
 from .initialization import for_chordal_start, optimize_auto
-from .jacobian_check import JacobianReport as JacobianReport
-from .jacobian_check import check_jacobians as check_jacobians
 from .linear.base import LinearSolver as LinearSolver
 from .linear.base import make_linear_solver as make_linear_solver
 from .lm import LevenbergMarquardt as LevenbergMarquardt
@@ -28,9 +24,21 @@ from .result import Status as Status
 
 
 
+#: Loaded on first use: GNC and the Jacobian check are not on a plain solve's path (~2 ms of a
+#: new process, ``fgopt solve``).
+_LAZY = {"GNC": ".gnc", "GNCParams": ".gnc", "JacobianReport": ".jacobian_check",
+         "check_jacobians": ".jacobian_check"}
+
+
 def __getattr__(name: str):
     """``chordal_initialization`` and ``marginals`` load on first use (they import scipy's
-    sparse package, which a small solve does not need)."""
+    sparse package, which a small solve does not need), as do GNC and ``check_jacobians``."""
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+        globals()[name] = value
+        return value
     if name == "chordal_initialization":
         from .chordal import chordal_initialization
 
@@ -43,7 +51,7 @@ def __getattr__(name: str):
 
 
 _METHODS = {"lm": (LevenbergMarquardt, LMParams), "gn": (GaussNewton, GaussNewtonParams),
-            "dogleg": (Dogleg, DoglegParams), "gnc": (GNC, GNCParams)}
+            "dogleg": (Dogleg, DoglegParams), "gnc": None}  # gnc: resolved on first use
 
 
 def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = "auto",
@@ -81,6 +89,10 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
     """
     if method not in _METHODS:
         raise FgoptError(f"unknown method {method!r}: choose one of {', '.join(_METHODS)}")
+    if method == "gnc":
+        from .gnc import GNC, GNCParams
+
+        _METHODS["gnc"] = (GNC, GNCParams)
     cls, params_cls = _METHODS[method]
     if params is None:
         params = params_cls()
@@ -130,8 +142,8 @@ def _optimize_from(graph: Any, initial: Any, cls: Any, params: Any, solver_obj: 
         return optimize_fixed(graph, initial, params=params)
     if formulation != "dynamic":
         raise FgoptError(f"unknown formulation {formulation!r}: 'dynamic' or 'fixed'")
-    if cls is GNC:
+    if method == "gnc":
         if solver_obj is not None:
             raise FgoptError("method='gnc' takes linear_solver by name")
-        return GNC(params).optimize(graph, initial, callback=callback)
+        return cls(params).optimize(graph, initial, callback=callback)
     return cls(params, solver_obj).optimize(graph, initial, callback=callback)
