@@ -83,3 +83,51 @@ def test_sliced_scan_reports_progress_and_equals_one_pass(monkeypatch):
     assert bars and bars[0].n == len(data) and bars[0].closed
     for name in ("values", "bad", "tok_start", "line", "first", "count", "tag_hash"):
         assert np.array_equal(getattr(sliced, name), getattr(whole, name)), name
+
+
+#: Plain decimals of at most 17 digits (leading zeros count) below 2**53: the array path.
+_PLAIN = ["0", "-0", "+0.0", "-0.000", ".5", "5.", "+.5", "-5.", "00012", "1.030390", "-0.012958",
+          "44.721360", "9007199254740991", "900719925474099.1", "0.9007199254740991",
+          "0.0000000000000001", ".0000000000000009"]
+#: Exponents, mantissas of 2**53 and above, more digits, nan / inf, garbage: NumPy's conversion.
+_SLOW = ["9007199254740992", "9007199254740993", "12345678901234567", "1e5", "7E+2", "nan",
+         "-inf", "1.5e-300", "0.00000000000000000000001", "123.456789012345678901", "1_0", "x4",
+         "1.2.3", "+-1", "-", "."]
+
+
+def test_numpy_token_parser_equals_float_and_takes_the_array_path_for_plain_decimals(
+        monkeypatch):
+    """``parse_tokens`` (the NumPy scan's number parser) gives ``float(token)`` bit for bit
+    (signed zeros included) or ``bad`` where ``float`` refuses the token; plain decimals with a
+    mantissa up to 2**53 and up to 22 decimals are parsed by its array path, everything else
+    (exponents, longer mantissas, nan, garbage) by NumPy's string conversion."""
+    from fgopt.io import _scan_np
+
+    rng = np.random.default_rng(3)
+    x = rng.standard_normal(5000) * 10.0 ** rng.integers(-6, 9, 5000)
+    toks = _PLAIN + _SLOW + ["%.6f" % v for v in x] + [repr(float(v)) for v in x]
+    data = (" ".join(toks) + "\n").encode()
+    buf = np.frombuffer(data, dtype=np.uint8)
+    ends = np.flatnonzero(np.frombuffer(data, np.uint8) == 32).tolist() + [len(data) - 1]
+    start = np.array([0] + [e + 1 for e in ends[:-1]], dtype=np.int64)
+    end = np.array(ends, dtype=np.int64)
+    slow_calls = []
+    real_slow = _scan_np._parse_slow
+
+    def spy(b, s, e):
+        slow_calls.extend(bytes(b[i:j]).decode("latin-1") for i, j in zip(s.tolist(), e.tolist()))
+        return real_slow(b, s, e)
+
+    monkeypatch.setattr(_scan_np, "_parse_slow", spy)
+    values, bad = _scan_np.parse_tokens(buf, start, end)
+    for tok, v, b in zip(toks, values.tolist(), bad.tolist()):
+        try:
+            ref = float(tok)
+        except ValueError:
+            ref = None
+        if ref is None or "_" in tok:  # float() takes '1_0'; the scanners do not
+            assert b, tok
+        else:
+            assert not b and np.float64(v).tobytes() == np.float64(ref).tobytes(), tok
+    assert set(_SLOW) <= set(slow_calls)
+    assert not set(_PLAIN + ["%.6f" % v for v in x]) & set(slow_calls)
