@@ -48,9 +48,14 @@ def decimal_texts(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     a = np.abs(x)
     zero = a == 0.0
     ok = (a >= 1e-4) & (a < 1e15)
-    e = np.floor(np.log10(np.where(ok, a, 1.0))).astype(np.int64)  # may be off by one: checked
+    a_ok = np.where(ok, a, 0.0)  # zeros give y = 0
+    e = np.floor(np.log10(np.where(ok, a, 1.0))).astype(np.int64)
+    # log10 may round up across a power of ten (99999999999999.9 -> 14): e is a's exponent
+    e -= np.where(e >= 0, a_ok < _P10[np.maximum(e, 0)], a_ok * _P10[np.maximum(-e, 0)] < 1.0)
     d = np.clip(_DIGITS - 1 - e, 0, 18)
-    y = np.rint(a * _P10[d])
+    y = np.rint(a_ok * _P10[d])
+    d -= ok & (y >= 10.0 ** _DIGITS) & (d > 0)  # (or down: one digit too many)
+    y = np.rint(a_ok * _P10[d])
     ok &= (y < 10.0 ** _DIGITS) & (y / _P10[d] == a)
     ok |= zero
     sel = np.flatnonzero(ok)
