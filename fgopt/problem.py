@@ -679,6 +679,7 @@ class Problem:
         total = 0.0
         t_lin = t_asm = 0.0
         shift = self.pattern.col_shift
+        take = np.take
         for b in self.batches:
             if (self.threads > 1 and len(b.source) >= PARALLEL_MIN_BATCH
                     and self.backend == "numba"):
@@ -687,10 +688,34 @@ class Problem:
                     total += linearize_batch_threaded(self, b, state, H, g, lo, hi)
                 t_lin += time.perf_counter() - t0
                 continue
+            src = b.source
+            n = src.keys.shape[0]
+            kernels = _asm(n)
+            if n <= CHUNK and kernels is asm:
+                # one slice on numba (most batches): no slicing or per-slice bookkeeping
+                fixed = b.fixed.get(b.unit, _UNSET)
+                if fixed is _UNSET:
+                    fixed = b.fixed[b.unit] = specialized_scatter(b)
+                t0 = time.perf_counter()
+                st = state.storages
+                res, jac = b.kernel.linearize(
+                    tuple([take(st[kid], rows, axis=0) for kid, rows in zip(b.kind_ids, b.rows)]),
+                    src.constants)
+                t1 = time.perf_counter()
+                if fixed is not None:
+                    total += fixed(res, jac, b.sqrt_info, src.loss_code, src.loss_param,
+                                   src.loss_shape, b.toff, b.pos, shift, H, g, b.weights, 0.0)
+                else:
+                    total += asm.scatter_batch(res, jac, b.sqrt_info, b.unit, src.loss_code,
+                                               src.loss_param, src.loss_shape, b.arg_dims,
+                                               b.arg_local_off, b.toff, b.pos, shift, H, g,
+                                               b.weights, 0.0)
+                t_lin += t1 - t0
+                t_asm += time.perf_counter() - t1
+                continue
             # in slices: the kernels' residual / Jacobian / gathered arguments stay a few MB
             # instead of ~300 bytes per factor at once (1.5 GB for 5M BA observations)
             chunks = b.chunks(CHUNK)
-            kernels = _asm(len(b.source))
             if kernels is asm_np:
                 # NumPy backend, or a small batch while the twin budget lasts: bincount assembly
                 # with a scatter plan per slice (made on first use, kept)
