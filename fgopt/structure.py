@@ -117,7 +117,12 @@ def _densely_banded(num_vars: int, pairs_i: np.ndarray, pairs_j: np.ndarray) -> 
     if width == 0 or width > BANDED:
         return False
     lo, hi = np.minimum(a, b), np.maximum(a, b)
-    coupled = unique_int(lo[lo != hi] * num_vars + hi[lo != hi]).shape[0]
+    off = lo != hi
+    # distinct coupled pairs: a pair is (lo, hi - lo) with 1 <= hi - lo <= width, so a mask of
+    # num_vars x width cells counts them (no sort)
+    mark = np.zeros(num_vars * width, dtype=bool)
+    mark[lo[off] * width + (hi[off] - lo[off] - 1)] = True
+    coupled = int(np.count_nonzero(mark))
     return coupled >= 0.5 * num_vars * width
 
 

@@ -98,3 +98,24 @@ def test_pattern_kernel_equals_vectorized_pattern(seed):
     want = _pattern_np(var_dim, order, pi, pj, N)
     for name, g, w in zip(("var_offset", "codes", "indptr", "p00", "col_ptr"), got, want):
         assert np.array_equal(g, w), name
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_densely_banded_counts_distinct_coupled_pairs(seed):
+    """The banded-order test keeps the given order exactly when every pair is within BANDED
+    positions and at least half of the band's cells are coupled, counting each unordered pair
+    once (repeats, reversed pairs and self pairs do not count twice)."""
+    from fgopt.structure import BANDED, _densely_banded
+
+    rng = np.random.default_rng(seed)
+    V = int(rng.integers(2, 60))
+    width = int(rng.integers(1, BANDED + 3))
+    m = int(rng.integers(1, 3 * V * min(width, BANDED)))
+    a = rng.integers(0, V, m)
+    b = np.clip(a + rng.integers(-width, width + 1, m), 0, V - 1)
+    a = np.concatenate([a, b[: m // 4]])      # reversed repeats
+    b = np.concatenate([b, a[: m // 4]])
+    distinct = {(min(x, y), max(x, y)) for x, y in zip(a.tolist(), b.tolist()) if x != y}
+    w = int(np.max(np.abs(a - b)))
+    want = 0 < w <= BANDED and len(distinct) >= 0.5 * V * w
+    assert _densely_banded(V, a, b) == want
