@@ -37,7 +37,7 @@ from .noise.models import RobustLoss, base_noise, loss_code_and_param
 from .key import Key, key_str
 from .manifolds.base import SCALAR_KIND, BatchKind, is_vector_kind, ops_for
 from .structure import (DENSE_MAX_SIZE, HessianPattern, ba_shaped_kind, build_pattern,
-                        fill_reducing_order, independent_kinds, kinds_by_count, schur_order,
+                        fill_reducing_order, kinds_by_count, schur_order,
                         scatter_positions, unique_int)
 from ._jit import charge_numpy, numpy_budget_left
 from ._scatter_fixed import specialize as specialized_scatter
@@ -487,6 +487,23 @@ class Problem:
             return next((k for k in kinds_by_count(self.var_kind) if k in independent), None)
         return None
 
+    def _independent_kinds(self) -> tuple[int, ...]:
+        """:func:`fgopt.structure.independent_kinds` of the problem's pairs, read from the
+        factors' argument kinds: a kind is joined iff some factor has two arguments of it (a
+        factor's variables are distinct: repeated keys are rejected), so no pass over the pairs
+        is needed."""
+        joined: set[int] = set()
+        for b in self.batches:
+            ids = [k for k in b.kind_ids if k >= 0]
+            if len(set(ids)) < len(ids):
+                joined.update(k for k in ids if ids.count(k) > 1)
+        for s in self._slow:
+            ids = [k for k in self.var_kind[s.var_idx].tolist() if k >= 0]
+            if len(set(ids)) < len(ids):
+                joined.update(k for k in ids if ids.count(k) > 1)
+        return tuple(k for k in range(len(self.kinds))
+                     if k not in joined and self._kind_vars[k].shape[0] > 0)
+
     def _build_structure(self, ordering: str, linear_solver: Any = None) -> None:
         pi, pj = [], []
         for b in self.batches:
@@ -503,7 +520,7 @@ class Problem:
         pi = np.concatenate(pi) if pi else np.zeros(0, np.int64)
         pj = np.concatenate(pj) if pj else np.zeros(0, np.int64)
         V = self.var_keys.shape[0]
-        independent = independent_kinds(self.var_kind, pi, pj)
+        independent = self._independent_kinds()
         eliminated = self._schur_kind(linear_solver, independent)
         if eliminated is not None:
             order = schur_order(self.var_kind, eliminated)

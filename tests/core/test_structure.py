@@ -119,3 +119,45 @@ def test_densely_banded_counts_distinct_coupled_pairs(seed):
     w = int(np.max(np.abs(a - b)))
     want = 0 < w <= BANDED and len(distinct) >= 0.5 * V * w
     assert _densely_banded(V, a, b) == want
+
+
+def _all_pairs(problem):
+    pi, pj = [], []
+    for b in problem.batches:
+        k = b.var_idx.shape[1]
+        for p in range(k):
+            for q in range(p + 1, k):
+                pi.append(b.var_idx[:, p])
+                pj.append(b.var_idx[:, q])
+    for s in problem._slow:
+        for p in range(len(s.var_idx)):
+            for q in range(p + 1, len(s.var_idx)):
+                pi.append(s.var_idx[p:p + 1])
+                pj.append(s.var_idx[q:q + 1])
+    return np.concatenate(pi), np.concatenate(pj)
+
+
+def test_independent_kinds_from_factor_arguments_equal_pair_scan():
+    """The compiled problem reads its independent kinds (no factor joins two variables of the
+    kind) from the factors' argument kinds; that equals the scan over every coupled pair, on a
+    BA graph (points independent), a pose-landmark graph, a pose chain (nothing independent
+    but the landmarks) and a graph with Python-path factors."""
+    import fgopt
+    from fgopt.factors import BetweenFactor
+    from fgopt.structure import independent_kinds
+    from tests.solvers.test_python_path import trilateration
+    from tests.solvers.test_schur import pose_landmark_graph, synthetic_ba
+
+    cases = [synthetic_ba(seed=1), pose_landmark_graph(), trilateration()]
+    graph, values = fgopt.FactorGraph(), fgopt.Variables()
+    for i in range(5):
+        values.add(fgopt.key("x", i), fgopt.SE2(0.1 * i, (0.0, 0.0)))
+        values.add(fgopt.key("l", i), np.array([i, 1.0]))
+        if i:
+            graph.add(BetweenFactor(fgopt.key("x", i - 1), fgopt.key("x", i),
+                                    fgopt.SE2(0.1, (0.0, 0.0))))
+    cases.append((graph, values))
+    for case in cases:
+        problem = fgopt.Problem(case[0], case[1])
+        pi, pj = _all_pairs(problem)
+        assert problem._independent_kinds() == independent_kinds(problem.var_kind, pi, pj)
