@@ -295,7 +295,8 @@ class Problem:
             x = xs[tkeys.index(tkey)]
             ops = ops_of[tkey] = ops_for(x)
             tok_of[tkey] = number(ops.batch_kind(x))
-        tok[per_key] = [tok_of[t] for t in tkeys]
+        tok[per_key] = np.fromiter(map(tok_of.__getitem__, tkeys), dtype=np.int64,
+                                   count=len(tkeys))
         for b, blk in enumerate(values._pending):
             on = block == b
             if on.any():  # the kind the per-key path would find for these values
@@ -312,20 +313,27 @@ class Problem:
         slot = np.full(V, -1, dtype=np.int64)  # position in xs of per-key variables
         slot[per_key] = np.arange(per_key.shape[0])
         storages = []
+        # the variables of each kind (ascending), from one stable sort; -1 (slow path) first
+        by_kind = np.argsort(var_kind, kind="stable")
+        bounds = np.searchsorted(var_kind[by_kind], np.arange(len(self.kinds) + 1))
+        kind_vars = [by_kind[bounds[kid]:bounds[kid + 1]] for kid in range(len(self.kinds))]
         for kid, kind in enumerate(self.kinds):
-            idx = np.nonzero(var_kind == kid)[0]
+            idx = kind_vars[kid]
             var_row[idx] = np.arange(idx.shape[0])
             var_dim[idx] = kind.dim
             S = np.empty((idx.shape[0], kind.storage_dim))
-            pk = slot[idx] >= 0
-            if pk.any():
-                S[pk] = self._storage_of(kind, [xs[i] for i in slot[idx[pk]].tolist()])
+            sl = slot[idx]
+            pk = sl >= 0
+            if pk.all():
+                S[:] = self._storage_of(kind, list(map(xs.__getitem__, sl.tolist())))
+            elif pk.any():
+                S[pk] = self._storage_of(kind, list(map(xs.__getitem__, sl[pk].tolist())))
             for b, blk in enumerate(values._pending):
                 on = block[idx] == b
                 if on.any():
                     S[on] = blk.rows[brow[idx[on]]]
             storages.append(S)
-        slow_idx = np.nonzero(var_kind < 0)[0]
+        slow_idx = by_kind[:bounds[0]]
         var_row[slow_idx] = np.arange(slow_idx.shape[0])
         self._slow_values: list[Any] = [xs[i] for i in slot[slow_idx].tolist()]
         for i, x in zip(slow_idx.tolist(), self._slow_values):
@@ -336,8 +344,8 @@ class Problem:
         self.var_row = var_row
         self.var_dim = var_dim
         self._initial_storages = storages
-        self._kind_vars = [np.nonzero(self.var_kind == kid)[0] for kid in range(len(self.kinds))]
-        self._slow_vars = np.nonzero(self.var_kind < 0)[0]
+        self._kind_vars = kind_vars
+        self._slow_vars = slow_idx
         self._extra = values  # for unused keys and the final Variables
         #: Keys of ``values`` that no factor uses (returned unchanged in the final values).
         self.unused_keys: list[Key] = []
