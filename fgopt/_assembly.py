@@ -258,6 +258,23 @@ def batch_cost(res, sqrt_info, unit, loss_code, loss_param, loss_shape, cost):
 
 
 @njit(cache=True)
+def damp_diagonal(H_data, diag_pos, damping, saved):
+    """``saved <- H[diag_pos]``, ``H[diag_pos] += damping`` (the NumPy statements' numbers, one
+    call instead of three fancy-indexing passes)."""
+    for i in range(diag_pos.shape[0]):
+        p = diag_pos[i]
+        saved[i] = H_data[p]
+        H_data[p] = saved[i] + damping[i]
+
+
+@njit(cache=True)
+def restore_diagonal(H_data, diag_pos, saved):
+    """``H[diag_pos] = saved``."""
+    for i in range(diag_pos.shape[0]):
+        H_data[diag_pos[i]] = saved[i]
+
+
+@njit(cache=True)
 def all_finite(a):
     """True when every entry of the 1-D array ``a`` is finite (no temporary mask)."""
     for i in range(a.shape[0]):

@@ -37,7 +37,7 @@ from .noise.models import RobustLoss, base_noise, loss_code_and_param
 from .key import Key, key_str
 from .manifolds.base import SCALAR_KIND, BatchKind, is_vector_kind, ops_for
 from .structure import (DENSE_MAX_SIZE, HessianPattern, ba_shaped_kind, build_pattern,
-                        fill_reducing_order, independent_kinds, kinds_by_count, schur_order,
+                        fill_reducing_order, kinds_by_count, schur_order,
                         scatter_positions, unique_int)
 from ._jit import charge_numpy, numpy_budget_left
 from ._scatter_fixed import specialize as specialized_scatter
@@ -295,7 +295,8 @@ class Problem:
             x = xs[tkeys.index(tkey)]
             ops = ops_of[tkey] = ops_for(x)
             tok_of[tkey] = number(ops.batch_kind(x))
-        tok[per_key] = [tok_of[t] for t in tkeys]
+        tok[per_key] = np.fromiter(map(tok_of.__getitem__, tkeys), dtype=np.int64,
+                                   count=len(tkeys))
         for b, blk in enumerate(values._pending):
             on = block == b
             if on.any():  # the kind the per-key path would find for these values
@@ -312,20 +313,27 @@ class Problem:
         slot = np.full(V, -1, dtype=np.int64)  # position in xs of per-key variables
         slot[per_key] = np.arange(per_key.shape[0])
         storages = []
+        # the variables of each kind (ascending), from one stable sort; -1 (slow path) first
+        by_kind = np.argsort(var_kind, kind="stable")
+        bounds = np.searchsorted(var_kind[by_kind], np.arange(len(self.kinds) + 1))
+        kind_vars = [by_kind[bounds[kid]:bounds[kid + 1]] for kid in range(len(self.kinds))]
         for kid, kind in enumerate(self.kinds):
-            idx = np.nonzero(var_kind == kid)[0]
+            idx = kind_vars[kid]
             var_row[idx] = np.arange(idx.shape[0])
             var_dim[idx] = kind.dim
             S = np.empty((idx.shape[0], kind.storage_dim))
-            pk = slot[idx] >= 0
-            if pk.any():
-                S[pk] = self._storage_of(kind, [xs[i] for i in slot[idx[pk]].tolist()])
+            sl = slot[idx]
+            pk = sl >= 0
+            if pk.all():
+                S[:] = self._storage_of(kind, list(map(xs.__getitem__, sl.tolist())))
+            elif pk.any():
+                S[pk] = self._storage_of(kind, list(map(xs.__getitem__, sl[pk].tolist())))
             for b, blk in enumerate(values._pending):
                 on = block[idx] == b
                 if on.any():
                     S[on] = blk.rows[brow[idx[on]]]
             storages.append(S)
-        slow_idx = np.nonzero(var_kind < 0)[0]
+        slow_idx = by_kind[:bounds[0]]
         var_row[slow_idx] = np.arange(slow_idx.shape[0])
         self._slow_values: list[Any] = [xs[i] for i in slot[slow_idx].tolist()]
         for i, x in zip(slow_idx.tolist(), self._slow_values):
@@ -336,8 +344,8 @@ class Problem:
         self.var_row = var_row
         self.var_dim = var_dim
         self._initial_storages = storages
-        self._kind_vars = [np.nonzero(self.var_kind == kid)[0] for kid in range(len(self.kinds))]
-        self._slow_vars = np.nonzero(self.var_kind < 0)[0]
+        self._kind_vars = kind_vars
+        self._slow_vars = slow_idx
         self._extra = values  # for unused keys and the final Variables
         #: Keys of ``values`` that no factor uses (returned unchanged in the final values).
         self.unused_keys: list[Key] = []
@@ -487,6 +495,23 @@ class Problem:
             return next((k for k in kinds_by_count(self.var_kind) if k in independent), None)
         return None
 
+    def _independent_kinds(self) -> tuple[int, ...]:
+        """:func:`fgopt.structure.independent_kinds` of the problem's pairs, read from the
+        factors' argument kinds: a kind is joined iff some factor has two arguments of it (a
+        factor's variables are distinct: repeated keys are rejected), so no pass over the pairs
+        is needed."""
+        joined: set[int] = set()
+        for b in self.batches:
+            ids = [k for k in b.kind_ids if k >= 0]
+            if len(set(ids)) < len(ids):
+                joined.update(k for k in ids if ids.count(k) > 1)
+        for s in self._slow:
+            ids = [k for k in self.var_kind[s.var_idx].tolist() if k >= 0]
+            if len(set(ids)) < len(ids):
+                joined.update(k for k in ids if ids.count(k) > 1)
+        return tuple(k for k in range(len(self.kinds))
+                     if k not in joined and self._kind_vars[k].shape[0] > 0)
+
     def _build_structure(self, ordering: str, linear_solver: Any = None) -> None:
         pi, pj = [], []
         for b in self.batches:
@@ -503,7 +528,7 @@ class Problem:
         pi = np.concatenate(pi) if pi else np.zeros(0, np.int64)
         pj = np.concatenate(pj) if pj else np.zeros(0, np.int64)
         V = self.var_keys.shape[0]
-        independent = independent_kinds(self.var_kind, pi, pj)
+        independent = self._independent_kinds()
         eliminated = self._schur_kind(linear_solver, independent)
         if eliminated is not None:
             order = schur_order(self.var_kind, eliminated)
@@ -679,6 +704,7 @@ class Problem:
         total = 0.0
         t_lin = t_asm = 0.0
         shift = self.pattern.col_shift
+        take = np.take
         for b in self.batches:
             if (self.threads > 1 and len(b.source) >= PARALLEL_MIN_BATCH
                     and self.backend == "numba"):
@@ -687,10 +713,34 @@ class Problem:
                     total += linearize_batch_threaded(self, b, state, H, g, lo, hi)
                 t_lin += time.perf_counter() - t0
                 continue
+            src = b.source
+            n = src.keys.shape[0]
+            kernels = _asm(n)
+            if n <= CHUNK and kernels is asm:
+                # one slice on numba (most batches): no slicing or per-slice bookkeeping
+                fixed = b.fixed.get(b.unit, _UNSET)
+                if fixed is _UNSET:
+                    fixed = b.fixed[b.unit] = specialized_scatter(b)
+                t0 = time.perf_counter()
+                st = state.storages
+                res, jac = b.kernel.linearize(
+                    tuple([take(st[kid], rows, axis=0) for kid, rows in zip(b.kind_ids, b.rows)]),
+                    src.constants)
+                t1 = time.perf_counter()
+                if fixed is not None:
+                    total += fixed(res, jac, b.sqrt_info, src.loss_code, src.loss_param,
+                                   src.loss_shape, b.toff, b.pos, shift, H, g, b.weights, 0.0)
+                else:
+                    total += asm.scatter_batch(res, jac, b.sqrt_info, b.unit, src.loss_code,
+                                               src.loss_param, src.loss_shape, b.arg_dims,
+                                               b.arg_local_off, b.toff, b.pos, shift, H, g,
+                                               b.weights, 0.0)
+                t_lin += t1 - t0
+                t_asm += time.perf_counter() - t1
+                continue
             # in slices: the kernels' residual / Jacobian / gathered arguments stay a few MB
             # instead of ~300 bytes per factor at once (1.5 GB for 5M BA observations)
             chunks = b.chunks(CHUNK)
-            kernels = _asm(len(b.source))
             if kernels is asm_np:
                 # NumPy backend, or a small batch while the twin budget lasts: bincount assembly
                 # with a scatter plan per slice (made on first use, kept)

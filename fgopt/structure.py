@@ -117,7 +117,12 @@ def _densely_banded(num_vars: int, pairs_i: np.ndarray, pairs_j: np.ndarray) -> 
     if width == 0 or width > BANDED:
         return False
     lo, hi = np.minimum(a, b), np.maximum(a, b)
-    coupled = unique_int(lo[lo != hi] * num_vars + hi[lo != hi]).shape[0]
+    off = lo != hi
+    # distinct coupled pairs: a pair is (lo, hi - lo) with 1 <= hi - lo <= width, so a mask of
+    # num_vars x width cells counts them (no sort)
+    mark = np.zeros(num_vars * width, dtype=bool)
+    mark[lo[off] * width + (hi[off] - lo[off] - 1)] = True
+    coupled = int(np.count_nonzero(mark))
     return coupled >= 0.5 * num_vars * width
 
 
@@ -242,19 +247,38 @@ def build_pattern(var_dim: np.ndarray, order: np.ndarray, pairs_i: np.ndarray,
     (blocks of column rank ``r`` are ``codes[col_ptr[r]:col_ptr[r + 1]]``) and ``p00`` (data index
     of each block's entry ``(0, 0)``).
     """
-    var_dim = np.asarray(var_dim, dtype=np.int64)
-    order = np.asarray(order, dtype=np.int64)
+    var_dim = np.ascontiguousarray(var_dim, dtype=np.int64)
+    order = np.ascontiguousarray(order, dtype=np.int64)
+    pairs_i = np.ascontiguousarray(pairs_i, dtype=np.int64)
+    pairs_j = np.ascontiguousarray(pairs_j, dtype=np.int64)
+    V = var_dim.shape[0]
+    N = int(var_dim.sum())
+    if _use_numba(4 * (pairs_i.shape[0] + V)):
+        # one numba call (small problems: the NumPy steps below cost ~100 us of call overhead)
+        var_offset, codes, indptr, p00, col_ptr = _pattern_kernel(var_dim, order, pairs_i,
+                                                                  pairs_j, N)
+    else:
+        var_offset, codes, indptr, p00, col_ptr = _pattern_np(var_dim, order, pairs_i,
+                                                              pairs_j, N)
+    diag_pos = indptr[:-1].copy()  # diagonal entry is the first of each lower column
+    pattern = HessianPattern(N, indptr, diag_pos, var_offset, var_dim, codes, p00, order)
+    lookup = {"codes": codes, "col_ptr": col_ptr, "p00": p00, "V": V}
+    return pattern, lookup
+
+
+def _pattern_np(var_dim, order, pairs_i, pairs_j, N):
+    """``(var_offset, codes, indptr, p00, col_ptr)`` of :func:`build_pattern`, vectorized (the
+    NumPy backend, and numba's twin budget; see :func:`_layout_kernel`)."""
     V = var_dim.shape[0]
     rank = np.empty(V, dtype=np.int64)
     rank[order] = np.arange(V)
     var_offset = np.zeros(V, dtype=np.int64)
     dims_in_order = var_dim[order]
     var_offset[order] = np.concatenate([[0], np.cumsum(dims_in_order)[:-1]]) if V else []
-    N = int(var_dim.sum())
     # Blocks as rank codes (column = the smaller rank): one sort gives the CSC order, diagonal
     # blocks first in their columns.
-    ri = rank[np.asarray(pairs_i, dtype=np.int64)]
-    rj = rank[np.asarray(pairs_j, dtype=np.int64)]
+    ri = rank[pairs_i]
+    rj = rank[pairs_j]
     keep = ri != rj
     ri, rj = ri[keep], rj[keep]
     codes = np.concatenate([np.minimum(ri, rj) * V + np.maximum(ri, rj),
@@ -263,11 +287,8 @@ def build_pattern(var_dim: np.ndarray, order: np.ndarray, pairs_i: np.ndarray,
     codes = unique_int(codes)
     args = (codes, V, order, var_dim, var_offset, N)
     indptr, p00 = _layout_kernel(_block_layout, _block_layout_np, codes.shape[0] * 4, *args)
-    diag_pos = indptr[:-1].copy()  # diagonal entry is the first of each lower column
-    pattern = HessianPattern(N, indptr, diag_pos, var_offset, var_dim, codes, p00, order)
     col_ptr = np.searchsorted(codes, np.arange(V + 1, dtype=np.int64) * V)
-    lookup = {"codes": codes, "col_ptr": col_ptr, "p00": p00, "V": V}
-    return pattern, lookup
+    return var_offset, codes, indptr, p00, col_ptr
 
 
 def unique_int(a: np.ndarray) -> np.ndarray:
@@ -420,6 +441,76 @@ def _block_layout(codes, V, order, var_dim, var_offset, N):
         for cb in range(dc):
             fill[oc + cb] += dc - cb if c == r else dr
     return indptr, p00
+
+
+def _use_numba(work: int) -> bool:
+    """Whether layout work of about ``work`` steps runs in numba (the rule of
+    :func:`_layout_kernel`, without running anything)."""
+    if numpy_only() or (work <= NUMPY_LAYOUT_MAX and not is_numba_loaded()):
+        return False
+    return not _small(work)
+
+
+@njit(cache=True)
+def _pattern_kernel(var_dim, order, pairs_i, pairs_j, N):
+    """:func:`_pattern_np` in one numba call."""
+    V = var_dim.shape[0]
+    rank = np.empty(V, np.int64)
+    var_offset = np.empty(V, np.int64)
+    acc = 0
+    for k in range(V):
+        rank[order[k]] = k
+        var_offset[order[k]] = acc
+        acc += var_dim[order[k]]
+    # bucket the blocks by column rank (the diagonal block first), then sort and deduplicate
+    # each column's rows in place: O(pairs + V), no global sort
+    m = pairs_i.shape[0]
+    cnt = np.ones(V + 1, np.int64)
+    cnt[V] = 0
+    for e in range(m):
+        a, b = rank[pairs_i[e]], rank[pairs_j[e]]
+        if a != b:
+            cnt[min(a, b)] += 1
+    start = np.empty(V + 1, np.int64)
+    start[0] = 0
+    for k in range(V):
+        start[k + 1] = start[k] + cnt[k]
+    rows = np.empty(start[V], np.int64)
+    fill = start[:V].copy()
+    for k in range(V):
+        rows[fill[k]] = k
+        fill[k] += 1
+    for e in range(m):
+        a, b = rank[pairs_i[e]], rank[pairs_j[e]]
+        if a != b:
+            c = min(a, b)
+            rows[fill[c]] = max(a, b)
+            fill[c] += 1
+    col_ptr = np.zeros(V + 1, np.int64)
+    nb = 0
+    for k in range(V):
+        lo, hi = start[k], start[k + 1]
+        if hi - lo > 32:
+            rows[lo:hi] = np.sort(rows[lo:hi])
+        else:
+            for u in range(lo + 1, hi):
+                v = rows[u]
+                w = u
+                while w > lo and rows[w - 1] > v:
+                    rows[w] = rows[w - 1]
+                    w -= 1
+                rows[w] = v
+        for u in range(lo, hi):
+            if u == lo or rows[u] != rows[u - 1]:
+                rows[nb] = rows[u]  # nb <= u: writes never overtake reads
+                nb += 1
+        col_ptr[k + 1] = nb
+    codes = np.empty(nb, np.int64)
+    for k in range(V):
+        for u in range(col_ptr[k], col_ptr[k + 1]):
+            codes[u] = k * V + rows[u]
+    indptr, p00 = _block_layout(codes, V, order, var_dim, var_offset, N)
+    return var_offset, codes, indptr, p00, col_ptr
 
 
 @njit(cache=True)

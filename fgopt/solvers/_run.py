@@ -8,6 +8,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from .. import _assembly as asm
 from ..errors import FgoptError, NonFiniteError
 from ..problem import Problem, State
 from ..variables import Variables
@@ -119,6 +120,14 @@ class Run:
         H, diag_pos = self.problem.H_data, self.problem.pattern.diag_pos
         if damping is None:
             return self.solve(H, rhs)
+        if self.problem.backend == "numba":  # numba is in use: one call each way (~25 us less)
+            undamped = np.empty(diag_pos.shape[0])
+            asm.damp_diagonal(H, diag_pos, np.ascontiguousarray(damping, dtype=np.float64),
+                              undamped)
+            try:
+                return self.solve(H, rhs)
+            finally:
+                asm.restore_diagonal(H, diag_pos, undamped)
         undamped = H[diag_pos]
         H[diag_pos] += damping
         try:

@@ -74,3 +74,90 @@ def test_whitening_and_robust_weights(m):
     RJ = R @ J[0]
     assert np.allclose(pattern.full(H_data).toarray(), w[0] * RJ.T @ RJ)
     assert np.allclose(g, w[0] * RJ.T @ r)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_pattern_kernel_equals_vectorized_pattern(seed):
+    """The one-call numba pattern (used once numba is in use) gives the same offsets, block
+    codes, column layout, block positions and column pointers as the vectorized NumPy steps,
+    for random graphs with repeated pairs, self pairs, isolated variables and a random order."""
+    from fgopt.structure import _pattern_kernel, _pattern_np
+
+    rng = np.random.default_rng(seed)
+    V = int(rng.integers(1, 80))
+    var_dim = rng.integers(1, 7, V).astype(np.int64)
+    m = int(rng.integers(0, 4 * V))
+    pi = rng.integers(0, V, m).astype(np.int64)
+    pj = rng.integers(0, V, m).astype(np.int64)
+    pj[: m // 5] = pi[: m // 5]               # self pairs (ignored)
+    pi = np.concatenate([pi, pi[: m // 3]])   # repeated pairs
+    pj = np.concatenate([pj, pj[: m // 3]])
+    order = rng.permutation(V).astype(np.int64)
+    N = int(var_dim.sum())
+    got = _pattern_kernel(var_dim, order, pi, pj, N)
+    want = _pattern_np(var_dim, order, pi, pj, N)
+    for name, g, w in zip(("var_offset", "codes", "indptr", "p00", "col_ptr"), got, want):
+        assert np.array_equal(g, w), name
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_densely_banded_counts_distinct_coupled_pairs(seed):
+    """The banded-order test keeps the given order exactly when every pair is within BANDED
+    positions and at least half of the band's cells are coupled, counting each unordered pair
+    once (repeats, reversed pairs and self pairs do not count twice)."""
+    from fgopt.structure import BANDED, _densely_banded
+
+    rng = np.random.default_rng(seed)
+    V = int(rng.integers(2, 60))
+    width = int(rng.integers(1, BANDED + 3))
+    m = int(rng.integers(1, 3 * V * min(width, BANDED)))
+    a = rng.integers(0, V, m)
+    b = np.clip(a + rng.integers(-width, width + 1, m), 0, V - 1)
+    a = np.concatenate([a, b[: m // 4]])      # reversed repeats
+    b = np.concatenate([b, a[: m // 4]])
+    distinct = {(min(x, y), max(x, y)) for x, y in zip(a.tolist(), b.tolist()) if x != y}
+    w = int(np.max(np.abs(a - b)))
+    want = 0 < w <= BANDED and len(distinct) >= 0.5 * V * w
+    assert _densely_banded(V, a, b) == want
+
+
+def _all_pairs(problem):
+    pi, pj = [], []
+    for b in problem.batches:
+        k = b.var_idx.shape[1]
+        for p in range(k):
+            for q in range(p + 1, k):
+                pi.append(b.var_idx[:, p])
+                pj.append(b.var_idx[:, q])
+    for s in problem._slow:
+        for p in range(len(s.var_idx)):
+            for q in range(p + 1, len(s.var_idx)):
+                pi.append(s.var_idx[p:p + 1])
+                pj.append(s.var_idx[q:q + 1])
+    return np.concatenate(pi), np.concatenate(pj)
+
+
+def test_independent_kinds_from_factor_arguments_equal_pair_scan():
+    """The compiled problem reads its independent kinds (no factor joins two variables of the
+    kind) from the factors' argument kinds; that equals the scan over every coupled pair, on a
+    BA graph (points independent), a pose-landmark graph, a pose chain (nothing independent
+    but the landmarks) and a graph with Python-path factors."""
+    import fgopt
+    from fgopt.factors import BetweenFactor
+    from fgopt.structure import independent_kinds
+    from tests.solvers.test_python_path import trilateration
+    from tests.solvers.test_schur import pose_landmark_graph, synthetic_ba
+
+    cases = [synthetic_ba(seed=1), pose_landmark_graph(), trilateration()]
+    graph, values = fgopt.FactorGraph(), fgopt.Variables()
+    for i in range(5):
+        values.add(fgopt.key("x", i), fgopt.SE2(0.1 * i, (0.0, 0.0)))
+        values.add(fgopt.key("l", i), np.array([i, 1.0]))
+        if i:
+            graph.add(BetweenFactor(fgopt.key("x", i - 1), fgopt.key("x", i),
+                                    fgopt.SE2(0.1, (0.0, 0.0))))
+    cases.append((graph, values))
+    for case in cases:
+        problem = fgopt.Problem(case[0], case[1])
+        pi, pj = _all_pairs(problem)
+        assert problem._independent_kinds() == independent_kinds(problem.var_kind, pi, pj)

@@ -12,23 +12,6 @@ import numpy as np
 from ..._jit import njit
 
 
-def block_graph_of_codes(codes, V, rank_of_var, order):
-    """Lower adjacency of the block graph (for rank ``k``: the ranks ``> k`` coupled to it, as
-    CSR ``ap, ai``), from a pattern's sorted block codes (``rank(column var) * V +
-    rank(row var)`` in the pattern's order): no scalar row indices needed. ``rank_of_var``:
-    each pattern variable's position in offset order (the analysis' rank)."""
-    col = rank_of_var[order[codes // V]]
-    row = rank_of_var[order[codes % V]]
-    strict = row != col
-    col, row = col[strict], row[strict]
-    if col.shape[0] > 1 and np.any(col[1:] < col[:-1]):  # offset order differs from the ranks
-        srt = np.lexsort((row, col))
-        col, row = col[srt], row[srt]
-    ap = np.zeros(V + 1, np.int64)
-    np.cumsum(np.bincount(col, minlength=V), out=ap[1:])
-    return ap, np.ascontiguousarray(row, dtype=np.int64)
-
-
 @njit(cache=True)
 def etree(n, ap, ai):
     """Elimination tree of a symmetric pattern given by its strict lower adjacency."""
@@ -235,10 +218,18 @@ def supernode_rows(sn, post, ipost, lp, li, dim_p):
             k += 1
         top = post[sn[s + 1] - 1]
         nb = lp[top + 1] - lp[top]
-        tmp = np.empty(nb, np.int64)
         for p in range(nb):
-            tmp[p] = ipost[li[lp[top] + p]]
-        rvi[k:k + nb] = np.sort(tmp)
+            rvi[k + p] = ipost[li[lp[top] + p]]
+        if nb <= 32:  # insertion sort in place: short lists, no temporary (most supernodes)
+            for u in range(k + 1, k + nb):
+                v = rvi[u]
+                w = u
+                while w > k and rvi[w - 1] > v:
+                    rvi[w] = rvi[w - 1]
+                    w -= 1
+                rvi[w] = v
+        else:
+            rvi[k:k + nb] = np.sort(rvi[k:k + nb])
         acc = 0
         for p in range(rvp[s], rvp[s + 1]):
             rpos[p] = acc
@@ -334,8 +325,9 @@ def build_hmap_blocks(codes, V, order, p00, col_shift, var_offset, var_dim, new_
                       sn, rvp, rvi, rpos, pstart, rows, hmap):
     """Position in the panels of every stored entry of H's lower CSC (pattern order), written
     into ``hmap`` (int32 when the panels allow: half the bytes), block by block from the
-    pattern's block list (``codes``, ``p00``; :class:`fgopt.structure.HessianPattern`): each column of a block is a run of consecutive
-    entries of H and, unless the new order transposes the block, of its panel too.
+    pattern's block list (``codes``, ``p00``; :class:`fgopt.structure.HessianPattern`): each
+    column of a block is a run of consecutive entries of H and, unless the new order transposes
+    the block, of its panel too.
     ``new_var``: the postorder label of each pattern variable."""
     for b in range(codes.shape[0]):
         c = order[codes[b] // V]
@@ -367,3 +359,135 @@ def build_hmap_blocks(codes, V, order, p00, col_shift, var_offset, var_dim, new_
                 for a in range(a0, var_dim[r]):
                     hmap[h + a] = t + a
     return hmap
+
+
+# ------------------------------------------------------------------ one call
+@njit(cache=True)
+def _lower_adjacency(codes, V, order, rank_of_var):
+    """:func:`block_graph_of_codes` in numba: bucket the strict lower blocks by column rank,
+    rows sorted within each column."""
+    nb = codes.shape[0]
+    ap = np.zeros(V + 1, np.int64)
+    col = np.empty(nb, np.int64)
+    row = np.empty(nb, np.int64)
+    m = 0
+    for b in range(nb):
+        c = rank_of_var[order[codes[b] // V]]
+        r = rank_of_var[order[codes[b] % V]]
+        if r != c:
+            col[m] = c
+            row[m] = r
+            ap[c + 1] += 1
+            m += 1
+    for k in range(V):
+        ap[k + 1] += ap[k]
+    ai = np.empty(m, np.int64)
+    fill = ap[:V].copy()
+    for t in range(m):
+        ai[fill[col[t]]] = row[t]
+        fill[col[t]] += 1
+    for k in range(V):  # insertion sort per column: already sorted when ranks follow the order
+        for u in range(ap[k] + 1, ap[k + 1]):
+            v = ai[u]
+            w = u
+            while w > ap[k] and ai[w - 1] > v:
+                ai[w] = ai[w - 1]
+                w -= 1
+            ai[w] = v
+    return ap, ai
+
+
+@njit(cache=True)
+def analyze_pattern(codes, V, order, var_offset, var_dim, relax_cols, relax_zeros):
+    """The whole symbolic analysis of a block pattern in one call (the steps of
+    ``block_cholesky.analyze_blocks``): returns ``(post_var, dim_p, off_p, sn, rvp, rvi, rpos,
+    width, rows, pstart, sparent)``."""
+    vorder = np.argsort(var_offset, kind="mergesort")
+    dim_r = var_dim[vorder]
+    rank_of_var = np.empty(V, np.int64)
+    for k in range(V):
+        rank_of_var[vorder[k]] = k
+    ap, ai = _lower_adjacency(codes, V, order, rank_of_var)
+    parent = etree(V, ap, ai)
+    lp, li = symbolic_columns(V, ap, ai, parent)
+    cnt = np.empty(V, np.int64)
+    below = np.zeros(V, np.int64)
+    for j in range(V):
+        cnt[j] = lp[j + 1] - lp[j]
+        for p in range(lp[j], lp[j + 1]):
+            below[j] += dim_r[li[p]]
+    post = postorder(V, parent, cnt)
+    ipost = np.empty(V, np.int64)
+    for k in range(V):
+        ipost[post[k]] = k
+    par_p = np.empty(V, np.int64)
+    dim_p = np.empty(V, np.int64)
+    cnt_p = np.empty(V, np.int64)
+    below_p = np.empty(V, np.int64)
+    for k in range(V):
+        q = parent[post[k]]
+        par_p[k] = ipost[q] if q >= 0 else -1
+        dim_p[k] = dim_r[post[k]]
+        cnt_p[k] = cnt[post[k]]
+        below_p[k] = below[post[k]]
+    sn = supernode_partition(V, par_p, cnt_p, dim_p, below_p, relax_cols, relax_zeros)
+    rvp, rvi, rpos = supernode_rows(sn, post, ipost, lp, li, dim_p)
+    off_p = np.zeros(V, np.int64)
+    for k in range(1, V):
+        off_p[k] = off_p[k - 1] + dim_p[k - 1]
+    S = sn.shape[0] - 1
+    width = np.zeros(S, np.int64)
+    rows = np.empty(S, np.int64)
+    pstart = np.zeros(S + 1, np.int64)
+    sparent = np.full(S, -1, np.int64)
+    sn_of = np.empty(V, np.int64)
+    for s in range(S):
+        for j in range(sn[s], sn[s + 1]):
+            width[s] += dim_p[j]
+            sn_of[j] = s
+    for s in range(S):
+        last = rvp[s + 1] - 1
+        rows[s] = rpos[last] + dim_p[rvi[last]]
+        pstart[s + 1] = pstart[s] + width[s] * rows[s]
+    for s in range(S):
+        first_below = rvp[s] + sn[s + 1] - sn[s]
+        if first_below < rvp[s + 1]:
+            sparent[s] = sn_of[rvi[first_below]]
+    post_var = np.empty(V, np.int64)
+    for k in range(V):
+        post_var[k] = vorder[post[k]]
+    return post_var, dim_p, off_p, sn, rvp, rvi, rpos, width, rows, pstart, sparent
+
+
+@njit(cache=True)
+def factor_layout(post_var, dim, off, sn, rvi, rows, var_offset, size):
+    """Index arrays of the factor's layout: ``(sn_of, perm, new_var, col0, rix_ptr, rix)`` --
+    each variable's supernode, the scalar permutation (factor order -> pattern order), each
+    pattern variable's postorder label, each supernode's first scalar column, and the global
+    scalar index of every panel row (CSR over supernodes)."""
+    V = post_var.shape[0]
+    S = sn.shape[0] - 1
+    sn_of = np.empty(V, np.int64)
+    for s in range(S):
+        for j in range(sn[s], sn[s + 1]):
+            sn_of[j] = s
+    perm = np.empty(size, np.int64)
+    new_var = np.empty(V, np.int64)
+    for k in range(V):
+        new_var[post_var[k]] = k
+        o = var_offset[post_var[k]]
+        for a in range(dim[k]):
+            perm[off[k] + a] = o + a
+    col0 = np.empty(S, np.int64)
+    rix_ptr = np.zeros(S + 1, np.int64)
+    for s in range(S):
+        col0[s] = off[sn[s]]
+        rix_ptr[s + 1] = rix_ptr[s] + rows[s]
+    rix = np.empty(rix_ptr[S], np.int64)
+    t = 0
+    for q in range(rvi.shape[0]):
+        v = rvi[q]
+        for a in range(dim[v]):
+            rix[t] = off[v] + a
+            t += 1
+    return sn_of, perm, new_var, col0, rix_ptr, rix

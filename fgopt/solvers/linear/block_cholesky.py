@@ -50,44 +50,19 @@ class BlockSymbolic:
 
 
 def analyze_blocks(pattern: HessianPattern, relax=DEFAULT_RELAX) -> BlockSymbolic:
+    """Block elimination tree, postorder, column structures, relaxed supernodes and their row
+    variables of ``pattern`` (one numba call: :func:`_block_symbolic.analyze_pattern`)."""
     var_offset = np.asarray(pattern.var_offset, np.int64)
-    var_dim = np.asarray(pattern.var_dim, np.int64)
     V = var_offset.shape[0]
     if V == 0 or pattern.size == 0:
         raise FgoptError("block Cholesky: the pattern has no variables")
-    vorder = np.argsort(var_offset, kind="stable")
-    dim_r = var_dim[vorder]
-    rank_of_var = np.empty(V, np.int64)
-    rank_of_var[vorder] = np.arange(V)
-    ap, ai = sym.block_graph_of_codes(pattern.block_codes, V, rank_of_var, pattern.order)
-    parent = sym.etree(V, ap, ai)
-    lp, li = sym.symbolic_columns(V, ap, ai, parent)
-    cnt = np.diff(lp)
-    below = np.zeros(V, np.int64)
-    np.add.at(below, np.repeat(np.arange(V), cnt), dim_r[li])
-    post = sym.postorder(V, parent, cnt)
-    ipost = np.empty(V, np.int64)
-    ipost[post] = np.arange(V)
-    par_p = parent[post]
-    par_p = np.where(par_p >= 0, ipost[np.maximum(par_p, 0)], -1)
-    dim_p = dim_r[post]
     rc = np.array([r[0] for r in relax], np.int64)
     rz = np.array([r[1] for r in relax], np.float64)
-    sn = sym.supernode_partition(V, par_p, cnt[post], dim_p, below[post], rc, rz)
-    rvp, rvi, rpos = sym.supernode_rows(sn, post, ipost, lp, li, dim_p)
-    off_p = np.zeros(V, np.int64)
-    np.cumsum(dim_p[:-1], out=off_p[1:])
-    S = sn.shape[0] - 1
-    width = np.add.reduceat(dim_p, sn[:-1])
-    last = rvp[1:] - 1
-    rows = rpos[last] + dim_p[rvi[last]]
-    pstart = np.zeros(S + 1, np.int64)
-    np.cumsum(width * rows, out=pstart[1:])
-    sn_of = np.repeat(np.arange(S), np.diff(sn))
-    first_below = rvp[:-1] + np.diff(sn)
-    has_below = first_below < rvp[1:]
-    sparent = np.where(has_below, sn_of[rvi[np.minimum(first_below, rvi.shape[0] - 1)]], -1)
-    return BlockSymbolic(V, vorder[post], dim_p, off_p, sn, rvp, rvi, rpos, width, rows, pstart,
+    (post_var, dim_p, off_p, sn, rvp, rvi, rpos, width, rows, pstart,
+     sparent) = sym.analyze_pattern(np.asarray(pattern.block_codes, np.int64), V,
+                                    np.asarray(pattern.order, np.int64), var_offset,
+                                    np.asarray(pattern.var_dim, np.int64), rc, rz)
+    return BlockSymbolic(V, post_var, dim_p, off_p, sn, rvp, rvi, rpos, width, rows, pstart,
                          sparent)
 
 
@@ -112,9 +87,10 @@ class BlockCholeskySolver:
     Kernel choice by panel width ``w`` (scalar columns): the panel is factored by numba loops
     if ``w <= small_panel``, by register tiles if ``w <= tile_panel``, else by LAPACK ``dpotrf``
     + ``dtrsm``; its update is formed by register tiles if ``w <= small_syrk``, else by
-    ``dsyrk`` / ``dgemm`` (BLAS call overhead dominates for narrow panels). ``chunk``: the update of a supernode is formed and scattered in
-    column chunks of about this many columns (bounds the workspace). ``relax``: relaxed
-    amalgamation thresholds ``((max width, max zero fraction), ...)``, CHOLMOD's by default.
+    ``dsyrk`` / ``dgemm`` (BLAS call overhead dominates for narrow panels). ``chunk``: the
+    update of a supernode is formed and scattered in column chunks of about this many columns
+    (bounds the workspace). ``relax``: relaxed amalgamation thresholds ``((max width, max zero
+    fraction), ...)``, CHOLMOD's by default.
     """
 
     name = "block"
@@ -137,15 +113,11 @@ class BlockCholeskySolver:
 
         sy = analyze_dense(pattern) if self.dense else analyze_blocks(pattern, self.relax)
         self.symbolic = sy
-        S = sy.sn.shape[0] - 1
-        sn_of = np.repeat(np.arange(S, dtype=np.int64), np.diff(sy.sn))
+        sn_of, self._perm, new_var, self._col0, self._rix_ptr, self._rix = sym.factor_layout(
+            sy.post_var, sy.dim, sy.off, sy.sn, sy.rvi, sy.rows,
+            np.asarray(pattern.var_offset, np.int64), int(pattern.size))
         self._maps = sym.build_maps(sy.sn, sy.rvp, sy.rvi, sy.rpos, sy.dim, sy.off, sy.pstart,
-                                  sy.rows, sy.width)
-        # scalar permutation: new (factor) order -> pattern order
-        old_off = np.asarray(pattern.var_offset, np.int64)[sy.post_var]
-        self._perm = np.repeat(old_off - sy.off, sy.dim) + np.arange(pattern.size)
-        new_var = np.empty(sy.n_var, np.int64)
-        new_var[sy.post_var] = np.arange(sy.n_var)
+                                    sy.rows, sy.width)
         # int32 positions when the factor's panels have fewer than 2^31 entries (H-sized: 4
         # bytes per entry of H saved)
         self._hmap = np.empty(pattern.nnz, np.int32 if sy.pstart[-1] < 2**31 - 16 else np.int64)
@@ -153,13 +125,6 @@ class BlockCholeskySolver:
                               pattern.col_shift, np.asarray(pattern.var_offset, np.int64),
                               np.asarray(pattern.var_dim, np.int64), new_var, sn_of, sy.off,
                               sy.sn, sy.rvp, sy.rvi, sy.rpos, sy.pstart, sy.rows, self._hmap)
-        self._col0 = sy.off[sy.sn[:-1]]
-        # global (factor-order) scalar index of every panel row
-        rix_len = sy.rows
-        self._rix_ptr = np.zeros(S + 1, np.int64)
-        np.cumsum(rix_len, out=self._rix_ptr[1:])
-        rvd = sy.dim[sy.rvi]
-        self._rix = np.repeat(sy.off[sy.rvi], rvd) + _ranges(rvd)
         self.L = np.zeros(int(sy.pstart[-1]) + 16)   # tail padding: register tiles read past
         r = sy.rows - sy.width
         # update chunks: at most r x (chunk + widest variable) doubles, plus the tiles' padding
@@ -266,9 +231,3 @@ class BlockCholeskySolver:
         out = np.empty_like(X)
         out[self._perm] = X
         return out.reshape(b.shape)
-
-
-def _ranges(lengths: np.ndarray) -> np.ndarray:
-    total = int(lengths.sum())
-    starts = np.repeat(np.cumsum(lengths) - lengths, lengths)
-    return np.arange(total, dtype=np.int64) - starts
