@@ -65,11 +65,8 @@ def _pow10_table() -> tuple[np.ndarray, np.ndarray]:
 _EXP_RANGE = 250
 
 
-@functools.lru_cache(maxsize=1)
-def _pow10() -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_pow10_table`, made on the numba scan's first use (the NumPy scan does not need
-    it: ~3 ms of rational arithmetic a new process skips)."""
-    return _pow10_table()
+#: the table, made on the numba scan's first use (~3 ms the NumPy scan's process skips)
+_pow10 = functools.lru_cache(maxsize=1)(_pow10_table)
 
 
 @njit(cache=True, inline="always")
@@ -424,7 +421,6 @@ def read_bytes(path: str | os.PathLike) -> bytes:
 
 
 def write_text(path: str | os.PathLike, text: str) -> None:
-    """Write ``text``; ``.gz`` / ``.bz2`` paths are compressed."""
     write_bytes(path, text.encode("utf-8"))
 
 
