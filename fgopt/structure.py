@@ -326,8 +326,9 @@ def ranges(lengths: np.ndarray) -> np.ndarray:
     return np.arange(total, dtype=np.int64) - starts
 
 
-from ._jit import (charge_numpy, is_numba_loaded, njit,  # noqa: E402  (numba kernels below)
-                   numpy_budget_left, numpy_only)
+from ._jit import charge_numpy, is_numba_loaded, numpy_budget_left, numpy_only  # noqa: E402
+from ._structure_kernels import (_block_layout, _block_rows, _pattern_kernel,  # noqa: E402,F401
+                                 _scatter_positions, _sym_matvec)
 
 
 def _block_layout_np(codes, V, order, var_dim, var_offset, N):
@@ -419,131 +420,12 @@ def _charged(kernel, *args):
         charge_numpy(time.perf_counter() - t0)
 
 
-@njit(cache=True)
-def _block_layout(codes, V, order, var_dim, var_offset, N):
-    """``indptr`` of the scalar CSC of blocks given as sorted rank codes, and the data index of
-    each block's entry ``(0, 0)``."""
-    nb = codes.shape[0]
-    indptr = np.zeros(N + 1, dtype=np.int64)
-    for b in range(nb):
-        c, r = order[codes[b] // V], order[codes[b] % V]
-        oc, dc, dr = var_offset[c], var_dim[c], var_dim[r]
-        for cb in range(dc):
-            indptr[oc + cb + 1] += dc - cb if c == r else dr
-    for j in range(N):
-        indptr[j + 1] += indptr[j]
-    p00 = np.empty(nb, dtype=np.int64)
-    fill = indptr[:-1].copy()  # per column: where the next block's rows go
-    for b in range(nb):
-        c, r = order[codes[b] // V], order[codes[b] % V]
-        oc, dc, dr = var_offset[c], var_dim[c], var_dim[r]
-        p00[b] = fill[oc] if dc else 0
-        for cb in range(dc):
-            fill[oc + cb] += dc - cb if c == r else dr
-    return indptr, p00
-
-
 def _use_numba(work: int) -> bool:
     """Whether layout work of about ``work`` steps runs in numba (the rule of
     :func:`_layout_kernel`, without running anything)."""
     if numpy_only() or (work <= NUMPY_LAYOUT_MAX and not is_numba_loaded()):
         return False
     return not _small(work)
-
-
-@njit(cache=True)
-def _pattern_kernel(var_dim, order, pairs_i, pairs_j, N):
-    """:func:`_pattern_np` in one numba call."""
-    V = var_dim.shape[0]
-    rank = np.empty(V, np.int64)
-    var_offset = np.empty(V, np.int64)
-    acc = 0
-    for k in range(V):
-        rank[order[k]] = k
-        var_offset[order[k]] = acc
-        acc += var_dim[order[k]]
-    # bucket the blocks by column rank (the diagonal block first), then sort and deduplicate
-    # each column's rows in place: O(pairs + V), no global sort
-    m = pairs_i.shape[0]
-    cnt = np.ones(V + 1, np.int64)
-    cnt[V] = 0
-    for e in range(m):
-        a, b = rank[pairs_i[e]], rank[pairs_j[e]]
-        if a != b:
-            cnt[min(a, b)] += 1
-    start = np.empty(V + 1, np.int64)
-    start[0] = 0
-    for k in range(V):
-        start[k + 1] = start[k] + cnt[k]
-    rows = np.empty(start[V], np.int64)
-    fill = start[:V].copy()
-    for k in range(V):
-        rows[fill[k]] = k
-        fill[k] += 1
-    for e in range(m):
-        a, b = rank[pairs_i[e]], rank[pairs_j[e]]
-        if a != b:
-            c = min(a, b)
-            rows[fill[c]] = max(a, b)
-            fill[c] += 1
-    col_ptr = np.zeros(V + 1, np.int64)
-    nb = 0
-    for k in range(V):
-        lo, hi = start[k], start[k + 1]
-        if hi - lo > 32:
-            rows[lo:hi] = np.sort(rows[lo:hi])
-        else:
-            for u in range(lo + 1, hi):
-                v = rows[u]
-                w = u
-                while w > lo and rows[w - 1] > v:
-                    rows[w] = rows[w - 1]
-                    w -= 1
-                rows[w] = v
-        for u in range(lo, hi):
-            if u == lo or rows[u] != rows[u - 1]:
-                rows[nb] = rows[u]  # nb <= u: writes never overtake reads
-                nb += 1
-        col_ptr[k + 1] = nb
-    codes = np.empty(nb, np.int64)
-    for k in range(V):
-        for u in range(col_ptr[k], col_ptr[k + 1]):
-            codes[u] = k * V + rows[u]
-    indptr, p00 = _block_layout(codes, V, order, var_dim, var_offset, N)
-    return var_offset, codes, indptr, p00, col_ptr
-
-
-@njit(cache=True)
-def _block_rows(codes, V, order, var_dim, var_offset, indptr):
-    """Row indices of the scalar CSC (see :func:`_block_layout`)."""
-    indices = np.empty(indptr[-1], dtype=np.int64)
-    fill = indptr[:-1].copy()
-    for b in range(codes.shape[0]):
-        c, r = order[codes[b] // V], order[codes[b] % V]
-        oc, orow, dc, dr = var_offset[c], var_offset[r], var_dim[c], var_dim[r]
-        for cb in range(dc):
-            col = oc + cb
-            for a in range(cb if c == r else 0, dr):
-                indices[fill[col]] = orow + a
-                fill[col] += 1
-    return indices
-
-
-@njit(cache=True)
-def _sym_matvec(indptr, indices, data, x):
-    n = indptr.shape[0] - 1
-    y = np.zeros(n)
-    for j in range(n):
-        xj = x[j]
-        acc = 0.0
-        for p in range(indptr[j], indptr[j + 1]):
-            i = indices[p]
-            v = data[p]
-            y[i] += v * xj
-            if i != j:
-                acc += v * x[i]
-        y[j] += acc
-    return y
 
 
 def scatter_positions(lookup: dict, var_rank: np.ndarray, var_idx: np.ndarray) -> np.ndarray:
@@ -564,27 +446,3 @@ def scatter_positions(lookup: dict, var_rank: np.ndarray, var_idx: np.ndarray) -
                np.ascontiguousarray(lookup["p00"], dtype=np.int64),
                int(lookup["V"]), np.ascontiguousarray(var_rank, dtype=np.int64),
                np.ascontiguousarray(var_idx, dtype=np.int64))
-
-
-@njit(cache=True)
-def _scatter_positions(codes, col_ptr, p00, V, var_rank, var_idx):
-    # one pass per instance; each block is found by bisection within its column's blocks
-    n, k = var_idx.shape
-    pos = np.full((n, k, k), -1, dtype=np.int64)
-    for i in range(n):
-        for p in range(k):
-            rp = var_rank[var_idx[i, p]]
-            for q in range(k):
-                rq = var_rank[var_idx[i, q]]
-                if rp < rq or (p != q and rp == rq):
-                    continue
-                want = rq * V + rp
-                lo, hi = col_ptr[rq], col_ptr[rq + 1]
-                while lo < hi:
-                    mid = (lo + hi) // 2
-                    if codes[mid] < want:
-                        lo = mid + 1
-                    else:
-                        hi = mid
-                pos[i, p, q] = p00[lo]
-    return pos
