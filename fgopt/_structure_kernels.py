@@ -13,6 +13,22 @@ from ._jit import njit
 
 
 @njit(cache=True)
+def sort_range(a, lo, hi):
+    """Sort ``a[lo:hi]`` in place: insertion sort for short runs (no temporary; linear when
+    already sorted), NumPy's sort above 32 entries."""
+    if hi - lo > 32:
+        a[lo:hi] = np.sort(a[lo:hi])
+        return
+    for u in range(lo + 1, hi):
+        v = a[u]
+        w = u
+        while w > lo and a[w - 1] > v:
+            a[w] = a[w - 1]
+            w -= 1
+        a[w] = v
+
+
+@njit(cache=True)
 def _block_layout(codes, V, order, var_dim, var_offset, N):
     """``indptr`` of the scalar CSC of blocks given as sorted rank codes, and the data index of
     each block's entry ``(0, 0)``."""
@@ -74,16 +90,7 @@ def _pattern_kernel(var_dim, order, pairs_i, pairs_j, N):
     nb = 0
     for k in range(V):
         lo, hi = start[k], start[k + 1]
-        if hi - lo > 32:
-            rows[lo:hi] = np.sort(rows[lo:hi])
-        else:
-            for u in range(lo + 1, hi):
-                v = rows[u]
-                w = u
-                while w > lo and rows[w - 1] > v:
-                    rows[w] = rows[w - 1]
-                    w -= 1
-                rows[w] = v
+        sort_range(rows, lo, hi)
         for u in range(lo, hi):
             if u == lo or rows[u] != rows[u - 1]:
                 rows[nb] = rows[u]  # nb <= u: writes never overtake reads

@@ -512,7 +512,8 @@ class Problem:
         return tuple(k for k in range(len(self.kinds))
                      if k not in joined and self._kind_vars[k].shape[0] > 0)
 
-    def _build_structure(self, ordering: str, linear_solver: Any = None) -> None:
+    def _coupled_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(pairs_i, pairs_j)``: every pair of variables a factor couples (repeats kept)."""
         pi, pj = [], []
         for b in self.batches:
             k = b.var_idx.shape[1]
@@ -527,6 +528,10 @@ class Problem:
                     pj.append(s.var_idx[q:q + 1])
         pi = np.concatenate(pi) if pi else np.zeros(0, np.int64)
         pj = np.concatenate(pj) if pj else np.zeros(0, np.int64)
+        return pi, pj
+
+    def _build_structure(self, ordering: str, linear_solver: Any = None) -> None:
+        pi, pj = self._coupled_pairs()
         V = self.var_keys.shape[0]
         independent = self._independent_kinds()
         eliminated = self._schur_kind(linear_solver, independent)

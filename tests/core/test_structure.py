@@ -121,22 +121,6 @@ def test_densely_banded_counts_distinct_coupled_pairs(seed):
     assert _densely_banded(V, a, b) == want
 
 
-def _all_pairs(problem):
-    pi, pj = [], []
-    for b in problem.batches:
-        k = b.var_idx.shape[1]
-        for p in range(k):
-            for q in range(p + 1, k):
-                pi.append(b.var_idx[:, p])
-                pj.append(b.var_idx[:, q])
-    for s in problem._slow:
-        for p in range(len(s.var_idx)):
-            for q in range(p + 1, len(s.var_idx)):
-                pi.append(s.var_idx[p:p + 1])
-                pj.append(s.var_idx[q:q + 1])
-    return np.concatenate(pi), np.concatenate(pj)
-
-
 def test_independent_kinds_from_factor_arguments_equal_pair_scan():
     """The compiled problem reads its independent kinds (no factor joins two variables of the
     kind) from the factors' argument kinds; that equals the scan over every coupled pair, on a
@@ -159,5 +143,5 @@ def test_independent_kinds_from_factor_arguments_equal_pair_scan():
     cases.append((graph, values))
     for case in cases:
         problem = fgopt.Problem(case[0], case[1])
-        pi, pj = _all_pairs(problem)
+        pi, pj = problem._coupled_pairs()
         assert problem._independent_kinds() == independent_kinds(problem.var_kind, pi, pj)

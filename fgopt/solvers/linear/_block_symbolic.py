@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 from ..._jit import njit
+from ..._structure_kernels import sort_range
 
 
 @njit(cache=True)
@@ -220,16 +221,7 @@ def supernode_rows(sn, post, ipost, lp, li, dim_p):
         nb = lp[top + 1] - lp[top]
         for p in range(nb):
             rvi[k + p] = ipost[li[lp[top] + p]]
-        if nb <= 32:  # insertion sort in place: short lists, no temporary (most supernodes)
-            for u in range(k + 1, k + nb):
-                v = rvi[u]
-                w = u
-                while w > k and rvi[w - 1] > v:
-                    rvi[w] = rvi[w - 1]
-                    w -= 1
-                rvi[w] = v
-        else:
-            rvi[k:k + nb] = np.sort(rvi[k:k + nb])
+        sort_range(rvi, k, k + nb)
         acc = 0
         for p in range(rvp[s], rvp[s + 1]):
             rpos[p] = acc
@@ -386,14 +378,8 @@ def _lower_adjacency(codes, V, order, rank_of_var):
     for t in range(m):
         ai[fill[col[t]]] = row[t]
         fill[col[t]] += 1
-    for k in range(V):  # insertion sort per column: already sorted when ranks follow the order
-        for u in range(ap[k] + 1, ap[k + 1]):
-            v = ai[u]
-            w = u
-            while w > ap[k] and ai[w - 1] > v:
-                ai[w] = ai[w - 1]
-                w -= 1
-            ai[w] = v
+    for k in range(V):  # already sorted when the ranks follow the order
+        sort_range(ai, ap[k], ap[k + 1])
     return ap, ai
 
 
