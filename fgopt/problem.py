@@ -509,8 +509,8 @@ class Problem:
             ids = [k for k in self.var_kind[s.var_idx].tolist() if k >= 0]
             if len(set(ids)) < len(ids):
                 joined.update(k for k in ids if ids.count(k) > 1)
-        return tuple(k for k in range(len(self.kinds))
-                     if k not in joined and self._kind_vars[k].shape[0] > 0)
+        # every kind has variables (kinds are found from the variables)
+        return tuple(k for k in range(len(self.kinds)) if k not in joined)
 
     def _coupled_pairs(self) -> tuple[np.ndarray, np.ndarray]:
         """``(pairs_i, pairs_j)``: every pair of variables a factor couples (repeats kept)."""

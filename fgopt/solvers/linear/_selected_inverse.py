@@ -21,7 +21,7 @@ of the same layout, with the full symmetric diagonal block.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from ..._jit import njit
 
 
 @njit(cache=True)
