@@ -92,11 +92,18 @@ def projection_kernel(model: type[Calibration], calibration_variable: bool = Fal
             m, cal = np.ascontiguousarray(c[:, :2]), np.ascontiguousarray(c[:, 2:])
         return PK.projection_batch(mid, pose, point, cal, m, reject, var, with_jac)
 
+    def trusted(args, consts):
+        if var:
+            return PK.projection_batch(mid, args[0], args[1], args[2], consts, reject, var, True)
+        return PK.projection_batch(mid, args[0], args[1], np.ascontiguousarray(consts[:, 2:]),
+                                   np.ascontiguousarray(consts[:, :2]), reject, var, True)
+
     return FactorKernel(name, kinds, 2, 2 if var else 2 + s,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
                         source=_SOURCE, nonfinite_hint=_HINT,
-                        recipe=(projection_kernel, (model, var, cheirality)))
+                        recipe=(projection_kernel, (model, var, cheirality)),
+                        trusted_linearize=trusted)
 
 
 @lru_cache(maxsize=None)
@@ -120,7 +127,9 @@ def camera_projection_kernel(model: type[Calibration], cheirality: str = "reject
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
                         source=_SOURCE, nonfinite_hint=_HINT,
-                        recipe=(camera_projection_kernel, (model, cheirality)))
+                        recipe=(camera_projection_kernel, (model, cheirality)),
+                        trusted_linearize=lambda args, consts: PK.camera_projection_batch(
+                            mid, args[0], args[1], consts, reject, True))
 
 
 @lru_cache(maxsize=None)
@@ -142,11 +151,18 @@ def stereo_kernel(calibration_variable: bool = False, cheirality: str = "reject"
             m, cal = np.ascontiguousarray(c[:, :3]), np.ascontiguousarray(c[:, 3:])
         return PK.stereo_batch(pose, point, cal, m, reject, var, with_jac)
 
+    def trusted(args, consts):
+        if var:
+            return PK.stereo_batch(args[0], args[1], args[2], consts, reject, var, True)
+        return PK.stereo_batch(args[0], args[1], np.ascontiguousarray(consts[:, 3:]),
+                               np.ascontiguousarray(consts[:, :3]), reject, var, True)
+
     return FactorKernel(name, kinds, 3, 3 if var else 9,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
                         source=_SOURCE, nonfinite_hint=_HINT,
-                        recipe=(stereo_kernel, (var, cheirality)))
+                        recipe=(stereo_kernel, (var, cheirality)),
+                        trusted_linearize=trusted)
 
 
 def _is_key(x: Any) -> bool:

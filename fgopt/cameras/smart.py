@@ -78,7 +78,9 @@ def smart_kernel(model: type[Calibration], num_views: int, triangulation: str = 
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
                         source=_SOURCE, nonfinite_hint=_HINT,
-                        recipe=(smart_kernel, (model, m, triangulation, degenerate)))
+                        recipe=(smart_kernel, (model, m, triangulation, degenerate)),
+                        trusted_linearize=lambda args, consts: SK.smart_batch(
+                            mid, np.stack(args, axis=1), consts, m, s, refine, zero, True))
 
 
 class SmartProjectionFactor(KernelFactor):

@@ -50,7 +50,7 @@ from ..symbolic.lie import LieGroupBase
 from ..symbolic.matrix import Matrix, Scalar
 from ..symbolic.ops import normalize_type, type_key
 from .base import KernelFactor
-from .kernel import FactorKernel
+from .kernel import FactorKernel, module_trusted_linearize
 
 _MISSING = object()
 _NO_CONSTANTS = np.zeros(0)
@@ -401,10 +401,14 @@ def _kernel_from_module(module: Any, params: tuple, pattern: tuple, name: str,
     meta = module.META
     kinds = tuple(batch_kind_of(tp) for (_, tp), v in zip(params, pattern) if v)
     source = module.__fgopt_source__  # the verified text that ran, not a re-read of the file
+    raw = getattr(module, "_linearize_kernel", None)
+    trusted = None if raw is None else module_trusted_linearize(
+        raw, meta["residual_dim"], sum(k.dim for k in kinds))
     return FactorKernel(name=name, arg_kinds=kinds, residual_dim=meta["residual_dim"],
                         num_constants=module.NUM_CONSTANTS, residual=module.residual,
                         linearize=module.linearize, source=source, recipe=recipe,
                         clamps=tuple(meta.get("clamps", ())),
                         clamp_arguments=getattr(module, "clamp_arguments", None),
                         numpy_twin=all(hasattr(module, a) for a in
-                                       ("use_numpy", "_residual_numpy", "_linearize_numpy")))
+                                       ("use_numpy", "_residual_numpy", "_linearize_numpy")),
+                        trusted_linearize=trusted)

@@ -38,36 +38,16 @@ def loss_parts(loss: Any) -> tuple[np.ndarray, int, float, float]:
 
 
 def compiled_linearize(kernel: Any) -> Any:
-    """``kernel.linearize``, run through its numba kernel whatever the batch size.
+    """``kernel.linearize`` on numba whatever the batch size: the kernel's
+    ``trusted_linearize`` where it has one (the smoother's gathered rows and constants are
+    C-contiguous float64), else ``linearize``.
 
     Generated kernel modules run a NumPy twin of the kernel up to ``NUMPY_MAX_BATCH`` instances
     (no numba start-up for small problems); an online update linearizes one to a few factors
     per call, where the twin costs ~150 us and the compiled kernel ~3 us (M3500: 0.22 vs
-    0.11 ms per update). The module's ``_linearize_kernel(*args, consts, res, jac)`` is used
-    when it exists and agrees with ``kernel.linearize`` on a first call; otherwise (hand-written
-    kernels) ``kernel.linearize`` itself.
+    0.11 ms per update).
     """
-    raw = getattr(kernel.linearize, "__globals__", {}).get("_linearize_kernel")
-    if raw is None:
-        return kernel.linearize
-    raw = getattr(raw, "dispatcher", raw)
-    r, D = kernel.residual_dim, kernel.tangent_dim
-    checked = []
-
-    def linearize(args: tuple, consts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        n = consts.shape[0]
-        res = np.empty((n, r))
-        jac = np.empty((n, r, D))
-        raw(*args, consts, res, jac)
-        if not checked:
-            ref = kernel.linearize(args, consts)
-            if not (np.allclose(ref[0], res, equal_nan=True)
-                    and np.allclose(ref[1], jac, equal_nan=True)):
-                return ref
-            checked.append(True)
-        return res, jac
-
-    return linearize
+    return kernel.trusted_linearize or kernel.linearize
 
 
 @dataclass(eq=False)

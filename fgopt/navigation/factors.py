@@ -57,7 +57,8 @@ def imu_kernel() -> FactorKernel:
     return FactorKernel("imu_factor", (se3, r3, se3, r3, r6), 9, IK.PIM_CONSTANTS,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True), source=_SOURCE,
-                        recipe=(imu_kernel, ()))
+                        recipe=(imu_kernel, ()),
+                        trusted_linearize=lambda args, consts: IK.imu_batch(*args, consts, True))
 
 
 @cache
@@ -74,7 +75,9 @@ def combined_imu_kernel() -> FactorKernel:
     return FactorKernel("combined_imu_factor", (se3, r3, se3, r3, r6, r6), 15, IK.PIM_CONSTANTS,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True), source=_SOURCE,
-                        recipe=(combined_imu_kernel, ()))
+                        recipe=(combined_imu_kernel, ()),
+                        trusted_linearize=lambda args, consts: IK.combined_batch(*args, consts,
+                                                                                 True))
 
 
 @cache
@@ -87,7 +90,8 @@ def gps_kernel() -> FactorKernel:
     return FactorKernel("gps_factor", (SE3.batch_kind(),), 3, 6,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True), source=_SOURCE,
-                        recipe=(gps_kernel, ()))
+                        recipe=(gps_kernel, ()),
+                        trusted_linearize=lambda args, consts: IK.gps_batch(args[0], consts, True))
 
 
 def _pim_noise(pim: PreintegratedImu, who: str, keys: tuple, predicted_attitude: Any) -> Gaussian:

@@ -163,16 +163,23 @@ def between_kernel(kind: BatchKind) -> FactorKernel:
         def run(args, consts, with_jac):
             (a, b), c = _prepared(name, kind, 2, args, consts)
             return lie_between_batch(gid, a, b, c, with_jac)
+
+        def trusted(args, consts):
+            return lie_between_batch(gid, args[0], args[1], consts, True)
     elif _is_vector_kind(kind):
         def run(args, consts, with_jac):
             (a, b), c = _prepared(name, kind, 2, args, consts)
             return vector_between_batch(a, b, c, with_jac)
+
+        def trusted(args, consts):
+            return vector_between_batch(args[0], args[1], consts, True)
     else:
         raise _unsupported("between_kernel", kind)
     return FactorKernel(name, (kind, kind), kind.dim, kind.storage_dim,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
-                        source=_SOURCE, recipe=(between_kernel, (kind,)))
+                        source=_SOURCE, recipe=(between_kernel, (kind,)),
+                        trusted_linearize=trusted)
 
 
 @cache
@@ -184,13 +191,20 @@ def prior_kernel(kind: BatchKind) -> FactorKernel:
         def run(args, consts, with_jac):
             (x,), c = _prepared(name, kind, 1, args, consts)
             return lie_prior_batch(gid, x, c, with_jac)
+
+        def trusted(args, consts):
+            return lie_prior_batch(gid, args[0], consts, True)
     elif _is_vector_kind(kind):
         def run(args, consts, with_jac):
             (x,), c = _prepared(name, kind, 1, args, consts)
             return vector_prior_batch(x, c, with_jac)
+
+        def trusted(args, consts):
+            return vector_prior_batch(args[0], consts, True)
     else:
         raise _unsupported("prior_kernel", kind)
     return FactorKernel(name, (kind,), kind.dim, kind.storage_dim,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
-                        source=_SOURCE, recipe=(prior_kernel, (kind,)))
+                        source=_SOURCE, recipe=(prior_kernel, (kind,)),
+                        trusted_linearize=trusted)
