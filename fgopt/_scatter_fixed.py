@@ -28,7 +28,7 @@ MAX_ARGS_WIDE = 6
 MAX_DIM = 16
 #: Batches smaller than this keep the generic kernel (its compile is already paid for).
 MIN_FACTORS = 64
-_VERSION = "3"
+_VERSION = "5"
 _cache: dict[tuple, Callable] = {}
 
 
@@ -139,20 +139,28 @@ def _scatter_blocks(a: Callable, dims: tuple[int, ...], entry: Callable) -> None
 
 def _wide_blocks(a: Callable, m: int, dims: tuple[int, ...], offs: list[int], D: int) -> None:
     """The H part for residuals of ``WIDE_RESIDUAL`` rows or more, as the generic kernel's wide
-    path (``_assembly._scatter_wide``): the local ``D x D`` product ``J^T J`` by row outer
-    products (zeros of J skipped; same summation order), then its blocks scattered."""
+    path (``_assembly._scatter_wide``): the lower triangle of the local ``D x D`` product
+    ``J^T J`` by row outer products (zeros of J skipped; same summation order), then its blocks
+    scattered, an upper block read transposed (the same products: half the work of the full
+    square, IMU factor 9 x 24: 79 -> 67 us per 100 factors)."""
     a("        for x in range(%d):" % D)
-    a("            for y in range(%d):" % D)
+    a("            for y in range(x + 1):")
     a("                Hl[x, y] = 0.0")
     a(f"        for t in range({m}):")
     a(f"            for x in range({D}):")
     a("                jx = J[t, x]")
     a("                if jx == 0.0:")
     a("                    continue")
-    a(f"                for y in range({D}):")
+    a("                for y in range(x + 1):")
     a("                    Hl[x, y] += jx * J[t, y]")
-    _scatter_blocks(a, dims, lambda ind, p, q: a(
-        f"{ind}H_data[base + x] += w * Hl[{offs[p]} + x, {offs[q]} + y]"))
+
+    def entry(ind: str, p: int, q: int) -> None:
+        if p >= q:
+            a(f"{ind}H_data[base + x] += w * Hl[{offs[p]} + x, {offs[q]} + y]")
+        else:
+            a(f"{ind}H_data[base + x] += w * Hl[{offs[q]} + y, {offs[p]} + x]")
+
+    _scatter_blocks(a, dims, entry)
 
 
 def scatter_kernel(m: int, dims: tuple[int, ...], unit: bool, n: int) -> Callable | None:

@@ -548,6 +548,8 @@ class Problem:
         self.pattern.var_kind = self.var_kind
         self.pattern.kind_names = tuple(k.name for k in self.kinds)
         self.pattern.independent_kinds = independent
+        if linear_solver == "auto" and self.pattern.size > DENSE_MAX_SIZE:  # computed above
+            self.pattern.ba_kind = -1 if eliminated is None else eliminated
         rank = np.empty(V, dtype=np.int64)
         rank[order] = np.arange(V)
         off = self.pattern.var_offset

@@ -49,6 +49,10 @@ class HessianPattern:
     #: when the builder knows them (the compiled problem does); None: unknown.
     independent_kinds: tuple[int, ...] | None = None
     col_shift: np.ndarray = None        # (N,) see column_shift (computed when not given)
+    #: :func:`ba_shaped_kind` once known (``-1``: not BA-shaped), set by its first asker
+    #: (:func:`fgopt.solvers.linear.schur.is_ba_shaped`) or the compiled problem; None: unknown.
+    #: Set ``var_kind`` / ``independent_kinds`` before asking.
+    ba_kind: int | None = None
     _indices: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self):

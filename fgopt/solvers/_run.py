@@ -157,7 +157,7 @@ class Run:
         self.switched_at = len(self.records)
 
     def state_norm(self) -> float:
-        return math.sqrt(sum(float(np.sum(s * s)) for s in self.state.storages))
+        return math.sqrt(sum(float(np.vdot(s, s)) for s in self.state.storages))
 
     def record(self, iteration: int, candidate_cost: float, lam: float, step_norm: float,
                accepted: bool, previous_cost: float, predicted: float = math.inf,

@@ -413,14 +413,19 @@ def is_ba_shaped(pattern: HessianPattern) -> bool:
     kinds = pattern.var_kind
     if kinds is None or pattern.size == 0:
         return False
+    if pattern.ba_kind is not None:  # asked before (the solver choice, LM's policy, ...)
+        return pattern.ba_kind >= 0
     kinds = np.asarray(kinds)
     known = pattern.independent_kinds
     if known is None:  # a pattern not built by a Problem: look at its blocks
         by_count = kinds_by_count(kinds)
         if not by_count or not L.is_independent(pattern, kinds == by_count[0]):
+            pattern.ba_kind = -1
             return False
         known = (by_count[0],)
-    return ba_shaped_kind(kinds, pattern.var_dim, known) is not None
+    kind = ba_shaped_kind(kinds, pattern.var_dim, known)
+    pattern.ba_kind = -1 if kind is None else kind
+    return kind is not None
 
 
 def choose_linear_solver(pattern: HessianPattern) -> SchurSolver | None:
