@@ -177,7 +177,7 @@ def _columns(J, col, eta_zero, S, Rj):
     _put(J, 6, col, S[S_T1], 1.0)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")  # into imu_batch's loop: 1.0 -> 0.6 us per factor
 def imu_rows(pose_i, vi, pose_j, vj, b, c, res, J, with_jac, S, s, Ri, Rj):
     """Residual ``res[:9]`` and, if ``with_jac``, Jacobian columns 0..23 of ``J`` (pose_i,
     vel_i, pose_j, vel_j, bias_i) of one IMU factor."""
@@ -307,24 +307,21 @@ def imu_batch(pose_i, vel_i, pose_j, vel_j, bias_i, consts, with_jac):
 
 @njit(cache=True, nogil=True)
 def combined_batch(pose_i, vel_i, pose_j, vel_j, bias_i, bias_j, consts, with_jac):
-    """``CombinedImuFactor`` residuals ``(n, 15)`` and Jacobians ``(n, 15, 30)``."""
+    """``CombinedImuFactor`` residuals ``(n, 15)`` and Jacobians ``(n, 15, 30)``: the IMU rows
+    from :func:`imu_batch` (one compiled copy of the inlined rows), then the bias rows."""
     n = pose_i.shape[0]
+    r9, j9 = imu_batch(pose_i, vel_i, pose_j, vel_j, bias_i, consts, with_jac)
     res = np.empty((n, 15))
     jac = np.zeros((n if with_jac else 0, 15, 30))
-    S = np.empty((N_S, 3, 3))
-    s = np.empty((N_V, 4))
-    Ri = np.empty((3, 3))
-    Rj = np.empty((3, 3))
-    J9 = np.empty((9, 24))
     for f in range(n):
-        imu_rows(pose_i[f], vel_i[f], pose_j[f], vel_j[f], bias_i[f], consts[f], res[f],
-                 J9, with_jac, S, s, Ri, Rj)
+        for k in range(9):
+            res[f, k] = r9[f, k]
         for k in range(6):
             res[f, 9 + k] = bias_i[f, k] - bias_j[f, k]  # GTSAM's Between(bias_j, bias_i)
         if with_jac:
             for i in range(9):
                 for j in range(24):
-                    jac[f, i, j] = J9[i, j]
+                    jac[f, i, j] = j9[f, i, j]
             for k in range(6):
                 jac[f, 9 + k, 18 + k] = 1.0
                 jac[f, 9 + k, 24 + k] = -1.0
