@@ -111,9 +111,6 @@ class _Batch:
     unit0: bool = True
     plan: list | None = field(default=None)  # NumPy assembly: scatter plan per slice
     fixed: dict = field(default_factory=dict)  # unit flag -> specialized scatter (or None)
-    #: the kernel's linearize on numba without argument checks where it has one (the gathered
-    #: storage rows and the batch's constants are C-contiguous float64 by construction)
-    numba_linearize: Any = None
 
     def gather(self, state: State, lo: int = 0, hi: int | None = None) -> tuple:
         """Storage rows of the arguments of instances ``lo:hi`` (default: all)."""
@@ -473,8 +470,7 @@ class Problem:
                        for j in range(var_idx.shape[1])],
                       np.ascontiguousarray(R), unit, dims,
                       np.array(kernel.arg_offsets, dtype=np.int64),
-                      weights=np.ones(len(b)), sqrt_info0=np.ascontiguousarray(R), unit0=unit,
-                      numba_linearize=kernel.trusted_linearize or kernel.linearize)
+                      weights=np.ones(len(b)), sqrt_info0=np.ascontiguousarray(R), unit0=unit)
 
     def _make_slow(self, f: Factor) -> _SlowFactor:
         var_idx = np.array([self._var_of_key[k] for k in f.keys], dtype=np.int64)
@@ -733,7 +729,9 @@ class Problem:
                     fixed = b.fixed[b.unit] = specialized_scatter(b)
                 t0 = time.perf_counter()
                 st = state.storages
-                res, jac = b.numba_linearize(
+                # the kernel's entry without argument checks where it has one: the gathered rows
+                # and the batch's constants are C-contiguous float64 by construction
+                res, jac = (b.kernel.trusted_linearize or b.kernel.linearize)(
                     tuple([st[kid].take(rows, axis=0) for kid, rows in zip(b.kind_ids, b.rows)]),
                     src.constants)
                 t1 = time.perf_counter()
