@@ -12,6 +12,19 @@ import numpy as np
 from ._jit import njit
 
 
+@njit(cache=True, inline="always")
+def lower_bound(a, lo, hi, v):
+    """First position in the sorted ``a[lo:hi]`` whose value is not below ``v`` (``hi`` if
+    none): bisection."""
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if a[mid] < v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
 @njit(cache=True)
 def sort_range(a, lo, hi):
     """Sort ``a[lo:hi]`` in place: insertion sort for short runs (no temporary; linear when
@@ -147,13 +160,6 @@ def _scatter_positions(codes, col_ptr, p00, V, var_rank, var_idx):
                 rq = var_rank[var_idx[i, q]]
                 if rp < rq or (p != q and rp == rq):
                     continue
-                want = rq * V + rp
-                lo, hi = col_ptr[rq], col_ptr[rq + 1]
-                while lo < hi:
-                    mid = (lo + hi) // 2
-                    if codes[mid] < want:
-                        lo = mid + 1
-                    else:
-                        hi = mid
-                pos[i, p, q] = p00[lo]
+                pos[i, p, q] = p00[lower_bound(codes, col_ptr[rq], col_ptr[rq + 1],
+                                               rq * V + rp)]
     return pos

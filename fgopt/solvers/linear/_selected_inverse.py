@@ -22,17 +22,13 @@ from __future__ import annotations
 
 import numpy as np
 from ..._jit import njit
+from ..._structure_kernels import lower_bound
 
 
 @njit(cache=True)
 def _row_of(rvi, lo, hi, v):
     """Position of variable ``v`` in the sorted ``rvi[lo:hi]``, -1 if absent."""
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if rvi[mid] < v:
-            lo = mid + 1
-        else:
-            hi = mid
+    lo = lower_bound(rvi, lo, hi, v)
     return lo if lo < rvi.shape[0] and rvi[lo] == v else -1
 
 
