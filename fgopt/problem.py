@@ -832,6 +832,16 @@ class Problem:
         """The state as a new ``Variables`` (keys the graph does not use are copied unchanged)."""
         extra = self._extra
         out = Variables()
+        if (not extra._dict and len(extra._pending) == 1 and len(self.kinds) == 1
+                and self.kinds[0].wrap is not None and not self.unused_keys
+                and not state.objects):
+            # the initial values are one bulk block of this one kind (a file's poses): the
+            # result in its key order, built in one pass
+            blk = extra._pending[0]
+            rows = state.storages[0][self.var_row[self._vars_of(blk.keys)]]  # a copy: owned
+            rows.flags.writeable = False
+            out._dict = dict(zip(map(Key, blk.keys.tolist()), self.kinds[0].wrap_all(rows)))
+            return out
         # every key of the initial values in their order, without building the initial values'
         # bulk rows as objects (a file's poses: ~1 us each) only to overwrite them below
         values = out._dict = dict(extra._dict)  # assignments keep its Key objects
@@ -851,7 +861,7 @@ class Problem:
             # read-only copy wrapped row by row (as Variables.add_rows does)
             rows = np.array(S[self.var_row[vars_]], dtype=float)
             rows.flags.writeable = False
-            values.update(zip(keys, map(kind.wrap, rows)))
+            values.update(zip(keys, kind.wrap_all(rows)))
         for v, x in state.objects.items():
             out._values[Key(int(self.var_keys[v]))] = x
         return out

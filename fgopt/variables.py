@@ -85,8 +85,7 @@ class Variables:
 
     def _materialize(self) -> None:
         for blk in self._pending:
-            make = blk.kind.wrap
-            self._dict.update(zip(map(Key, blk.keys.tolist()), map(make, blk.rows)))
+            self._dict.update(zip(map(Key, blk.keys.tolist()), blk.kind.wrap_all(blk.rows)))
         self._pending = []
 
     def __getstate__(self) -> dict:
@@ -467,7 +466,7 @@ def _unpack(v: Variables, state: dict) -> None:
     made = []
     for k, kind in enumerate(kinds):
         part = rows[k][:used[k]]
-        made.append(iter(part[:, 0].tolist() if kind.wrap is None else map(kind.wrap, part)))
+        made.append(iter(part[:, 0].tolist() if kind.wrap is None else kind.wrap_all(part)))
     made.append(iter(state["objects"]))
     v._dict = dict(zip(map(Key, keys[:split].tolist()), (next(made[t]) for t in head.tolist())))
     v._pending = []

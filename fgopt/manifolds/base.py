@@ -47,12 +47,21 @@ class BatchKind:
     #: Build a value from an owned, read-only storage row already on the manifold (no checks,
     #: no normalization): the fast path for bulk construction. ``None``: use ``from_storage``.
     wrap: Callable[[np.ndarray], Any] | None = field(default=None, repr=False)
+    #: ``wrap`` of every row of an owned, read-only ``(n, storage_dim)`` array, as a list (a
+    #: kind may build them faster than one ``wrap`` call per row). ``None``: ``wrap`` per row.
+    wrap_rows: Callable[[np.ndarray], list] | None = field(default=None, repr=False)
     #: What the kernels compute, for cache keys of code generated over this kind (declared
     #: manifolds: their declaration key; built-in kinds: empty, their name says it all).
     key: str = field(default="", repr=False)
 
     def __post_init__(self) -> None:
         _KINDS.setdefault(self.name, self)
+
+    def wrap_all(self, rows: np.ndarray) -> list:
+        """``[wrap(row) for row in rows]`` (``rows`` owned and read-only; ``wrap`` required)."""
+        if self.wrap_rows is not None:
+            return self.wrap_rows(rows)
+        return list(map(self.wrap, rows))
 
     def __reduce__(self):
         # Kinds compare by identity, so a pickled kind is the same-named kind of the receiving

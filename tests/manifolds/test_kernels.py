@@ -69,6 +69,21 @@ class TestBatched:
         np.testing.assert_allclose(K.batch_retract(gid, A, d), kind.retract(A, d), **exact)
         np.testing.assert_allclose(K.batch_local(gid, A, B), kind.local(A, B), **exact)
 
+    def test_wrap_all_builds_what_wrap_builds_row_by_row(self, G):
+        # the bulk constructor behind result values and Variables' bulk rows
+        rng = np.random.default_rng(5)
+        values = [G.random(rng) for _ in range(9)]
+        rows = _rows(G, values)
+        rows.flags.writeable = False
+        kind = G.batch_kind()
+        made = kind.wrap_all(rows)
+        assert len(made) == 9 and kind.wrap_all(rows[:0]) == []
+        for x, y, row in zip(made, values, rows):
+            assert type(x) is G
+            np.testing.assert_array_equal(x.to_storage(), y.to_storage())
+            assert not x._data.flags.writeable and np.shares_memory(x._data, row)
+            np.testing.assert_array_equal(x.log(), kind.wrap(row).log())
+
     def test_batched_accepts_strided_rows(self, G):
         rng = np.random.default_rng(3)
         A = _rows(G, [G.random(rng) for _ in range(6)])

@@ -187,13 +187,44 @@ def batch_log(gid, a):
     return out
 
 
+# The common groups' exp / compose inlined into batch_retract's loops (numba IR inlining): the
+# per-row calls through lie_retract's group switch, with an array view per argument, measured
+# 3.3x (SE(2)) / 2.6x (SE(3)) slower on 808 rows (a pose graph's retract: 77 -> 23 us).
+_se2_exp = njit(inline="always")(se2_exp.py_func)
+_se2_compose = njit(inline="always")(se2_compose.py_func)
+_se3_exp = njit(inline="always")(se3_exp.py_func)
+_se3_compose = njit(inline="always")(se3_compose.py_func)
+_so3_exp = njit(inline="always")(so3_exp.py_func)
+_so3_compose = njit(inline="always")(so3_compose.py_func)
+_so2_exp = njit(inline="always")(so2_exp.py_func)
+_so2_compose = njit(inline="always")(so2_compose.py_func)
+
+
 @njit(cache=True)
 def batch_retract(gid, x, delta):
     """(n, s), (n, d) -> (n, s): row-wise x * Exp(delta)."""
-    out = np.empty((x.shape[0], storage_dim(gid)))
+    n = x.shape[0]
+    out = np.empty((n, storage_dim(gid)))
     tmp = np.empty(MAX_STORAGE_DIM)
-    for i in range(x.shape[0]):
-        lie_retract(gid, x[i], delta[i], out[i], tmp)
+    if gid == SE3_ID:
+        for i in range(n):
+            _se3_exp(delta[i], tmp)
+            _se3_compose(x[i], tmp, out[i])
+    elif gid == SE2_ID:
+        for i in range(n):
+            _se2_exp(delta[i], tmp)
+            _se2_compose(x[i], tmp, out[i])
+    elif gid == SO3_ID:
+        for i in range(n):
+            _so3_exp(delta[i], tmp)
+            _so3_compose(x[i], tmp, out[i])
+    elif gid == SO2_ID:
+        for i in range(n):
+            _so2_exp(delta[i], tmp)
+            _so2_compose(x[i], tmp, out[i])
+    else:
+        for i in range(n):
+            lie_retract(gid, x[i], delta[i], out[i], tmp)
     return out
 
 
