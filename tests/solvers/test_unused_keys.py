@@ -70,3 +70,26 @@ def test_values_from_bulk_rows_keep_the_initial_order_and_unused_rows():
     assert r.values.at(x2).equals(SE2.from_xytheta(5, 0, 0), 1e-6)
     assert len(v._pending) == 1 and v._pending[0].rows is not None
     assert np.array_equal(v._pending[0].rows, rows)
+
+
+def test_values_from_one_bulk_block_keep_its_order_and_match_the_general_path():
+    """Initial values that are one bulk block of one kind, every key used, keys not in graph
+    order (a file's poses): the result (built in one pass) has the block's key order, Key
+    keys, read-only values equal to the per-kind path's (``values_as_rows``), and does not
+    share rows with the problem's state."""
+    g, _ = graph_and_values()
+    x1, x2 = key("x", 1), key("x", 2)
+    first, second = SE2.from_xytheta(0.2, -0.3, 0.2), SE2.from_xytheta(5.1, 0.3, -0.1)
+    v = Variables()
+    v.add_rows(np.array([x2, x1]), ops_for(first).batch_kind(first),
+               np.array([second.to_storage(), first.to_storage()]))
+    r = fgopt.optimize(g, v)
+    assert r.success
+    out = r.values
+    assert list(out.keys()) == [x2, x1] and all(type(k) is fgopt.Key for k in out.keys())
+    rows = r.problem.values_as_rows(r.state)
+    for k in (x1, x2):
+        assert type(out.at(k)) is SE2 and not out.at(k)._data.flags.writeable
+        assert np.array_equal(out.at(k).to_storage(), rows.at(k).to_storage())
+        assert not any(np.shares_memory(out.at(k)._data, s) for s in r.state.storages)
+    assert out.at(x2).equals(SE2.from_xytheta(5, 0, 0), 1e-6)
