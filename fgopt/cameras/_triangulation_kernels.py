@@ -50,13 +50,13 @@ def dlt(model, Rs, ts, ks, uv, rank_tol, X):
     K5 = np.empty(5)
     und = np.empty(2)
     P = np.empty((3, 4))
+    M = np.empty((3, 4))
     for i in range(m):
         if not undistort(model, ks[i], uv[i, 0], uv[i, 1], 1e-10, 20, und):
             return -1
         CK.pinhole_part(model, ks[i], K5)
         R = Rs[i]
         # M = [R^T | -R^T t], then P = K M with K = [[fx, s, u0], [0, fy, v0], [0, 0, 1]]
-        M = np.empty((3, 4))
         for r in range(3):
             for c in range(3):
                 M[r, c] = R[c, r]
