@@ -1,6 +1,6 @@
 """Bundle-adjustment benchmark: fgopt's Schur solvers vs Ceres (C++ and pyceres) and GTSAM.
 
-    .venv/bin/python -m benchmarks.ba [--problems ladybug,dubrovnik3,synthetic:21x11315]
+    .venv/bin/python -m benchmarks.ba [--problems ladybug,trafalgar,dubrovnik3,synthetic:21x11315]
         [--rounds 3]
         [--peers fgopt,ceres_cpp,pyceres,gtsam] [--profile] [--json out.json]
 
@@ -50,6 +50,8 @@ from benchmarks import problems, yardstick
 BAL_PROBLEMS = {"ladybug": "bal/problem-49-7776-pre.txt",
                 "dubrovnik3": "bal/dubrovnik-3-7-pre.txt",
                 "dubrovnik1": "bal/dubrovnik-1-1-pre.txt"}
+# Real BAL problems of Ladybug's size outside the shared folder (benchmarks/extra_data.py).
+EXTRA_BAL_PROBLEMS = {"trafalgar": "problem-21-11315-pre.txt"}
 CERES_BIN = Path(__file__).resolve().parent / "ceres_cpp" / "ceres_bench"
 QUOTED_CERES = {"ladybug": {"5it": 0.298, "converge": 1.58, "iterations": 31, "final": 13344.3}}
 FGOPT_CONFIGS = ("schur_dense", "schur_sparse", "schur_pcg", "cholmod")
@@ -323,6 +325,10 @@ def synthetic_path(name: str) -> Path:
 def problem_path(name: str) -> Path:
     if name.startswith("synthetic:"):
         return synthetic_path(name)
+    if name in EXTRA_BAL_PROBLEMS:
+        from benchmarks import extra_data
+
+        return extra_data.ensure(EXTRA_BAL_PROBLEMS[name])
     return problems.data_dir() / BAL_PROBLEMS[name]
 
 

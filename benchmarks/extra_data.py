@@ -18,6 +18,8 @@ problem. Files land in ``$FGOPT_EXTRA_DATA`` (default ``~/.cache/fgopt/extra-dat
 * sphere_bignoise_vertex3 (SE-Sync's data folder): the issue's "large-noise sphere".
 * MIT, city10000, ais2klinik (SE-Sync's data folder): more 2D graphs with an initial guess.
 * CSAIL, kitti_00, kitti_05 (SE-Sync's data folder): edges only (the reader chains odometry).
+* problem-21-11315-pre.txt (Trafalgar-21 of Agarwal et al.'s BAL collection, from apex-solver's
+  data folder): a second real BAL problem of Ladybug-49's size for ``benchmarks/ba.py``.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from pathlib import Path
 
 _SESYNC = ("david-m-rosen/SE-Sync", "9b631b6b82d8aa7d32ab846412ae1c070412b7b6")
 _EFPNO = ("AndreaCensi/efpno", "b2dc56c8c4b9d41f38b7052be9d3e5f2669ce178")
+_APEX = ("amin-abouee/apex-solver", "48e1f09c35c568ffbe7ac4a7d19b8d7995df20f4")
 
 
 @dataclass(frozen=True)
@@ -63,6 +66,8 @@ FILES = [
               "e4863573ca2b87bcd1a1710694eab2d871bcf656"),
     ExtraFile("kitti_05.g2o", *_SESYNC, "data/kitti_05.g2o",
               "636ca29f0cc5fb7dba379d11e3e35b7040c465cc"),
+    ExtraFile("problem-21-11315-pre.txt", *_APEX, "data/bundle_adjustment/problem-21-11315-pre.txt",
+              "4fc68d1b9aca5ac13b4ee241677469a5e38cc7e1"),
 ]
 BY_NAME = {f.name: f for f in FILES}
 
