@@ -192,3 +192,34 @@ def test_m3500_with_ten_percent_wrong_loop_closures(data_file):
     added = next(x for x in w if len(x) == len(bad) - 1)[-n:]  # the added factors come last
     assert np.all(added < 0.5)
     assert _max_position_error(r.values, clean.values) < 1e-3
+
+
+def test_copied_closure_inside_the_nominal_ellipse_is_rejected_at_the_real_scale():
+    """Perceptual aliasing next to a real closure, under noise models 4x too pessimistic: two
+    copies of true loop closures, each off by a whitened 13 at the outlier-free optimum (inside
+    the nominal 0.999 ellipse, 16.3, so GNC's truncated objective accepts them) but ~200 at the
+    factors' real scale (s^2 = 1/16). The family-wise test at the tested factors' standardized
+    scale rejects both and the result is the outlier-free optimum; without the consistency step
+    (``estimate_scale=False``) they bend the map."""
+    d = manhattan_2d(300, seed=6)
+    graph = _overstated(d, factor=4.0)
+    clean = fgopt.optimize(graph, d.initial)
+    loops = [f for f in graph if len(f.keys) == 2 and abs(int(f.keys[0]) - int(f.keys[1])) > 1]
+    bad = fgopt.FactorGraph(list(graph))
+    for f, direction in ((loops[len(loops) // 3], [1.0, 1.0, 0.0]),
+                         (loops[2 * len(loops) // 3], [0.0, -1.0, 1.0])):
+        a, b = f.keys
+        rel = clean.values.at(a).between(clean.values.at(b))
+        u = np.sqrt(13.0) * np.asarray(direction) / np.linalg.norm(direction)
+        delta = np.linalg.solve(f.loss.sqrt_information, u)
+        bad.add(BetweenFactor(a, b, rel * SE2.exp(delta), f.loss))
+        e = bad[len(bad) - 1].whitened_error(clean.values)
+        assert 12.0 < float(e @ e) < 14.0  # inside the nominal ellipse at the optimum
+    r = fgopt.optimize(bad, d.initial, method="gnc")
+    assert r.info["outliers"] == 2
+    between = next(w for w in r.info["weights"] if len(w) == len(bad) - 1)  # all but the prior
+    assert between[-2:].tolist() == [0.0, 0.0]  # the copies come last
+    assert graph.error(r.values) == pytest.approx(clean.final_cost, rel=1e-6)
+    kept = fgopt.optimize(bad, d.initial, method="gnc",
+                          params=GNCParams(loss="tls", estimate_scale=False))
+    assert graph.error(kept.values) > clean.final_cost * 1.01
