@@ -836,11 +836,12 @@ class Problem:
                 and self.kinds[0].wrap is not None and not self.unused_keys
                 and not state.objects):
             # the initial values are one bulk block of this one kind (a file's poses): the
-            # result in its key order, built in one pass
+            # result as one such block in its key order (objects made when read, see
+            # Variables.at), as GTSAM's optimize returns C++ values wrapped when read
             blk = extra._pending[0]
             rows = state.storages[0][self.var_row[self._vars_of(blk.keys)]]  # a copy: owned
             rows.flags.writeable = False
-            out._dict = dict(zip(map(Key, blk.keys.tolist()), self.kinds[0].wrap_all(rows)))
+            out._pending.append(_Rows(blk.keys, self.kinds[0], rows))
             return out
         # every key of the initial values in their order, without building the initial values'
         # bulk rows as objects (a file's poses: ~1 us each) only to overwrite them below

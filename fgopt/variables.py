@@ -36,14 +36,29 @@ def _check_finite(k: Key, value: Any) -> None:
         raise NonFiniteError(f"value of {key_str(k)} has a NaN or inf: {value!r}")
 
 
+#: Bulk blocks of at most this many rows answer ``Variables.at`` from their value objects, all
+#: made on the first read (a loop of reads over a file's 808 poses: 4.4 ms by searchsorted, ~0.4
+#: ms so); larger ones (a BA problem's points) search their sorted keys and stay compact.
+_INDEXED_ROWS = 100_000
+_ABSENT = object()
+
+
 class _Rows:
     """Values added in bulk by ``add_rows`` and not yet turned into one object per key."""
 
-    __slots__ = ("keys", "kind", "rows", "_sorted")
+    __slots__ = ("keys", "kind", "rows", "_sorted", "_objects")
 
     def __init__(self, keys: np.ndarray, kind: Any, rows: np.ndarray):
         self.keys, self.kind, self.rows = keys, kind, rows
         self._sorted: tuple[np.ndarray, np.ndarray] | None = None
+        self._objects: dict[int, Any] | None = None
+
+    def objects(self) -> dict[int, Any]:
+        """key -> value object of every row, made on first use (``wrap_all``: no Python frame
+        per row); the rows stay, for the compiled problem's bulk path."""
+        if self._objects is None:
+            self._objects = dict(zip(self.keys.tolist(), self.kind.wrap_all(self.rows)))
+        return self._objects
 
     def find(self, keys: np.ndarray) -> np.ndarray:
         """Row of each of ``keys`` in this block, -1 where absent."""
@@ -85,7 +100,9 @@ class Variables:
 
     def _materialize(self) -> None:
         for blk in self._pending:
-            self._dict.update(zip(map(Key, blk.keys.tolist()), blk.kind.wrap_all(blk.rows)))
+            objs = blk._objects
+            self._dict.update(zip(map(Key, blk.keys.tolist()),
+                                  blk.kind.wrap_all(blk.rows) if objs is None else objs.values()))
         self._pending = []
 
     def __getstate__(self) -> dict:
@@ -192,15 +209,26 @@ class Variables:
     def at(self, k: int) -> Any:
         """The value of key ``k``; a missing key raises ``KeyNotFoundError``."""
         try:
-            return self._dict[k]
-        except KeyError:
-            pass
+            x = self._dict.get(k, _ABSENT)
         except TypeError:
             raise KeyNotFoundError(f"{k!r} is not a key") from None
-        if isinstance(k, (int, np.integer)) and not isinstance(k, bool) and 0 <= k < 2 ** 63:
-            q = np.array([int(k)], dtype=np.int64)
+        if x is not _ABSENT:
+            return x
+        for blk in self._pending:  # blocks read before: their objects, by key (not bools)
+            if blk._objects is not None:
+                x = blk._objects.get(k, _ABSENT)
+                if x is not _ABSENT and type(k) is not bool:
+                    return x
+        if (self._pending and isinstance(k, (int, np.integer)) and not isinstance(k, bool)
+                and 0 <= k < 2 ** 63):
+            k = int(k)
             for blk in self._pending:
-                r = int(blk.find(q)[0])
+                if blk.keys.shape[0] <= _INDEXED_ROWS:
+                    x = (blk._objects or blk.objects()).get(k, _ABSENT)
+                    if x is not _ABSENT:
+                        return x
+                    continue
+                r = int(blk.find(np.array([k], dtype=np.int64))[0])
                 if r >= 0:
                     return blk.kind.wrap(blk.rows[r])
         raise KeyNotFoundError(f"no variable {key_str(as_key(k))} in Variables ({len(self)} "

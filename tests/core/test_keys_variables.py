@@ -91,6 +91,41 @@ def test_bulk_rows_behave_like_added_values():
         Variables().add_rows(np.array([3, 3]), vector_kind(3), rows[:2])
 
 
+def test_reading_bulk_rows_by_key_keeps_the_rows(monkeypatch):
+    """``at`` on bulk rows (a file's poses) makes the block's objects once and then reads them
+    by key: the values equal the materialized ones, a key reads the same object twice, ints,
+    numpy ints and Keys all find it, and the block stays rows (the compiled problem's bulk
+    path); a block above the indexed size reads row by row with the same values."""
+    import fgopt.variables as V
+    from fgopt import SE2
+    from fgopt.manifolds import ops_for
+    from fgopt.manifolds.base import vector_kind
+
+    poses = [SE2.from_xytheta(0.1 * j, -0.2 * j, 0.3 * j - 1.0) for j in range(6)]
+    keys = np.array([int(key("x", j)) for j in (3, 0, 5, 1, 4, 2)])
+    kind = ops_for(poses[0]).batch_kind(poses[0])
+    v = Variables().add(key("l", 0), 2.0)
+    v.add_rows(keys, kind, np.array([p.to_storage() for p in poses]))
+    v.add_rows(np.array([int(key("p", 0))]), vector_kind(2), np.array([[1.0, 2.0]]))
+    first = v.at(key("x", 5))
+    assert v.at(int(key("x", 5))) is first and v.at(np.int64(int(key("x", 5)))) is first
+    assert len(v._pending) == 2 and not v._pending[1]._objects  # only the read block
+    want = {k: x for k, x in v.copy().items()}  # a copy materializes; v keeps its rows
+    assert len(v._pending) == 2
+    for k, x in want.items():
+        got = v.at(k)
+        assert type(got) is type(x)
+        if isinstance(x, SE2):
+            got, x = got.to_storage(), x.to_storage()
+        assert np.array_equal(got, x)
+    with pytest.raises(KeyNotFoundError, match="x9"):
+        v.at(key("x", 9))
+    monkeypatch.setattr(V, "_INDEXED_ROWS", 0)
+    w = Variables().add_rows(keys, kind, np.array([p.to_storage() for p in poses]))
+    assert w.at(key("x", 5)).equals(first, 0.0) and w._pending[0]._objects is None
+    assert list(v.keys())[:3] == [key("l", 0), key("x", 3), key("x", 0)]
+
+
 def test_problem_takes_bulk_rows_as_arrays():
     """A problem compiled from bulk rows has the same variables, kinds, order and storage as
     one compiled from per-key values, and never turns the rows into per-key objects."""

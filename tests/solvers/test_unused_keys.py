@@ -74,9 +74,9 @@ def test_values_from_bulk_rows_keep_the_initial_order_and_unused_rows():
 
 def test_values_from_one_bulk_block_keep_its_order_and_match_the_general_path():
     """Initial values that are one bulk block of one kind, every key used, keys not in graph
-    order (a file's poses): the result (built in one pass) has the block's key order, Key
-    keys, read-only values equal to the per-kind path's (``values_as_rows``), and does not
-    share rows with the problem's state."""
+    order (a file's poses): the result is one block of storage rows (objects made when read)
+    with the block's key order, Key keys, read-only values equal to the per-kind path's
+    (``values_as_rows``), and does not share rows with the problem's state."""
     g, _ = graph_and_values()
     x1, x2 = key("x", 1), key("x", 2)
     first, second = SE2.from_xytheta(0.2, -0.3, 0.2), SE2.from_xytheta(5.1, 0.3, -0.1)
@@ -86,6 +86,8 @@ def test_values_from_one_bulk_block_keep_its_order_and_match_the_general_path():
     r = fgopt.optimize(g, v)
     assert r.success
     out = r.values
+    assert len(out._pending) == 1 and not out._dict
+    assert not any(np.shares_memory(out._pending[0].rows, s) for s in r.state.storages)
     assert list(out.keys()) == [x2, x1] and all(type(k) is fgopt.Key for k in out.keys())
     rows = r.problem.values_as_rows(r.state)
     for k in (x1, x2):
