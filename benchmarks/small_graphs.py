@@ -6,9 +6,11 @@ CPU time, in one run.
 
 Issue 12's second target: fixed per-solve and per-iteration overhead on small graphs, where C++
 Ceres was 10-50 % faster. Each solve is timed from the loaded problem (fgopt: ``Problem`` set-up,
-linear-solver analysis, 5 iterations, and the result's values, as a user gets them; Ceres:
-``ceres::Solve``, inside ``benchmarks/ceres_cpp/ceres_bench``; GTSAM: optimizer construction +
-``optimize()``), every stopping test off, from the file's guess, single-threaded. On a machine
+linear-solver analysis, 5 iterations, and the result's ``Variables``, as a user gets them: for
+a file's poses one block of storage rows, each pose an object when read; Ceres:
+``ceres::Solve``, inside ``benchmarks/ceres_cpp/ceres_bench``, the result in its parameter
+arrays; GTSAM: optimizer construction + ``optimize()``, the result a ``Values`` of C++ objects
+each wrapped for Python when read), every stopping test off, from the file's guess, single-threaded. On a machine
 that other processes load, wall times measure the scheduler as much as the solver (Ceres' wall
 time was 6x its CPU time at load 8), so the comparison uses process CPU time: the minimum over
 ``--repeats`` solves for fgopt and GTSAM (in this process) and the median for Ceres (its

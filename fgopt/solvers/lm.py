@@ -106,16 +106,16 @@ class LevenbergMarquardt:
         msg = run.converged_by_gradient()
         if msg is not None:
             return run.finish(Status.CONVERGED, msg)
+        ones = np.ones(diag_pos.shape[0]) if identity else None
         for it in range(1, p.max_iterations + 1):
             H, g = problem.H_data, problem.g
-            if identity:
-                D = np.ones(diag_pos.shape[0])
-            else:
-                D = np.clip(H[diag_pos], p.min_diagonal, p.max_diagonal)
+            D = ones if identity else np.clip(H[diag_pos], p.min_diagonal, p.max_diagonal)
             old = run.cost
             try:
                 delta = run.solve_damped(lam * D, -g)
-                ok = bool(np.all(np.isfinite(delta)))
+                # |delta|^2 is finite iff every entry is (unless it overflows: check those)
+                step_sq = float(delta @ delta)
+                ok = math.isfinite(step_sq) or bool(np.all(np.isfinite(delta)))
             except NotPositiveDefiniteError:
                 ok, delta = False, None
             if not ok:
@@ -127,7 +127,7 @@ class LevenbergMarquardt:
                 if stop:
                     return run.finish(Status.STOPPED, "callback asked to stop")
                 continue
-            step_norm = float(np.linalg.norm(delta))
+            step_norm = math.sqrt(step_sq)
             # predicted decrease of the model: -(g.d + 0.5 d.H.d) with (H + lam D) d = -g
             predicted = 0.5 * float(delta @ (lam * D * delta) - g @ delta)
             candidate = problem.retract(run.state, delta)
