@@ -13,7 +13,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from ...errors import FgoptError
-from ...structure import DENSE_MAX_SIZE, HessianPattern
+from ...structure import DENSE_MAX_SIZE, DENSE_MIN_FILL, HessianPattern
 
 
 @runtime_checkable
@@ -33,7 +33,8 @@ class LinearSolver(Protocol):
 def choose_linear_solver(pattern: HessianPattern | None, backend: str = "numba") -> str:
     """The backend ``"auto"`` picks for a problem's pattern (measured choices, see README).
 
-    Tiny systems: dense Cholesky. Otherwise fgopt's block supernodal Cholesky, which factors
+    Small systems (at most ``DENSE_MAX_SIZE`` unknowns): dense Cholesky when H is at least
+    ``DENSE_MIN_FILL`` full, else the block Cholesky. Otherwise fgopt's block supernodal Cholesky, which factors
     2-6x faster than CHOLMOD on every pose graph and the full BA system measured
     (``benchmarks/factorization.py``); BA-shaped problems go to the Schur complement.
     On the NumPy backend (``backend="numpy"``: a solve without numba) CHOLMOD when the
@@ -43,8 +44,9 @@ def choose_linear_solver(pattern: HessianPattern | None, backend: str = "numba")
 
     if pattern is None:
         return "cholmod" if have_extra("sksparse") else "block"
-    if pattern.size <= DENSE_MAX_SIZE:
-        return "dense"
+    if pattern.size <= DENSE_MAX_SIZE:  # small: no Schur complement (nor its ordering)
+        full = 2 * pattern.nnz - pattern.size  # nnz: the upper triangle's entries
+        return "dense" if full >= DENSE_MIN_FILL * pattern.size ** 2 else "block"
     if backend == "numpy":
         return "cholmod" if have_extra("sksparse") else "ldlt"
     from .schur import is_ba_shaped
