@@ -23,6 +23,7 @@ from ..errors import FgoptError
 from ..noise.models import RobustLoss, base_noise
 from ..key import key_index, key_str
 from ..manifolds.base import ops_for, vector_kind
+from ..variables import Variables
 from . import _information as im
 from ._graph_build import FIX_SIGMA, pose_kind
 from ._poses import se2_file, se3_file
@@ -62,49 +63,80 @@ def write_g2o(path: str | os.PathLike, graph: Any, values: Any) -> None:
     from ..factors.library.prior_between import prior_kernel_for as prior_kernel
     from ..factors.library.pose_point import pose_point_kernel
 
-    # kinds looked up once per value type, storage rows stacked per kind (no per-key lookups)
+    # kinds looked up once per value type, storage rows stacked per kind (no per-key lookups);
+    # bulk blocks (a file's or a result's poses) are taken as their key and row arrays
     writable = {pose_kind(2): 2, vector_kind(2): 2, pose_kind(3): 3, vector_kind(3): 3}
     kind_of_type: dict = {}  # (type, shape) -> kind
-    members: dict = {}  # kind -> ([keys], [values]), in the values' order
-    for k, v in values.items():
+    members: dict = {}  # kind -> ([key arrays], [row arrays]), in the values' order
+
+    def member(kind, what: str) -> tuple[list, list]:
+        if kind not in writable:
+            raise FgoptError(f"write_g2o: {what}; g2o stores SE2 / SE3 poses and 2- / 3-vector "
+                             "points only")
+        return members.setdefault(kind, ([], []))
+
+    held = values._dict.items() if isinstance(values, Variables) else values.items()
+    blocks = values._pending if isinstance(values, Variables) else ()
+    per_key: dict = {}  # kind -> ([keys], [values]) of the values held one by one
+    for k, v in held:
         t = type(v)
         tkey = (t, v.shape) if t is np.ndarray else t
         kind = kind_of_type.get(tkey)
         if kind is None:
             kind = kind_of_type[tkey] = ops_for(v).batch_kind(v)
-            if kind not in writable:
-                raise FgoptError(f"write_g2o: {key_str(k)} is a {type(v).__name__}; g2o stores "
-                                 "SE2 / SE3 poses and 2- / 3-vector points only")
-            members[kind] = ([], [])
-        ks, vs = members[kind]
+            member(kind, f"{key_str(k)} is a {type(v).__name__}")
+        ks, vs = per_key.setdefault(kind, ([], []))
         ks.append(k)
         vs.append(v)
+    for kind, (ks, vs) in per_key.items():
+        members[kind][0].append(ks)
+        members[kind][1].append(np.array([kind.to_storage(v) for v in vs], dtype=float))
+    for blk in blocks:
+        ks, rows = member(blk.kind, f"{key_str(int(blk.keys[0]))} is a {blk.kind.name}")
+        ks.append(blk.keys)
+        rows.append(blk.rows)
     dims = {writable[kind] for kind in members}
     if len(dims) > 1:
         raise FgoptError("write_g2o: the values mix 2D and 3D variables; g2o files are one or "
                          "the other")
     dim = dims.pop() if dims else 2
     pkind, vkind = pose_kind(dim), vector_kind(dim)
-    all_keys = [k for ks, _ in members.values() for k in ks]
-    all_ids = np.array([key_index(k) for k in all_keys], dtype=np.int64)
-    order = np.argsort(all_ids, kind="stable")
-    same = np.flatnonzero(all_ids[order][1:] == all_ids[order][:-1])
+    def ids_and_keys(parts: list) -> tuple[np.ndarray, np.ndarray]:
+        """g2o ids of a kind's keys, and the keys that fit int64 (keys past it, possible one
+        by one, have no factor)."""
+        ids, fit = [], []
+        for part in parts:
+            if isinstance(part, np.ndarray):  # a bulk block's int64 keys
+                ids.append(part & _ID_BITS)
+                fit.append(part)
+            else:
+                ids.append(np.array([key_index(k) for k in part], dtype=np.int64))
+                fit.append(np.array([k for k in part if k < 2 ** 63], dtype=np.int64))
+        return np.concatenate(ids), np.concatenate(fit)
+
+    ids_of_kind = {kind: ids_and_keys(ks) for kind, (ks, _) in members.items()}
+    all_ids = np.concatenate([i for i, _ in ids_of_kind.values()] or [np.zeros(0, np.int64)])
+    srt = np.sort(all_ids)
+    same = srt[1:][srt[1:] == srt[:-1]]
     if same.shape[0]:
-        a, b = (all_keys[order[i]] for i in (same[0], same[0] + 1))
+        twins = [k for ks, _ in members.values() for part in ks for k in
+                 (part.tolist() if isinstance(part, np.ndarray) else part)
+                 if key_index(k) == int(same[0])]
+        a, b = twins[0], twins[1]
         raise FgoptError(f"write_g2o: {key_str(b)} and {key_str(a)} would both get g2o id "
                          f"{key_index(a)} (g2o has one id space); rename one of the keys")
-    # factor keys are int64: keys past that have no factor
-    sorted_keys = np.sort(np.array([k for k in all_keys if k < 2 ** 63], dtype=np.int64))
+    sorted_keys = np.sort(np.concatenate([f for _, f in ids_of_kind.values()]
+                                         or [np.zeros(0, np.int64)]))
     vertex_parts: list[bytes] = []
     for kind, tag in ((pkind, "VERTEX_SE2" if dim == 2 else "VERTEX_SE3:QUAT"),
                       (vkind, "VERTEX_XY" if dim == 2 else "VERTEX_TRACKXYZ")):
         if kind not in members:
             continue
-        ks, vs = members[kind]
-        rows = np.array([kind.to_storage(v) for v in vs], dtype=float)
+        ks, parts = members[kind]
+        rows = np.concatenate(parts) if len(parts) > 1 else np.asarray(parts[0], dtype=float)
         if kind is pkind:
             rows = se2_file(rows) if dim == 2 else se3_file(rows)
-        ids = np.array([key_index(k) for k in ks], dtype=np.int64)
+        ids = ids_of_kind[kind][0]
         vertex_parts.append(format_rows(tag, ids[:, None], rows))
 
     def ids_of(keys: np.ndarray) -> np.ndarray:
