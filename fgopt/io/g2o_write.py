@@ -101,6 +101,7 @@ def write_g2o(path: str | os.PathLike, graph: Any, values: Any) -> None:
                          "the other")
     dim = dims.pop() if dims else 2
     pkind, vkind = pose_kind(dim), vector_kind(dim)
+
     def ids_and_keys(parts: list) -> tuple[np.ndarray, np.ndarray]:
         """g2o ids of a kind's keys, and the keys that fit int64 (keys past it, possible one
         by one, have no factor)."""

@@ -34,9 +34,9 @@ def choose_linear_solver(pattern: HessianPattern | None, backend: str = "numba")
     """The backend ``"auto"`` picks for a problem's pattern (measured choices, see README).
 
     Small systems (at most ``DENSE_MAX_SIZE`` unknowns): dense Cholesky when H is at least
-    ``DENSE_MIN_FILL`` full, else the block Cholesky. Otherwise fgopt's block supernodal Cholesky, which factors
-    2-6x faster than CHOLMOD on every pose graph and the full BA system measured
-    (``benchmarks/factorization.py``); BA-shaped problems go to the Schur complement.
+    ``DENSE_MIN_FILL`` full, else the block Cholesky. Larger ones: fgopt's block supernodal
+    Cholesky, which factors 2-6x faster than CHOLMOD on every pose graph and the full BA system
+    measured (``benchmarks/factorization.py``); BA-shaped problems go to the Schur complement.
     On the NumPy backend (``backend="numpy"``: a solve without numba) CHOLMOD when the
     ``fgopt[cholmod]`` extra is installed, else qdldl's LDL^T (a wheel; no numba, no compile).
     """
