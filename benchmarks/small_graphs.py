@@ -10,11 +10,11 @@ linear-solver analysis, 5 iterations, and the result's ``Variables``, as a user 
 a file's poses one block of storage rows, each pose an object when read; Ceres:
 ``ceres::Solve``, inside ``benchmarks/ceres_cpp/ceres_bench``, the result in its parameter
 arrays; GTSAM: optimizer construction + ``optimize()``, the result a ``Values`` of C++ objects
-each wrapped for Python when read), every stopping test off, from the file's guess, single-threaded. On a machine
-that other processes load, wall times measure the scheduler as much as the solver (Ceres' wall
-time was 6x its CPU time at load 8), so the comparison uses process CPU time: the minimum over
-``--repeats`` solves for fgopt and GTSAM (in this process) and the median for Ceres (its
-program). Files: the shared 2D graphs with an initial guess, ``benchmarks.extra_data``'s MIT,
+each wrapped for Python when read), every stopping test off, from the file's guess,
+single-threaded. On a machine that other processes load, wall times measure the scheduler as
+much as the solver (Ceres' wall time was 6x its CPU time at load 8), so the comparison uses
+process CPU time: the minimum over ``--repeats`` solves for fgopt and GTSAM (in this process)
+and the median for Ceres (its program). Files: the shared 2D graphs with an initial guess, ``benchmarks.extra_data``'s MIT,
 city10000, M3500a when present, and ``fgopt.datasets.manhattan_2d`` graphs of ``--sizes``
 poses written to g2o files in a temporary folder.
 """
@@ -151,7 +151,8 @@ def main() -> None:
                             text=True, cwd=Path(__file__).parent).stdout.strip()
     lines = [f"# 5 LM iterations on 2D pose graphs, CPU ms (commit {commit}, {dt.date.today()})",
              "", "`python -m benchmarks.small_graphs`: fgopt includes set-up (problem, ordering, "
-             "symbolic analysis) and the result's values; ×N = peer / fgopt (> 1: fgopt "
+             "symbolic analysis) and the result's values (a file's poses: one block of storage "
+             "rows, objects made when read, as GTSAM's C++ Values); ×N = peer / fgopt (> 1: fgopt "
              f"faster). Load average at the start {os.getloadavg()[0]:.1f}.", "",
              "| graph | poses | fgopt | C++ Ceres | GTSAM | fgopt set-up share |",
              "|---|---|---|---|---|---|"]
