@@ -732,6 +732,18 @@ class Problem:
             src = b.source
             n = src.keys.shape[0]
             kernels = _asm(n)
+            hessian = b.kernel.scatter_hessian if b.unit and src.loss_code == 0 else None
+            if hessian is not None and kernels is asm:
+                # the kernel adds its own J^T J / J^T r blocks (structure the scatter cannot see)
+                t0 = time.perf_counter()
+                st, rows = state.storages, b.rows
+                args = tuple([st[kid] for kid in b.kind_ids])
+                for lo, hi in ([(0, n)] if n <= CHUNK else b.chunks(CHUNK)):
+                    total += hessian(args, tuple([r[lo:hi] for r in rows]),
+                                     src.constants[lo:hi], b.toff[lo:hi], b.pos[lo:hi], shift,
+                                     H, g, b.weights[lo:hi], 0.0)
+                t_lin += time.perf_counter() - t0
+                continue
             if n <= CHUNK and kernels is asm:
                 # one slice on numba (most batches): no slicing or per-slice bookkeeping
                 fixed = b.fixed.get(b.unit, _UNSET)

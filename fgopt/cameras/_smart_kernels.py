@@ -12,7 +12,9 @@ factor returns
 
 so ``0.5 |r|^2 = 0.5 |b|^2`` is the factor's error at the triangulated point (GTSAM's
 ``totalReprojectionError``), ``J^T J = F^T Q F`` and ``J^T r = F^T Q b`` (GTSAM's Hessian
-factor). The core's Gauss-Newton / LM machinery then sees an ordinary residual and Jacobian.
+factor). The core's Gauss-Newton / LM machinery then sees an ordinary residual and Jacobian;
+the compiled problem's H and g take the same sums from :func:`smart_hessian_batch`, which uses
+``F``'s block diagonal instead of the dense ``J``.
 
 Degenerate tracks (DLT rank < 3, the point behind a view, ``E`` rank-deficient) give NaN (the
 step is rejected; at the initial estimate the optimizer names the factor) or, with
@@ -109,6 +111,42 @@ def _householder_eliminate(E, b, F, m, Fd):
     return True
 
 
+@njit(cache=True)
+def _track_system(model, Rs, ts, ks, z, c, m, s, refine, b, F, E, X):
+    """Triangulate one track and fill its whitened system: ``b (2m)`` reprojection errors,
+    ``F (2m x 6)`` (view ``j``'s pose Jacobian in rows ``2j, 2j+1``) and ``E (2m x 3)``
+    (landmark). False when the track is degenerate at these poses."""
+    r2 = 2 * m
+    uv = np.empty(2)
+    p = np.empty(3)
+    Dk = np.empty((2, CK.MAX_TANGENT_DIM))
+    Dp = np.empty((2, 2))
+    A = np.empty((2, 3))
+    J9 = np.empty((2, 9))
+    for j in range(m):
+        z[j, 0], z[j, 1] = c[2 * j], c[2 * j + 1]
+        for q in range(s):
+            ks[j, q] = c[r2 + q]
+    w00, w01, w10, w11 = c[r2 + s], c[r2 + s + 1], c[r2 + s + 2], c[r2 + s + 3]
+    if not triangulate_track(model, Rs, ts, ks, z, c[r2 + s + 4], refine, X):
+        return False
+    for j in range(m):
+        if PK.project_core(model, Rs[j], ts[j], ks[j], X, True, True, uv, p, Dk, Dp,
+                           A) != PK.OK:
+            return False
+        PK._chain(A, p, Rs[j], J9, 0, 6, 2)
+        e0, e1 = uv[0] - z[j, 0], uv[1] - z[j, 1]
+        b[2 * j] = w00 * e0 + w01 * e1
+        b[2 * j + 1] = w10 * e0 + w11 * e1
+        for col in range(6):
+            F[2 * j, col] = w00 * J9[0, col] + w01 * J9[1, col]
+            F[2 * j + 1, col] = w10 * J9[0, col] + w11 * J9[1, col]
+        for col in range(3):
+            E[2 * j, col] = w00 * J9[0, 6 + col] + w01 * J9[1, 6 + col]
+            E[2 * j + 1, col] = w10 * J9[0, 6 + col] + w11 * J9[1, 6 + col]
+    return True
+
+
 @njit(cache=True, nogil=True)  # threads=N runs chunks in parallel
 def smart_batch(model, P, consts, m, s, refine, zero_on_degenerate, with_jac):
     """``P (n, m, 7)`` pose storages, ``consts (n, 2m + s + 5)`` = pixels, calibration,
@@ -123,42 +161,13 @@ def smart_batch(model, P, consts, m, s, refine, zero_on_degenerate, with_jac):
     ks = np.empty((m, s))
     z = np.empty((m, 2))
     X = np.empty(3)
-    uv = np.empty(2)
-    p = np.empty(3)
-    Dk = np.empty((2, CK.MAX_TANGENT_DIM))
-    Dp = np.empty((2, 2))
-    A = np.empty((2, 3))
-    J9 = np.empty((2, 9))
     b = np.empty(r2)
     E = np.empty((r2, 3))
     F = np.empty((r2, 6))
     Fd = np.empty((r2, 6 * m))
     for i in range(n):
-        c = consts[i]
         unpack(P[i], Rs, ts)
-        for j in range(m):
-            z[j, 0], z[j, 1] = c[2 * j], c[2 * j + 1]
-            for q in range(s):
-                ks[j, q] = c[r2 + q]
-        w00, w01, w10, w11 = c[r2 + s], c[r2 + s + 1], c[r2 + s + 2], c[r2 + s + 3]
-        rank_tol = c[r2 + s + 4]
-        ok = triangulate_track(model, Rs, ts, ks, z, rank_tol, refine, X)
-        if ok:
-            for j in range(m):
-                if PK.project_core(model, Rs[j], ts[j], ks[j], X, True, True, uv, p, Dk, Dp,
-                                   A) != PK.OK:
-                    ok = False
-                    break
-                PK._chain(A, p, Rs[j], J9, 0, 6, 2)
-                e0, e1 = uv[0] - z[j, 0], uv[1] - z[j, 1]
-                b[2 * j] = w00 * e0 + w01 * e1
-                b[2 * j + 1] = w10 * e0 + w11 * e1
-                for col in range(6):
-                    F[2 * j, col] = w00 * J9[0, col] + w01 * J9[1, col]
-                    F[2 * j + 1, col] = w10 * J9[0, col] + w11 * J9[1, col]
-                for col in range(3):
-                    E[2 * j, col] = w00 * J9[0, 6 + col] + w01 * J9[1, 6 + col]
-                    E[2 * j + 1, col] = w10 * J9[0, 6 + col] + w11 * J9[1, 6 + col]
+        ok = _track_system(model, Rs, ts, ks, z, consts[i], m, s, refine, b, F, E, X)
         if not ok or not _householder_eliminate(E, b, F, m, Fd):
             if not zero_on_degenerate:
                 for r in range(r2):
@@ -172,6 +181,132 @@ def smart_batch(model, P, consts, m, s, refine, zero_on_degenerate, with_jac):
                 for col in range(6 * m):
                     Ji[r, col] = Fd[r, col]
     return res, jac
+
+
+@njit(cache=True)
+def _landmark_r(E, m, R):
+    """``R (3 x 3)`` upper triangular with ``R^T R = E^T E`` (Householder QR of ``E``, which
+    it overwrites); False when ``E`` is rank-deficient, by the test of
+    :func:`_householder_eliminate`."""
+    r2 = 2 * m
+    v = np.empty(r2)
+    r00 = 0.0
+    for k in range(3):
+        norm = 0.0
+        for r in range(k, r2):
+            norm += E[r, k] * E[r, k]
+        norm = np.sqrt(norm)
+        if k == 0:
+            r00 = norm
+        if not norm > 1e-12 * r00 or norm == 0.0:
+            return False
+        alpha = -norm if E[k, k] >= 0.0 else norm
+        vnorm2 = 0.0
+        for r in range(k, r2):
+            v[r] = E[r, k]
+        v[k] -= alpha
+        for r in range(k, r2):
+            vnorm2 += v[r] * v[r]
+        if vnorm2 != 0.0:
+            scale = 2.0 / vnorm2
+            for c in range(k, 3):
+                dot = 0.0
+                for r in range(k, r2):
+                    dot += v[r] * E[r, c]
+                dot *= scale
+                for r in range(k, r2):
+                    E[r, c] -= dot * v[r]
+        for c in range(3):
+            R[k, c] = E[k, c] if c >= k else 0.0
+    return True
+
+
+@njit(cache=True)
+def smart_hessian_batch(model, storages, rows, consts, m, s, refine, zero_on_degenerate, toff,
+                        pos, col_shift, H_data, g, weights, cost):
+    """Add the batch's Schur complements straight into ``H_data`` / ``g`` (the scatter map of
+    :func:`fgopt._assembly.scatter_batch`); return ``cost`` plus the batch's cost.
+
+    Same sums as :func:`smart_batch`'s ``J^T J``, ``J^T r``, ``0.5 |r|^2`` (unit noise, no
+    robust loss), using ``F``'s block diagonal: with ``E = Q [R; 0]``, ``V_j = F_j^T E_j R^-1``
+    and ``y = R^-T E^T b``, block ``(i, j)`` of ``F^T (I - E (E^T E)^-1 E^T) F`` is
+    ``delta_ij F_i^T F_i - V_i V_j^T`` and ``g_j = F_j^T b_j - V_j y``: ~100 multiply-adds per
+    6 x 6 block instead of the scatter's dense ``(2m - 3) x 6m`` product, and no dense ``Q^T F``
+    (measured on SFMExample's eight 8-view tracks: 42 us kernel + 44 us scatter -> 41 us, of which
+    the DLTs take ~12). ``storages[j]`` / ``rows[j]``: pose storage and rows of view ``j``.
+    """
+    n = consts.shape[0]
+    r2 = 2 * m
+    Rs = np.empty((m, 3, 3))
+    ts = np.empty((m, 3))
+    ks = np.empty((m, s))
+    z = np.empty((m, 2))
+    X = np.empty(3)
+    b = np.empty(r2)
+    E = np.empty((r2, 3))
+    F = np.empty((r2, 6))
+    R = np.empty((3, 3))
+    V = np.empty((m, 6, 3))
+    y = np.empty(3)
+    pose = np.empty((m, 7))
+    for i in range(n):
+        for j in range(m):
+            row = rows[j][i]
+            for q in range(7):
+                pose[j, q] = storages[j][row, q]
+        unpack(pose, Rs, ts)
+        weights[i] = 1.0
+        ok = _track_system(model, Rs, ts, ks, z, consts[i], m, s, refine, b, F, E, X)
+        if ok:
+            # c = E^T b and W_j = F_j^T E_j before the QR overwrites E
+            c0 = c1 = c2 = 0.0
+            for r in range(r2):
+                c0 += E[r, 0] * b[r]
+                c1 += E[r, 1] * b[r]
+                c2 += E[r, 2] * b[r]
+            for j in range(m):
+                for a in range(6):
+                    for q in range(3):
+                        V[j, a, q] = (F[2 * j, a] * E[2 * j, q]
+                                      + F[2 * j + 1, a] * E[2 * j + 1, q])
+            ok = _landmark_r(E, m, R)
+        if not ok:
+            if not zero_on_degenerate:
+                cost += np.nan
+            continue
+        # V_j <- W_j R^-1 (row by row: v R = w), y = R^-T c
+        for j in range(m):
+            for a in range(6):
+                v0 = V[j, a, 0] / R[0, 0]
+                v1 = (V[j, a, 1] - v0 * R[0, 1]) / R[1, 1]
+                V[j, a, 0], V[j, a, 1] = v0, v1
+                V[j, a, 2] = (V[j, a, 2] - v0 * R[0, 2] - v1 * R[1, 2]) / R[2, 2]
+        y[0] = c0 / R[0, 0]
+        y[1] = (c1 - R[0, 1] * y[0]) / R[1, 1]
+        y[2] = (c2 - R[0, 2] * y[0] - R[1, 2] * y[1]) / R[2, 2]
+        e2 = 0.0
+        for r in range(r2):
+            e2 += b[r] * b[r]
+        cost += 0.5 * e2
+        for p in range(m):
+            gbase = toff[i, p]
+            for a in range(6):
+                g[gbase + a] += (F[2 * p, a] * b[2 * p] + F[2 * p + 1, a] * b[2 * p + 1]
+                                 - V[p, a, 0] * y[0] - V[p, a, 1] * y[1] - V[p, a, 2] * y[2])
+            for q in range(m):
+                p00 = pos[i, p, q]
+                if p00 < 0:
+                    continue
+                tq = toff[i, q]
+                for bb in range(6):
+                    base = p00 + col_shift[tq + bb]
+                    for a in range(bb if p == q else 0, 6):
+                        h = -(V[p, a, 0] * V[q, bb, 0] + V[p, a, 1] * V[q, bb, 1]
+                              + V[p, a, 2] * V[q, bb, 2])
+                        if p == q:
+                            h += F[2 * p, a] * F[2 * p, bb] + F[2 * p + 1, a] * F[2 * p + 1, bb]
+                        H_data[base + a] += h
+    return cost
 
 
 @njit(cache=True)

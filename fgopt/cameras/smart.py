@@ -7,7 +7,9 @@ triangulated from the current poses (DLT with GTSAM's smart-factor rank toleranc
 ``triangulation="nonlinear"`` to refine it) and eliminated by the Schur complement, returned as
 an ordinary residual / Jacobian pair whose ``J^T J``, ``J^T r`` and ``0.5 |r|^2`` are GTSAM's
 Hessian factor and error (see :mod:`fgopt.cameras._smart_kernels`). So a smart factor batches
-and solves like any kernel factor: one numba call per track length.
+and solves like any kernel factor: one numba call per track length. Inside the optimizer the
+kernel adds its Schur complement blocks to H directly (``FactorKernel.scatter_hessian``: the same
+sums from the block-diagonal pose Jacobians, half the time of the dense ``J^T J``).
 
 Degenerate-track policy (``degenerate=``):
 
@@ -80,7 +82,10 @@ def smart_kernel(model: type[Calibration], num_views: int, triangulation: str = 
                         source=_SOURCE, nonfinite_hint=_HINT,
                         recipe=(smart_kernel, (model, m, triangulation, degenerate)),
                         trusted_linearize=lambda args, consts: SK.smart_batch(
-                            mid, np.stack(args, axis=1), consts, m, s, refine, zero, True))
+                            mid, np.stack(args, axis=1), consts, m, s, refine, zero, True),
+                        scatter_hessian=lambda st, rows, consts, toff, pos, shift, H, g, w, cost:
+                        SK.smart_hessian_batch(mid, st, rows, consts, m, s, refine, zero, toff,
+                                               pos, shift, H, g, w, cost))
 
 
 class SmartProjectionFactor(KernelFactor):

@@ -199,3 +199,84 @@ def test_bad_input_is_named():
         SmartProjectionFactor([X(0), X(1)], np.zeros((2, 2)), K, degenerate="ignore")
     with pytest.raises(FgoptError, match="repeated key"):
         SmartProjectionFactor([X(0), X(0)], np.zeros((2, 2)), K)
+
+
+def _assembled(problem, state, structured: bool):
+    """``(H_data, g, cost)`` of ``problem`` at ``state``: through the smart kernels' direct
+    Hessian assembly, or (``structured=False``) through their residual / Jacobian + scatter."""
+    import dataclasses
+
+    saved = [b.kernel for b in problem.batches]
+    calls = []
+
+    def counted(fn):
+        return lambda *args: calls.append(1) or fn(*args)
+
+    for b in problem.batches:
+        if b.kernel.scatter_hessian is not None:
+            b.kernel = dataclasses.replace(
+                b.kernel, scatter_hessian=counted(b.kernel.scatter_hessian) if structured else None)
+    try:
+        H, g = np.zeros_like(problem.H_data), np.zeros_like(problem.g)
+        cost = problem._linearize_into(state, H, g)
+    finally:
+        for b, k in zip(problem.batches, saved):
+            b.kernel = k
+    assert bool(calls) == structured  # the path under test was taken
+    return H, g, cost
+
+
+@pytest.mark.parametrize("model", ["s2", "ds2"])
+def test_direct_hessian_assembly_equals_the_jacobian_scatter(model, monkeypatch):
+    """The smart kernels' direct assembly (blocks F_i^T F_i - V_i V_j^T, no dense (2m-3) x 6m
+    Jacobian) gives the same H, g and cost as the generic J^T J / J^T r scatter of their
+    residual and Jacobian (1e-10 relative), for tracks of 2..7 views sharing poses, including
+    one degenerate track under 'zero' (adds nothing) and 'reject' (cost NaN)."""
+    from fgopt import _jit
+    from fgopt.problem import Problem
+
+    monkeypatch.setattr(_jit, "NUMPY_BUDGET_SECONDS", 0.0)  # numba assembly, where it applies
+    rng = np.random.default_rng(55)
+    K = (Cal3_S2(500, 510, 0.2, 320, 240) if model == "s2"
+         else Cal3DS2(500, 510, 0.2, 320, 240, 0.05, -0.01, 0.001, 0.002))
+    centres = rng.normal(size=(9, 3))
+    poses = [PinholeCamera.lookat(c, [0.0, 0.0, 8.0] + rng.normal(size=3) * 0.3, [0, -1, 0],
+                                  K).pose() for c in centres]
+    v = Variables({X(i): p for i, p in enumerate(poses)})
+    g = fgopt.FactorGraph()
+    for t in range(12):
+        m = 2 + t % 6
+        views = rng.choice(9, size=m, replace=False)
+        L = np.array([0.0, 0.0, 8.0]) + rng.normal(size=3)
+        ms = np.array([PinholeCamera(poses[i], K).project(L) for i in views])
+        g.add(SmartProjectionFactor([X(int(i)) for i in views], ms + rng.normal(size=(m, 2)),
+                                    K, Isotropic.sigma(2, 1.5)))
+    g.add(PriorFactor(X(0), poses[0], Isotropic.sigma(6, 0.1)))
+    problem = Problem(g, v)
+    state = problem.initial_state()
+    H1, g1, c1 = _assembled(problem, state, True)
+    H0, g0, c0 = _assembled(problem, state, False)
+    assert c1 == pytest.approx(c0, rel=1e-12)
+    np.testing.assert_allclose(H1, H0, rtol=0, atol=1e-10 * np.abs(H0).max())
+    np.testing.assert_allclose(g1, g0, rtol=0, atol=1e-10 * np.abs(g0).max())
+
+    # one degenerate track (two views from one centre) among good ones
+    bad = [SE3(), SE3(SO3.exp([0.0, 0.05, 0.0]))]
+    Lb = np.array([0.3, 0.2, 5.0])
+    msb = np.array([PinholeCamera(p, K).project(Lb) for p in bad])
+    for policy in ("zero", "reject"):
+        g2 = fgopt.FactorGraph()
+        g2.add(SmartProjectionFactor([X(0), X(1)], msb, K, degenerate=policy))
+        g2.add(SmartProjectionFactor([X(1), X(0)], msb[::-1] + 3.0, K, degenerate=policy))
+        for i in range(2):
+            g2.add(PriorFactor(X(i), bad[i], Isotropic.sigma(6, 0.1)))
+        p2 = Problem(g2, Variables({X(0): bad[0], X(1): bad[1]}))
+        s2 = p2.initial_state()
+        H1, g1, c1 = _assembled(p2, s2, True)
+        H0, g0, c0 = _assembled(p2, s2, False)
+        if policy == "zero":
+            assert c1 == pytest.approx(c0, rel=1e-12)
+            np.testing.assert_allclose(H1, H0, atol=1e-10 * np.abs(H0).max())
+            np.testing.assert_allclose(g1, g0, atol=1e-10 * max(1.0, np.abs(g0).max()))
+        else:
+            assert math.isnan(c1) and math.isnan(c0)
