@@ -300,12 +300,17 @@ def smart_hessian_batch(model, storages, rows, consts, m, s, refine, zero_on_deg
                 tq = toff[i, q]
                 for bb in range(6):
                     base = p00 + col_shift[tq + bb]
-                    for a in range(bb if p == q else 0, 6):
-                        h = -(V[p, a, 0] * V[q, bb, 0] + V[p, a, 1] * V[q, bb, 1]
-                              + V[p, a, 2] * V[q, bb, 2])
-                        if p == q:
-                            h += F[2 * p, a] * F[2 * p, bb] + F[2 * p + 1, a] * F[2 * p + 1, bb]
-                        H_data[base + a] += h
+                    u0, u1, u2 = V[q, bb, 0], V[q, bb, 1], V[q, bb, 2]
+                    if p == q:  # diagonal block: lower triangle, plus F_p^T F_p
+                        f0, f1 = F[2 * p, bb], F[2 * p + 1, bb]
+                        for a in range(bb, 6):
+                            H_data[base + a] += (F[2 * p, a] * f0 + F[2 * p + 1, a] * f1
+                                                 - V[p, a, 0] * u0 - V[p, a, 1] * u1
+                                                 - V[p, a, 2] * u2)
+                    else:
+                        for a in range(6):
+                            H_data[base + a] -= (V[p, a, 0] * u0 + V[p, a, 1] * u1
+                                                 + V[p, a, 2] * u2)
     return cost
 
 
