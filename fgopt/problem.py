@@ -111,6 +111,7 @@ class _Batch:
     unit0: bool = True
     plan: list | None = field(default=None)  # NumPy assembly: scatter plan per slice
     fixed: dict = field(default_factory=dict)  # unit flag -> specialized scatter (or None)
+    rows2d: np.ndarray | None = field(default=None)  # (n, k) rows, for kernels' scatter_hessian
 
     def gather(self, state: State, lo: int = 0, hi: int | None = None) -> tuple:
         """Storage rows of the arguments of instances ``lo:hi`` (default: all)."""
@@ -745,12 +746,14 @@ class Problem:
             if hessian is not None and kernels is asm:
                 # the kernel adds its own J^T J / J^T r blocks (structure the scatter cannot see)
                 t0 = time.perf_counter()
-                st, rows = state.storages, b.rows
+                st = state.storages
                 args = tuple([st[kid] for kid in b.kind_ids])
+                if b.rows2d is None:
+                    b.rows2d = np.ascontiguousarray(np.stack(b.rows, axis=1))
                 for lo, hi in ([(0, n)] if n <= CHUNK else b.chunks(CHUNK)):
-                    total += hessian(args, tuple([r[lo:hi] for r in rows]),
-                                     src.constants[lo:hi], b.toff[lo:hi], b.pos[lo:hi], shift,
-                                     H, g, b.weights[lo:hi], 0.0)
+                    total += hessian(args, b.rows2d[lo:hi], src.constants[lo:hi],
+                                     b.toff[lo:hi], b.pos[lo:hi], shift, H, g,
+                                     b.weights[lo:hi], 0.0)
                 t_lin += time.perf_counter() - t0
                 continue
             if n <= CHUNK and kernels is asm:

@@ -222,7 +222,7 @@ def _landmark_r(E, m, R):
 
 
 @njit(cache=True)
-def smart_hessian_batch(model, storages, rows, consts, m, s, refine, zero_on_degenerate, toff,
+def smart_hessian_batch(model, storage, rows, consts, m, s, refine, zero_on_degenerate, toff,
                         pos, col_shift, H_data, g, weights, cost):
     """Add the batch's Schur complements straight into ``H_data`` / ``g`` (the scatter map of
     :func:`fgopt._assembly.scatter_batch`); return ``cost`` plus the batch's cost.
@@ -233,7 +233,7 @@ def smart_hessian_batch(model, storages, rows, consts, m, s, refine, zero_on_deg
     ``delta_ij F_i^T F_i - V_i V_j^T`` and ``g_j = F_j^T b_j - V_j y``: ~100 multiply-adds per
     6 x 6 block instead of the scatter's dense ``(2m - 3) x 6m`` product, and no dense ``Q^T F``
     (measured on SFMExample's eight 8-view tracks: 42 us kernel + 44 us scatter -> 41 us, of which
-    the DLTs take ~12). ``storages[j]`` / ``rows[j]``: pose storage and rows of view ``j``.
+    the DLTs take ~12). ``storage[rows[i, j]]``: the pose of track ``i``'s view ``j``.
     """
     n = consts.shape[0]
     r2 = 2 * m
@@ -251,9 +251,9 @@ def smart_hessian_batch(model, storages, rows, consts, m, s, refine, zero_on_deg
     pose = np.empty((m, 7))
     for i in range(n):
         for j in range(m):
-            row = rows[j][i]
+            row = rows[i, j]
             for q in range(7):
-                pose[j, q] = storages[j][row, q]
+                pose[j, q] = storage[row, q]
         unpack(pose, Rs, ts)
         weights[i] = 1.0
         ok = _track_system(model, Rs, ts, ks, z, consts[i], m, s, refine, b, F, E, X)

@@ -83,8 +83,9 @@ def smart_kernel(model: type[Calibration], num_views: int, triangulation: str = 
                         recipe=(smart_kernel, (model, m, triangulation, degenerate)),
                         trusted_linearize=lambda args, consts: SK.smart_batch(
                             mid, np.stack(args, axis=1), consts, m, s, refine, zero, True),
+                        # every argument is an SE3 pose: one storage for all
                         scatter_hessian=lambda st, rows, consts, toff, pos, shift, H, g, w, cost:
-                        SK.smart_hessian_batch(mid, st, rows, consts, m, s, refine, zero, toff,
+                        SK.smart_hessian_batch(mid, st[0], rows, consts, m, s, refine, zero, toff,
                                                pos, shift, H, g, w, cost))
 
 

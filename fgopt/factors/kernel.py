@@ -70,7 +70,7 @@ class FactorKernel:
     trusted_linearize: LinearizeFn | None = field(default=None, repr=False)
     #: ``(storages, rows, consts, toff, pos, col_shift, H_data, g, weights, cost) -> cost``: adds
     #: the batch's ``J^T J`` / ``J^T r`` straight into the compiled problem's H and g on numba
-    #: (``storages[j][rows[j]]``: argument ``j``'s storage rows; ``toff`` / ``pos`` /
+    #: (``storages[j][rows[:, j]]``: argument ``j``'s storage rows; ``toff`` / ``pos`` /
     #: ``col_shift``: the scatter map of :func:`fgopt._assembly.scatter_batch`), for kernels
     #: whose ``J^T J`` has structure the generic scatter cannot see (smart factors: a
     #: block-diagonal ``F`` under a rank-3 projection). Used for unit noise without a robust
