@@ -52,6 +52,47 @@ def triangulate_track(model, Rs, ts, ks, z, rank_tol, refine, X):
 
 
 @njit(cache=True)
+def _reflect_column(E, k, r2, r00, v):
+    """Householder step ``k`` of the QR of ``E (r2 x 3)``, in place: ``v[k:]`` gets the vector
+    of the reflection ``I - s v v^T`` that maps ``E[k:, k]`` to ``alpha e_k``, applied to columns
+    ``k..2``. Returns ``s`` (0: nothing to reflect), or -1 when ``E`` is rank-deficient
+    (``|R_kk| <= 1e-12 |R_00|``; ``r00 = |R_00|``, ignored for ``k = 0``)."""
+    norm = 0.0
+    for r in range(k, r2):
+        norm += E[r, k] * E[r, k]
+    norm = np.sqrt(norm)
+    if k == 0:
+        r00 = norm
+    if not norm > 1e-12 * r00 or norm == 0.0:
+        return -1.0
+    alpha = -norm if E[k, k] >= 0.0 else norm
+    vnorm2 = 0.0
+    for r in range(k, r2):
+        v[r] = E[r, k]
+    v[k] -= alpha
+    for r in range(k, r2):
+        vnorm2 += v[r] * v[r]
+    if vnorm2 == 0.0:
+        return 0.0
+    scale = 2.0 / vnorm2
+    for c in range(k, 3):
+        _reflect(v, scale, k, r2, E[:, c])
+    return scale
+
+
+@njit(cache=True)
+def _reflect(v, scale, k, r2, x):
+    """``x <- (I - scale v v^T) x`` on entries ``k..r2-1``."""
+    dot = 0.0
+    for r in range(k, r2):
+        dot += v[r] * x[r]
+    dot *= scale
+    if dot != 0.0:
+        for r in range(k, r2):
+            x[r] -= dot * v[r]
+
+
+@njit(cache=True)
 def _householder_eliminate(E, b, F, m, Fd):
     """Apply ``Q^T`` of the Householder QR of ``E (2m x 3)`` to ``b`` (in place) and to the
     block-diagonal ``F`` (rows ``2j, 2j+1`` of view ``j`` in ``F[:, :6]``), written densely into
@@ -68,46 +109,16 @@ def _householder_eliminate(E, b, F, m, Fd):
     r00 = 0.0
     v = np.empty(r2)
     for k in range(3):
-        norm = 0.0
-        for r in range(k, r2):
-            norm += E[r, k] * E[r, k]
-        norm = np.sqrt(norm)
-        if k == 0:
-            r00 = norm
-        if not norm > 1e-12 * r00 or norm == 0.0:
+        scale = _reflect_column(E, k, r2, r00, v)
+        if scale < 0.0:
             return False
-        alpha = -norm if E[k, k] >= 0.0 else norm
-        # v = E[k:, k] - alpha e_k, H = I - 2 v v^T / |v|^2 maps E[k:, k] to alpha e_k
-        vnorm2 = 0.0
-        for r in range(k, r2):
-            v[r] = E[r, k]
-        v[k] -= alpha
-        for r in range(k, r2):
-            vnorm2 += v[r] * v[r]
-        if vnorm2 == 0.0:
+        if k == 0:
+            r00 = abs(E[0, 0])
+        if scale == 0.0:
             continue
-        scale = 2.0 / vnorm2
-        for c in range(k, 3):
-            dot = 0.0
-            for r in range(k, r2):
-                dot += v[r] * E[r, c]
-            dot *= scale
-            for r in range(k, r2):
-                E[r, c] -= dot * v[r]
-        dot = 0.0
-        for r in range(k, r2):
-            dot += v[r] * b[r]
-        dot *= scale
-        for r in range(k, r2):
-            b[r] -= dot * v[r]
+        _reflect(v, scale, k, r2, b)
         for c in range(6 * m):
-            dot = 0.0
-            for r in range(k, r2):
-                dot += v[r] * Fd[r, c]
-            dot *= scale
-            if dot != 0.0:
-                for r in range(k, r2):
-                    Fd[r, c] -= dot * v[r]
+            _reflect(v, scale, k, r2, Fd[:, c])
     return True
 
 
@@ -192,30 +203,11 @@ def _landmark_r(E, m, R):
     v = np.empty(r2)
     r00 = 0.0
     for k in range(3):
-        norm = 0.0
-        for r in range(k, r2):
-            norm += E[r, k] * E[r, k]
-        norm = np.sqrt(norm)
-        if k == 0:
-            r00 = norm
-        if not norm > 1e-12 * r00 or norm == 0.0:
+        if _reflect_column(E, k, r2, r00, v) < 0.0:
             return False
-        alpha = -norm if E[k, k] >= 0.0 else norm
-        vnorm2 = 0.0
-        for r in range(k, r2):
-            v[r] = E[r, k]
-        v[k] -= alpha
-        for r in range(k, r2):
-            vnorm2 += v[r] * v[r]
-        if vnorm2 != 0.0:
-            scale = 2.0 / vnorm2
-            for c in range(k, 3):
-                dot = 0.0
-                for r in range(k, r2):
-                    dot += v[r] * E[r, c]
-                dot *= scale
-                for r in range(k, r2):
-                    E[r, c] -= dot * v[r]
+        if k == 0:
+            r00 = abs(E[0, 0])
+    for k in range(3):
         for c in range(3):
             R[k, c] = E[k, c] if c >= k else 0.0
     return True
