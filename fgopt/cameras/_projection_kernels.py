@@ -68,6 +68,13 @@ def _chain(A, p, R, J, col_pose, col_point, rows):
 
 
 @njit(cache=True)
+def scratch():
+    """Work arrays of :func:`project_core`: ``p (3)``, ``Dk (2 x MAX_TANGENT_DIM)`` (zeros:
+    columns past a model's tangent dimension stay 0), ``Dp (2 x 2)``, ``A (2 x 3)``."""
+    return np.empty(3), np.zeros((2, CK.MAX_TANGENT_DIM)), np.empty((2, 2)), np.empty((2, 3))
+
+
+@njit(cache=True)
 def project_core(model, R, t, k, X, reject, with_jac, uv, p, Dk, Dp, A):
     """Pixel ``uv`` of world point ``X``; fills ``p`` (camera frame), and with ``with_jac`` the
     model's ``Dk``, ``Dp`` and ``A = uv_D_p`` (2 x 3). Returns a status code."""
@@ -102,10 +109,7 @@ def projection_batch(model, pose, point, cal, m, reject, cal_var, with_jac):
     jac = np.zeros((n if with_jac else 0, 2, ncol))
     R = np.empty((3, 3))
     uv = np.empty(2)
-    p = np.empty(3)
-    Dk = np.zeros((2, CK.MAX_TANGENT_DIM))
-    Dp = np.empty((2, 2))
-    A = np.empty((2, 3))
+    p, Dk, Dp, A = scratch()
     for i in range(n):
         quat_to_rotation(pose[i, :4], R)
         st = project_core(model, R, pose[i, 4:7], cal[i], point[i], reject, with_jac, uv, p, Dk,
@@ -138,10 +142,7 @@ def project_points(model, R, t, k, X, reject, with_jac):
     Jpoint = np.zeros((m, 2, 3))
     Jk = np.zeros((m, 2, d))
     status = np.empty(n, dtype=np.int64)
-    p = np.empty(3)
-    Dk = np.zeros((2, CK.MAX_TANGENT_DIM))
-    Dp = np.empty((2, 2))
-    A = np.empty((2, 3))
+    p, Dk, Dp, A = scratch()
     J = np.empty((2, 9))
     for i in range(n):
         st = project_core(model, R, t, k, X[i], reject, with_jac, uv[i], p, Dk, Dp, A)
@@ -275,10 +276,7 @@ def camera_projection_batch(model, cam, point, m, reject, with_jac):
     jac = np.zeros((n if with_jac else 0, 2, 9 + d))
     R = np.empty((3, 3))
     uv = np.empty(2)
-    p = np.empty(3)
-    Dk = np.zeros((2, CK.MAX_TANGENT_DIM))
-    Dp = np.empty((2, 2))
-    A = np.empty((2, 3))
+    p, Dk, Dp, A = scratch()
     for i in range(n):
         quat_to_rotation(cam[i, :4], R)
         st = project_core(model, R, cam[i, 4:7], cam[i, 7:], point[i], reject, with_jac, uv, p,

@@ -123,16 +123,22 @@ def _householder_eliminate(E, b, F, m, Fd):
 
 
 @njit(cache=True)
+def _track_workspace(m, s):
+    """Work arrays of :func:`_track_system` for ``m`` views and ``s`` calibration parameters:
+    ``Rs, ts, ks, z, X, b, E, F``."""
+    r2 = 2 * m
+    return (np.empty((m, 3, 3)), np.empty((m, 3)), np.empty((m, s)), np.empty((m, 2)),
+            np.empty(3), np.empty(r2), np.empty((r2, 3)), np.empty((r2, 6)))
+
+
+@njit(cache=True)
 def _track_system(model, Rs, ts, ks, z, c, m, s, refine, b, F, E, X):
     """Triangulate one track and fill its whitened system: ``b (2m)`` reprojection errors,
     ``F (2m x 6)`` (view ``j``'s pose Jacobian in rows ``2j, 2j+1``) and ``E (2m x 3)``
     (landmark). False when the track is degenerate at these poses."""
     r2 = 2 * m
     uv = np.empty(2)
-    p = np.empty(3)
-    Dk = np.empty((2, CK.MAX_TANGENT_DIM))
-    Dp = np.empty((2, 2))
-    A = np.empty((2, 3))
+    p, Dk, Dp, A = PK.scratch()
     J9 = np.empty((2, 9))
     for j in range(m):
         z[j, 0], z[j, 1] = c[2 * j], c[2 * j + 1]
@@ -167,14 +173,7 @@ def smart_batch(model, P, consts, m, s, refine, zero_on_degenerate, with_jac):
     r2 = 2 * m
     res = np.zeros((n, r2))
     jac = np.zeros((n if with_jac else 0, r2, 6 * m))
-    Rs = np.empty((m, 3, 3))
-    ts = np.empty((m, 3))
-    ks = np.empty((m, s))
-    z = np.empty((m, 2))
-    X = np.empty(3)
-    b = np.empty(r2)
-    E = np.empty((r2, 3))
-    F = np.empty((r2, 6))
+    Rs, ts, ks, z, X, b, E, F = _track_workspace(m, s)
     Fd = np.empty((r2, 6 * m))
     for i in range(n):
         unpack(P[i], Rs, ts)
@@ -229,14 +228,7 @@ def smart_hessian_batch(model, storage, rows, consts, m, s, refine, zero_on_dege
     """
     n = consts.shape[0]
     r2 = 2 * m
-    Rs = np.empty((m, 3, 3))
-    ts = np.empty((m, 3))
-    ks = np.empty((m, s))
-    z = np.empty((m, 2))
-    X = np.empty(3)
-    b = np.empty(r2)
-    E = np.empty((r2, 3))
-    F = np.empty((r2, 6))
+    Rs, ts, ks, z, X, b, E, F = _track_workspace(m, s)
     R = np.empty((3, 3))
     V = np.empty((m, 6, 3))
     y = np.empty(3)

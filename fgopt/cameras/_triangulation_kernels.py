@@ -161,10 +161,7 @@ def reprojection_cost(model, Rs, ts, ks, uv, X):
     m = Rs.shape[0]
     total = 0.0
     out = np.empty(2)
-    p = np.empty(3)
-    Dk = np.empty((2, CK.MAX_TANGENT_DIM))
-    Dp = np.empty((2, 2))
-    A = np.empty((2, 3))
+    p, Dk, Dp, A = PK.scratch()
     for i in range(m):
         if PK.project_core(model, Rs[i], ts[i], ks[i], X, True, False, out, p, Dk, Dp, A) != 0:
             return np.nan
@@ -183,10 +180,7 @@ def refine(model, Rs, ts, ks, uv, X, max_iterations):
         return -1
     lam = 1e-6
     out = np.empty(2)
-    p = np.empty(3)
-    Dk = np.empty((2, CK.MAX_TANGENT_DIM))
-    Dp = np.empty((2, 2))
-    A = np.empty((2, 3))
+    p, Dk, Dp, A = PK.scratch()
     Hm = np.empty((3, 3))
     g = np.empty(3)
     trial = np.empty(3)
