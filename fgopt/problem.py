@@ -732,19 +732,14 @@ class Problem:
         t_lin = t_asm = 0.0
         shift = self.pattern.col_shift
         for b in self.batches:
-            if (self.threads > 1 and len(b.source) >= PARALLEL_MIN_BATCH
-                    and self.backend == "numba"):
-                t0 = time.perf_counter()
-                for lo, hi in b.chunks(CHUNK * self.threads):
-                    total += linearize_batch_threaded(self, b, state, H, g, lo, hi)
-                t_lin += time.perf_counter() - t0
-                continue
             src = b.source
             n = src.keys.shape[0]
             kernels = _asm(n)
             hessian = b.kernel.scatter_hessian if b.unit and src.loss_code == 0 else None
             if hessian is not None and kernels is asm:
-                # the kernel adds its own J^T J / J^T r blocks (structure the scatter cannot see)
+                # the kernel adds its own J^T J / J^T r blocks (structure the scatter cannot see);
+                # serial, before threads: 8,000 smart tracks 0.16 s vs 0.55 s on two threads of
+                # the parallel dense J^T J
                 t0 = time.perf_counter()
                 st = state.storages
                 args = tuple([st[kid] for kid in b.kind_ids])
@@ -754,6 +749,12 @@ class Problem:
                     total += hessian(args, b.rows2d[lo:hi], src.constants[lo:hi],
                                      b.toff[lo:hi], b.pos[lo:hi], shift, H, g,
                                      b.weights[lo:hi], 0.0)
+                t_lin += time.perf_counter() - t0
+                continue
+            if self.threads > 1 and n >= PARALLEL_MIN_BATCH and self.backend == "numba":
+                t0 = time.perf_counter()
+                for lo, hi in b.chunks(CHUNK * self.threads):
+                    total += linearize_batch_threaded(self, b, state, H, g, lo, hi)
                 t_lin += time.perf_counter() - t0
                 continue
             if n <= CHUNK and kernels is asm:

@@ -280,3 +280,33 @@ def test_direct_hessian_assembly_equals_the_jacobian_scatter(model, monkeypatch)
             np.testing.assert_allclose(g1, g0, atol=1e-10 * max(1.0, np.abs(g0).max()))
         else:
             assert math.isnan(c1) and math.isnan(c0)
+
+
+def test_direct_hessian_assembly_is_taken_with_threads(monkeypatch):
+    """With threads=2 on a batch large enough for the threaded path (>= PARALLEL_MIN_BATCH
+    tracks), the direct assembly is still used (serial: measured 3.5x faster than the parallel
+    dense J^T J) and equals the threaded generic path's H, g and cost."""
+    from fgopt import _jit
+    from fgopt._threads import PARALLEL_MIN_BATCH
+    from fgopt.problem import Problem
+
+    monkeypatch.setattr(_jit, "NUMPY_BUDGET_SECONDS", 0.0)
+    rng = np.random.default_rng(56)
+    K = Cal3_S2(500, 510, 0.2, 320, 240)
+    poses = [PinholeCamera.lookat(c, [0.0, 0.0, 8.0], [0, -1, 0], K).pose()
+             for c in rng.normal(size=(6, 3))]
+    v = Variables({X(i): p for i, p in enumerate(poses)})
+    g = fgopt.FactorGraph()
+    for _ in range(PARALLEL_MIN_BATCH + 8):
+        views = rng.choice(6, size=3, replace=False)
+        L = np.array([0.0, 0.0, 8.0]) + rng.normal(size=3)
+        ms = np.array([PinholeCamera(poses[i], K).project(L) for i in views])
+        g.add(SmartProjectionFactor([X(int(i)) for i in views], ms + rng.normal(size=(3, 2)), K))
+    g.add(PriorFactor(X(0), poses[0], Isotropic.sigma(6, 0.1)))
+    problem = Problem(g, v, threads=2)
+    state = problem.initial_state()
+    H1, g1, c1 = _assembled(problem, state, True)
+    H0, g0, c0 = _assembled(problem, state, False)
+    assert c1 == pytest.approx(c0, rel=1e-12)
+    np.testing.assert_allclose(H1, H0, rtol=0, atol=1e-10 * np.abs(H0).max())
+    np.testing.assert_allclose(g1, g0, rtol=0, atol=1e-10 * np.abs(g0).max())
