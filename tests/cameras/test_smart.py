@@ -226,6 +226,34 @@ def _assembled(problem, state, structured: bool):
     return H, g, cost
 
 
+def _smart_scene(rng, K, num_poses, track_sizes, **problem_options):
+    """A compiled problem: ``num_poses`` cameras looking at (0, 0, 8), one noisy smart factor
+    per entry of ``track_sizes`` (that many views of a point near (0, 0, 8)), a prior on x0."""
+    from fgopt.problem import Problem
+
+    poses = [PinholeCamera.lookat(c, [0.0, 0.0, 8.0] + rng.normal(size=3) * 0.3, [0, -1, 0],
+                                  K).pose() for c in rng.normal(size=(num_poses, 3))]
+    g = fgopt.FactorGraph()
+    for m in track_sizes:
+        views = rng.choice(num_poses, size=m, replace=False)
+        L = np.array([0.0, 0.0, 8.0]) + rng.normal(size=3)
+        ms = np.array([PinholeCamera(poses[i], K).project(L) for i in views])
+        g.add(SmartProjectionFactor([X(int(i)) for i in views], ms + rng.normal(size=(m, 2)),
+                                    K, Isotropic.sigma(2, 1.5)))
+    g.add(PriorFactor(X(0), poses[0], Isotropic.sigma(6, 0.1)))
+    return Problem(g, Variables({X(i): p for i, p in enumerate(poses)}), **problem_options)
+
+
+def _assert_same_assembly(problem):
+    """Direct and generic assembly agree at the problem's initial state (1e-10 relative)."""
+    state = problem.initial_state()
+    H1, g1, c1 = _assembled(problem, state, True)
+    H0, g0, c0 = _assembled(problem, state, False)
+    assert c1 == pytest.approx(c0, rel=1e-12)
+    np.testing.assert_allclose(H1, H0, rtol=0, atol=1e-10 * np.abs(H0).max())
+    np.testing.assert_allclose(g1, g0, rtol=0, atol=1e-10 * max(1.0, np.abs(g0).max()))
+
+
 @pytest.mark.parametrize("model", ["s2", "ds2"])
 def test_direct_hessian_assembly_equals_the_jacobian_scatter(model, monkeypatch):
     """The smart kernels' direct assembly (blocks F_i^T F_i - V_i V_j^T, no dense (2m-3) x 6m
@@ -239,26 +267,7 @@ def test_direct_hessian_assembly_equals_the_jacobian_scatter(model, monkeypatch)
     rng = np.random.default_rng(55)
     K = (Cal3_S2(500, 510, 0.2, 320, 240) if model == "s2"
          else Cal3DS2(500, 510, 0.2, 320, 240, 0.05, -0.01, 0.001, 0.002))
-    centres = rng.normal(size=(9, 3))
-    poses = [PinholeCamera.lookat(c, [0.0, 0.0, 8.0] + rng.normal(size=3) * 0.3, [0, -1, 0],
-                                  K).pose() for c in centres]
-    v = Variables({X(i): p for i, p in enumerate(poses)})
-    g = fgopt.FactorGraph()
-    for t in range(12):
-        m = 2 + t % 6
-        views = rng.choice(9, size=m, replace=False)
-        L = np.array([0.0, 0.0, 8.0]) + rng.normal(size=3)
-        ms = np.array([PinholeCamera(poses[i], K).project(L) for i in views])
-        g.add(SmartProjectionFactor([X(int(i)) for i in views], ms + rng.normal(size=(m, 2)),
-                                    K, Isotropic.sigma(2, 1.5)))
-    g.add(PriorFactor(X(0), poses[0], Isotropic.sigma(6, 0.1)))
-    problem = Problem(g, v)
-    state = problem.initial_state()
-    H1, g1, c1 = _assembled(problem, state, True)
-    H0, g0, c0 = _assembled(problem, state, False)
-    assert c1 == pytest.approx(c0, rel=1e-12)
-    np.testing.assert_allclose(H1, H0, rtol=0, atol=1e-10 * np.abs(H0).max())
-    np.testing.assert_allclose(g1, g0, rtol=0, atol=1e-10 * np.abs(g0).max())
+    _assert_same_assembly(_smart_scene(rng, K, 9, [2 + t % 6 for t in range(12)]))
 
     # one degenerate track (two views from one centre) among good ones
     bad = [SE3(), SE3(SO3.exp([0.0, 0.05, 0.0]))]
@@ -271,15 +280,12 @@ def test_direct_hessian_assembly_equals_the_jacobian_scatter(model, monkeypatch)
         for i in range(2):
             g2.add(PriorFactor(X(i), bad[i], Isotropic.sigma(6, 0.1)))
         p2 = Problem(g2, Variables({X(0): bad[0], X(1): bad[1]}))
-        s2 = p2.initial_state()
-        H1, g1, c1 = _assembled(p2, s2, True)
-        H0, g0, c0 = _assembled(p2, s2, False)
         if policy == "zero":
-            assert c1 == pytest.approx(c0, rel=1e-12)
-            np.testing.assert_allclose(H1, H0, atol=1e-10 * np.abs(H0).max())
-            np.testing.assert_allclose(g1, g0, atol=1e-10 * max(1.0, np.abs(g0).max()))
+            _assert_same_assembly(p2)
         else:
-            assert math.isnan(c1) and math.isnan(c0)
+            s2 = p2.initial_state()
+            assert math.isnan(_assembled(p2, s2, True)[2])
+            assert math.isnan(_assembled(p2, s2, False)[2])
 
 
 def test_direct_hessian_assembly_is_taken_with_threads(monkeypatch):
@@ -288,25 +294,8 @@ def test_direct_hessian_assembly_is_taken_with_threads(monkeypatch):
     dense J^T J) and equals the threaded generic path's H, g and cost."""
     from fgopt import _jit
     from fgopt._threads import PARALLEL_MIN_BATCH
-    from fgopt.problem import Problem
 
     monkeypatch.setattr(_jit, "NUMPY_BUDGET_SECONDS", 0.0)
     rng = np.random.default_rng(56)
     K = Cal3_S2(500, 510, 0.2, 320, 240)
-    poses = [PinholeCamera.lookat(c, [0.0, 0.0, 8.0], [0, -1, 0], K).pose()
-             for c in rng.normal(size=(6, 3))]
-    v = Variables({X(i): p for i, p in enumerate(poses)})
-    g = fgopt.FactorGraph()
-    for _ in range(PARALLEL_MIN_BATCH + 8):
-        views = rng.choice(6, size=3, replace=False)
-        L = np.array([0.0, 0.0, 8.0]) + rng.normal(size=3)
-        ms = np.array([PinholeCamera(poses[i], K).project(L) for i in views])
-        g.add(SmartProjectionFactor([X(int(i)) for i in views], ms + rng.normal(size=(3, 2)), K))
-    g.add(PriorFactor(X(0), poses[0], Isotropic.sigma(6, 0.1)))
-    problem = Problem(g, v, threads=2)
-    state = problem.initial_state()
-    H1, g1, c1 = _assembled(problem, state, True)
-    H0, g0, c0 = _assembled(problem, state, False)
-    assert c1 == pytest.approx(c0, rel=1e-12)
-    np.testing.assert_allclose(H1, H0, rtol=0, atol=1e-10 * np.abs(H0).max())
-    np.testing.assert_allclose(g1, g0, rtol=0, atol=1e-10 * np.abs(g0).max())
+    _assert_same_assembly(_smart_scene(rng, K, 6, [3] * (PARALLEL_MIN_BATCH + 8), threads=2))
