@@ -26,7 +26,6 @@ from __future__ import annotations
 import numpy as np
 from .._jit import njit
 
-from . import _calib_kernels as CK
 from . import _projection_kernels as PK
 from . import _triangulation_kernels as TK
 
