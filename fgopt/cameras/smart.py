@@ -9,7 +9,8 @@ an ordinary residual / Jacobian pair whose ``J^T J``, ``J^T r`` and ``0.5 |r|^2`
 Hessian factor and error (see :mod:`fgopt.cameras._smart_kernels`). So a smart factor batches
 and solves like any kernel factor: one numba call per track length. Inside the optimizer the
 kernel adds its Schur complement blocks to H directly (``FactorKernel.scatter_hessian``: the same
-sums from the block-diagonal pose Jacobians, half the time of the dense ``J^T J``).
+sums from the block-diagonal pose Jacobians; 8 tracks of 8 views: 38 us instead of 42 us for the
+residual / Jacobian and 44 us for the dense ``J^T J`` scatter).
 
 Degenerate-track policy (``degenerate=``):
 
