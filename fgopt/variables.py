@@ -46,12 +46,13 @@ _ABSENT = object()
 class _Rows:
     """Values added in bulk by ``add_rows`` and not yet turned into one object per key."""
 
-    __slots__ = ("keys", "kind", "rows", "_sorted", "_objects")
+    __slots__ = ("keys", "kind", "rows", "_sorted", "_objects", "_row_of")
 
     def __init__(self, keys: np.ndarray, kind: Any, rows: np.ndarray):
         self.keys, self.kind, self.rows = keys, kind, rows
         self._sorted: tuple[np.ndarray, np.ndarray] | None = None
         self._objects: dict[int, Any] | None = None
+        self._row_of: dict[int, int] | None = None
 
     def objects(self) -> dict[int, Any]:
         """key -> value object of every row, made on first use (``wrap_all``: no Python frame
@@ -59,6 +60,14 @@ class _Rows:
         if self._objects is None:
             self._objects = dict(zip(self.keys.tolist(), self.kind.wrap_all(self.rows)))
         return self._objects
+
+    def row_index(self) -> dict[int, int] | None:
+        """key -> row, made on first use, for blocks of at most ``_INDEXED_ROWS`` rows (None for
+        larger ones): a few keys looked up from Python at ~0.1 us each instead of ~7 us for a
+        call of :meth:`find`."""
+        if self._row_of is None and self.keys.shape[0] <= _INDEXED_ROWS:
+            self._row_of = dict(zip(self.keys.tolist(), range(self.keys.shape[0])))
+        return self._row_of
 
     def find(self, keys: np.ndarray) -> np.ndarray:
         """Row of each of ``keys`` in this block, -1 where absent."""

@@ -111,7 +111,8 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
         solver_obj = None
     else:
         solver_obj = linear_solver
-    params = dataclasses.replace(params, **overrides)
+    if any(_differs(getattr(params, k), v) for k, v in overrides.items()):
+        params = dataclasses.replace(params, **overrides)  # frozen: unchanged ones are shared
     check_initialization(initialization)
 
     def run(start: Any, run_params: Any) -> Result:
@@ -129,6 +130,15 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
         result.info["initialization"] = "chordal"
         return result
     return optimize_auto(graph, initial, params, run)
+
+
+def _differs(a: Any, b: Any) -> bool:
+    if a is b:
+        return False
+    try:
+        return type(a) is not type(b) or bool(a != b)
+    except (TypeError, ValueError):  # arrays and the like: assume they differ
+        return True
 
 
 def _optimize_from(graph: Any, initial: Any, cls: Any, params: Any, solver_obj: Any,

@@ -66,7 +66,8 @@ FINGERPRINT_MODULES = ("_sym", "cameras", "codegen", "cse", "derive", "functions
 
 @lru_cache(maxsize=1)
 def package_fingerprint() -> str:
-    """Hash of fgopt's version and the sources of :data:`FINGERPRINT_MODULES`."""
+    """Hash of fgopt's version and the sources of :data:`FINGERPRINT_MODULES` (read once per
+    process: it is part of every generated module's key, looked up on every fixed solve)."""
     from .._version import __version__
 
     h = hashlib.sha256(__version__.encode())

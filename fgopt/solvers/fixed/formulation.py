@@ -45,179 +45,20 @@ from typing import Any
 import numpy as np
 
 from ...errors import FgoptError, NonFiniteError
-from ...key import Key, key_str
+from ...key import Key
 from ..params import LMParams
 from ..diagnostics import fixed_clamp_hits, warn_clamps, warn_unused
 from ..result import IterationRecord, Result, Status, stall_status
 from ...variables import Variables
 from ...symbolic import cache as _cache
-from ._codegen import FIXED_CODEGEN_VERSION, FactorSpec, VarSpec
+from ._collect import Collected as _Collected
+from ._collect import collect as _collect
+from ._collect import fingerprint as _fingerprint
 
-_GIDS = {"SO2": 0, "SE2": 1, "SO3": 2, "SE3": 3, "Sim3": 4}
 #: In-process memo: structure key -> generated module.
 _MODULES: dict = {}
-_FINGERPRINTS: dict = {}
 #: Counters (tests / benchmarks): modules ``derived`` (SymPy ran) or ``loaded`` from disk.
 STATS = {"derived": 0, "loaded": 0, "memo": 0}
-
-
-# ------------------------------------------------------------------------------------ collect
-def _resolve(f: Any) -> tuple:
-    """(SymbolicFactorType, variable pattern) of a factor, or raise FgoptError."""
-    from ...factors.library.prior_between import BetweenFactor, PriorFactor
-    from ...factors.decorator import KERNEL_ORIGINS, SymbolicFactor
-
-    if isinstance(f, SymbolicFactor) and not isinstance(f, (BetweenFactor, PriorFactor)):
-        ft = f.factor_type
-        for pattern, k in ft._kernels.items():
-            if k is f.kernel:
-                return ft, pattern
-        raise FgoptError(f"fixed formulation: {f.describe()}: kernel not found on its type")
-    origin = KERNEL_ORIGINS.get(id(f.kernel)) if f.kernel is not None else None
-    if origin is not None and not isinstance(f, (BetweenFactor, PriorFactor)):
-        return origin[1], origin[2]  # e.g. a BAL reader row: the generated bal_reprojection
-    if isinstance(f, (BetweenFactor, PriorFactor)) and f.kernel is not None:
-        # built-ins: the hand-written kernel or the generated twin, same residual and constants
-        from ...factors.library import generated as gen
-        from ...factors.library import lie_kernels
-
-        kind = f.kernel.arg_kinds[0]
-        between = isinstance(f, BetweenFactor)
-        try:
-            types = gen._types_for(kind, "between" if between else "prior")
-        except Exception:  # noqa: BLE001 - no symbolic twin (e.g. Sim3)
-            types = None
-        if types is not None:
-            ft = types[0] if between else types[1]
-            pattern = (True, True, False) if between else (True, False)
-            hand = lie_kernels.between_kernel if between else lie_kernels.prior_kernel
-            try:
-                is_hand = f.kernel is hand(kind)
-            except Exception:  # noqa: BLE001
-                is_hand = False
-            if is_hand or any(k is f.kernel for k in ft._kernels.values()):
-                return ft, pattern
-    raise FgoptError(
-        f"fixed formulation: {f.describe()} is not supported: every factor must be an "
-        "@fgopt.factor (symbolic) factor or a built-in BetweenFactor/PriorFactor")
-
-
-def _fingerprint(ft: Any) -> str:
-    fp = _FINGERPRINTS.get(id(ft))
-    if fp is None or fp[0] is not ft:
-        from ...symbolic.ops import type_key
-
-        h = hashlib.sha256(ft.fingerprint.encode())
-        h.update(repr((ft.name, tuple((n,) + type_key(tp) for n, tp in ft.params),
-                       ft.method, ft.engine)).encode())
-        fp = _FINGERPRINTS[id(ft)] = (ft, h.hexdigest())
-    return fp[1]
-
-
-@dataclass
-class _Collected:
-    keys: list
-    kinds: list
-    variables: list
-    factors: list
-    consts: np.ndarray
-    wvals: np.ndarray
-    key: str
-    sources: list  # the factors, in ``factors`` order
-
-
-def _collect(graph: Any, values: Variables) -> _Collected:
-    from ...noise.models import LOSS_NONE, loss_code_and_param
-    from ...manifolds.base import ops_for
-    from ...factors.decorator import batch_kind_of
-
-    # batch rows (file readers use graph.add_batch) are materialized as factor instances: the
-    # fixed formulation is for small problems, where that costs microseconds
-    factors = list(graph)
-    if len(factors) == 0:
-        raise FgoptError("fixed formulation: the factor graph is empty")
-    var_of: dict = {}
-    keys: list = []
-    kinds: list = []
-    specs: list = []
-    consts: list = []
-    wvals: list = []
-    parts: list = []
-    per_kernel: dict = {}  # id(kernel) -> (ft, pattern, variable types' kinds, fingerprint, r)
-    per_noise: dict = {}   # id(noise model) -> (mask tuple, nonzero values, count)
-    coff = woff = 0
-    for f in factors:
-        kern = f.kernel
-        info = per_kernel.get(id(kern))
-        if info is None:
-            ft, pattern = _resolve(f)
-            var_kinds = [batch_kind_of(tp) for (_, tp), v in zip(ft.params, pattern) if v]
-            info = per_kernel[id(kern)] = (ft, pattern, var_kinds, _fingerprint(ft),
-                                           kern.residual_dim, kern)
-        ft, pattern, var_kinds, fpr, r, _ = info
-        if loss_code_and_param(f.loss)[0] != LOSS_NONE:
-            raise FgoptError(f"fixed formulation: {f.describe()} has a robust loss; only "
-                             "Gaussian noise models are supported")
-        idx = []
-        for k, want in zip(f.keys, var_kinds):
-            v = var_of.get(k)
-            if v is None:
-                if k not in values:
-                    raise FgoptError(f"fixed formulation: {f.describe()} uses {key_str(k)}, "
-                                     "which is not in the initial values")
-                x = values.at(k)
-                kind = ops_for(x).batch_kind(x)
-                if kind is None:
-                    raise FgoptError(f"fixed formulation: {key_str(k)} is a "
-                                     f"{type(x).__name__} (no batch kind)")
-                v = var_of[k] = len(keys)
-                keys.append(Key(k))
-                kinds.append(kind)
-            if want is not kinds[v]:
-                raise FgoptError(f"fixed formulation: {f.describe()}: {key_str(k)} is a "
-                                 f"{kinds[v].name}, the factor expects {want.name}")
-            idx.append(v)
-        c = f.constants
-        noise = f.noise
-        w = per_noise.get(id(noise))
-        if w is None:
-            R = np.asarray(noise.sqrt_information, dtype=float)
-            if R.shape != (r, r):
-                R = R * np.eye(r) if R.size == 1 else R.reshape(r, r)
-            mask = R != 0.0
-            w = per_noise[id(noise)] = (tuple(mask.ravel().tolist()), R[mask], int(mask.sum()),
-                                        noise)
-        mask_t, wv, nw = w[0], w[1], w[2]
-        idx_t = tuple(idx)
-        specs.append(FactorSpec(ft, pattern, idx_t, coff, c.shape[0], r, mask_t, woff))
-        consts.append(c)
-        wvals.append(wv)
-        coff += c.shape[0]
-        woff += nw
-        parts.append((fpr, pattern, idx_t, c.shape[0], r, mask_t))
-    h = hashlib.sha256(repr(parts).encode())
-    from ...manifolds.base import is_vector_kind
-    from ...manifolds.declared import declared_type
-
-    variables, so, to = [], 0, 0
-    for kind in kinds:
-        gid = _GIDS.get(kind.name, -1)
-        declared = declared_type(kind)
-        code = None
-        if declared is not None:
-            gid, code = -2, declared._spec.retract_code
-        elif gid < 0 and not is_vector_kind(kind):
-            raise FgoptError(f"fixed formulation: variables of kind {kind.name} are not supported")
-        variables.append(VarSpec(gid, kind.storage_dim, kind.dim, so, to, code))
-        so += kind.storage_dim
-        to += kind.dim
-    h.update(repr([(k.name, k.dim, k.storage_dim, k.key) for k in kinds]).encode())
-    h.update(_cache.package_fingerprint().encode())
-    h.update(FIXED_CODEGEN_VERSION.encode())
-    return _Collected(keys, kinds, variables, specs,
-                      np.concatenate(consts) if consts else np.zeros(0),
-                      np.concatenate(wvals) if wvals else np.zeros(0), h.hexdigest()[:20],
-                      factors)
 
 
 # ------------------------------------------------------------------------------------ module
@@ -231,7 +72,7 @@ def _module(col: _Collected, use_cache: bool, info: dict) -> Any:
         STATS["memo"] += 1
         info["source"] = "memo"
         return m
-    name = f"fixed_{len(col.variables)}v_{len(col.factors)}f"
+    name = f"fixed_{len(col.keys)}v_{col.num_factors}f"
     m = _cache.load(name, col.key, required=_REQUIRED) if use_cache else None
     if m is not None:
         STATS["loaded"] += 1
@@ -241,8 +82,8 @@ def _module(col: _Collected, use_cache: bool, info: dict) -> Any:
 
         t0 = time.perf_counter()
         prog, const_syms = build_program(col.variables, col.factors, info)
-        types = sorted({f.ftype.name for f in col.factors})
-        summary = (f"{len(col.variables)} variables, {len(col.factors)} factors "
+        types = sorted({run.ftype.name for run in col.runs})
+        summary = (f"{len(col.variables)} variables, {col.num_factors} factors "
                    f"({', '.join(types)})")
         clamp_types = sorted(_fingerprint(ft) for ft in info.pop("clamp_ftypes", []))
         source, _ = module_source(col.variables, prog, const_syms,
@@ -275,7 +116,7 @@ class FixedProblem:
         self.storage_size = int(module.S)
         self.generation = generation
         self._values = values
-        self._x0 = self.flatten(values)
+        self._x0 = col.x0
         self._aux = np.zeros(module.NUM_AUX)
         self._set_inputs(col.consts, col.wvals)
 
@@ -308,7 +149,7 @@ class FixedProblem:
         self._col = col
         if values is not None:
             self._values = values
-            self._x0 = self.flatten(values)
+            self._x0 = col.x0
         self._set_inputs(col.consts, col.wvals)
         return self
 
@@ -316,16 +157,33 @@ class FixedProblem:
     def flatten(self, values: Variables) -> np.ndarray:
         """Storage of every variable, concatenated in variable order."""
         x = np.empty(self.storage_size)
-        for k, kind, var in zip(self.keys, self.kinds, self._col.variables):
-            x[var.storage_off:var.storage_off + var.storage_dim] = kind.to_storage(values.at(k))
+        off = self._col.storage_off.tolist()
+        for v, (k, kind) in enumerate(zip(self.keys, self.kinds)):
+            x[off[v]:off[v + 1]] = kind.to_storage(values.at(k))
         return x
 
     def values(self, x: np.ndarray) -> Variables:
-        """A new ``Variables``: the initial values with every variable replaced from ``x``."""
-        out = self._values.copy()
-        for k, kind, var in zip(self.keys, self.kinds, self._col.variables):
-            out._values[k] = kind.from_storage(
-                np.array(x[var.storage_off:var.storage_off + var.storage_dim]))
+        """A new ``Variables``: the initial values with every variable replaced from ``x``
+        (keys no factor uses copied unchanged), in the initial values' key order."""
+        init = self._values
+        out = Variables()
+        d = out._dict = dict(init._dict)  # assignments below keep its Key objects
+        for blk in init._pending:
+            d.update(dict.fromkeys(map(Key, blk.keys.tolist())))
+        col = self._col
+        for no in range(len(col.kind_specs)):
+            vs = np.flatnonzero(col.kind_no == no)
+            kind = self.kinds[int(vs[0])]
+            keys = [self.keys[v] for v in vs.tolist()]
+            rows = x[np.add.outer(col.storage_off[vs], np.arange(kind.storage_dim))]  # a copy
+            if kind.wrap is None:
+                d.update(zip(keys, map(kind.from_storage, rows)))
+            else:  # the retraction keeps rows on the manifold: wrapped as add_rows does
+                rows.flags.writeable = False
+                d.update(zip(keys, kind.wrap_all(rows)))
+        for k, x_k in d.items():
+            if x_k is None:  # a bulk row no factor uses
+                d[k] = init.at(k)
         return out
 
     def linearize(self, values: Variables | np.ndarray | None = None) -> tuple:
@@ -371,10 +229,9 @@ class FixedProblem:
         t2 = time.perf_counter()
         if status == -1:
             raise NonFiniteError("fixed formulation: " + self._locate_nonfinite(x0))
-        records = [IterationRecord(i + 1, float(hist[i, 0]), float(hist[i, 1]),
-                                   float(hist[i, 2]), float(hist[i, 3]), float(hist[i, 4]),
-                                   float(hist[i, 5]), bool(hist[i, 6] > 0.5), float("nan"))
-                   for i in range(its)]
+        nan = float("nan")
+        records = [IterationRecord(i, h[0], h[1], h[2], h[3], h[4], h[5], h[6] > 0.5, nan)
+                   for i, h in enumerate(hist[:its].tolist(), 1)]
         costs = [float(init)] + [r.cost for r in records if r.accepted]
         st = {0: Status.CONVERGED, 1: Status.MAX_ITERATIONS, 2: Status.FAILED}[int(status)]
         since, gain = None, 0.0  # the trailing run of rejected steps, as Run tracks it
@@ -426,12 +283,12 @@ class FixedProblem:
         from ...structure import build_pattern
 
         pi, pj = [], []
-        for f in self._col.factors:
-            vs = list(f.var_idx)
-            for a in range(len(vs)):
-                for b in range(a + 1, len(vs)):
-                    pi.append(vs[a])
-                    pj.append(vs[b])
+        for run in self._col.runs:
+            vs = run.var_idx
+            for a in range(vs.shape[1]):
+                for b in range(a + 1, vs.shape[1]):
+                    pi.extend(vs[:, a].tolist())
+                    pj.extend(vs[:, b].tolist())
         dims = np.array([k.dim for k in self.kinds], dtype=np.int64)
         pattern, _ = build_pattern(dims, np.arange(len(self.keys)),
                                    np.array(pi, dtype=np.int64), np.array(pj, dtype=np.int64))
@@ -441,7 +298,7 @@ class FixedProblem:
 
     def __repr__(self) -> str:
         o = self.ops
-        return (f"FixedProblem({len(self.keys)} variables, {len(self._col.factors)} factors, "
+        return (f"FixedProblem({len(self.keys)} variables, {self._col.num_factors} factors, "
                 f"tangent dim {self.size}; linearize {o['linearize']} ops, "
                 f"precompute {o['precompute']} ops)")
 
