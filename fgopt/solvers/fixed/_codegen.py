@@ -29,7 +29,7 @@ from typing import Any
 from ...symbolic.cse import Program, optimize, prune, total_ops
 
 #: Bumped when the emitted source changes meaning (part of the cache key).
-FIXED_CODEGEN_VERSION = "4"
+FIXED_CODEGEN_VERSION = "5"
 
 
 @dataclass(frozen=True)
@@ -218,7 +218,9 @@ def _retract(_x, _d, _out, _tmp):
 {retract}
 
 
-@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
+# reassociation lets LLVM vectorize the dot products (33 unknowns: 4.1 -> 2.9 us, 72: 34 -> 14
+# us); the order of a sum's terms is all it changes, the same on every call
+@numba.njit(cache=True, fastmath={"reassoc", "contract"}, error_model="numpy", nogil=True)
 def _cholesky_solve(A, b, L, y):
     """Solve A y = b for symmetric A by Cholesky (lower L); False if A is not positive definite."""
     n = A.shape[0]
