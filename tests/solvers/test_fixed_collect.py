@@ -138,3 +138,21 @@ def test_bad_batches_are_named():
                                          origin=["row z"])
     with pytest.raises(FgoptError, match=r"\(factor row z\): 1 is a R2, the factor expects SE2"):
         fx.compile_fixed(wrong_kind, mixed)
+
+
+def test_bad_factor_objects_are_named():
+    """Individually added factors read a run at a time: a missing key and a variable of another
+    kind still raise FgoptError naming that factor (not the run's first)."""
+    _, _, single, per_key = pose_graph_two_ways(4)
+    graph = FactorGraph(list(single.factors))
+    graph.add(BetweenFactor(2, 7, SE2.from_xytheta(1, 0, 0), fgopt.noise.Isotropic.sigma(3, 1.0)))
+    with pytest.raises(FgoptError,
+                       match=r"BetweenFactor\(2, 7\) uses 7, which is not in the initial"):
+        fx.compile_fixed(graph, per_key)
+    values = per_key.copy()
+    values.add(9, np.array([1.0, 2.0]))
+    graph = FactorGraph(list(single.factors))
+    graph.add(BetweenFactor(3, 9, SE2.from_xytheta(1, 0, 0), fgopt.noise.Isotropic.sigma(3, 1.0)))
+    with pytest.raises(FgoptError,
+                       match=r"BetweenFactor\(3, 9\): 9 is a R2, the factor expects SE2"):
+        fx.compile_fixed(graph, values)

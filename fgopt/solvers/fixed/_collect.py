@@ -163,7 +163,7 @@ class _Collector:
         self.where: list = []  # per variable: its value, or (bulk block, row)
         self.kind_by_type: dict = {}
         self.kind_by_block: dict = {}
-        self.per_noise: dict = {}   # id(noise) -> (mask (r*r,), nonzero values, noise)
+        self.per_noise: dict = {}   # id(loss) -> (mask (1, r*r), nonzero values, loss)
 
     def kernel_info(self, kernel: Any, first: Any, cls: type) -> tuple:
         hit = _KERNEL_INFO.get((id(kernel), cls))
@@ -251,8 +251,9 @@ class _Collector:
             kind = self.kind_by_block[b] = self.kind_of(blk.kind.wrap(blk.rows[0]))
         return kind
 
-    def check_kinds(self, idx: np.ndarray, var_kinds: list, keys: np.ndarray,
-                    describe: Any) -> None:
+    def check_kinds(self, idx: np.ndarray, var_kinds: list, key_at: Any, describe: Any) -> None:
+        """Raise naming the first row whose ``j``-th variable is not of ``var_kinds[j]``
+        (``key_at(row, j)``: that variable's key, for the message)."""
         kinds = self.kinds
         for j, want in enumerate(var_kinds):
             column = idx[:, j].tolist()
@@ -260,7 +261,7 @@ class _Collector:
                 if kinds[v] is not want:
                     row = column.index(v)
                     raise FgoptError(
-                        f"fixed formulation: {describe(row)}: {key_str(int(keys[row, j]))} is a "
+                        f"fixed formulation: {describe(row)}: {key_str(key_at(row, j))} is a "
                         f"{kinds[v].name}, the factor expects {want.name}")
 
     def append(self, info: tuple, idx: np.ndarray, consts: np.ndarray, mask: np.ndarray,
@@ -276,25 +277,62 @@ class _Collector:
         self.consts.append(consts.reshape(-1))
         self.wvals.append(wvals)
 
-    def factor(self, f: Any) -> None:
-        from ...noise.models import LOSS_NONE, loss_code_and_param
+    def factors(self, fs: list) -> None:
+        """Individually added factors, a run of consecutive ones of one kernel at a time."""
+        kernels = [f.kernel for f in fs]
+        classes = list(map(type, fs))
+        starts = [0] + [i for i in range(1, len(fs)) if kernels[i] is not kernels[i - 1]
+                        or classes[i] is not classes[i - 1]] + [len(fs)]
+        for i, j in zip(starts[:-1], starts[1:]):
+            if i < j:
+                self.factor_run(fs[i:j])
 
-        info = self.kernel_info(f.kernel, lambda: f, type(f))
-        if loss_code_and_param(f.loss)[0] != LOSS_NONE:
-            raise FgoptError(f"fixed formulation: {f.describe()} has a robust loss; only "
-                             "Gaussian noise models are supported")
-        idx = np.array([[self.variable(k, f.describe) for k in f.keys]], dtype=np.int64)
-        self.check_kinds(idx, info[2], np.array([f.keys]), lambda _: f.describe())
-        noise = f.noise
-        w = self.per_noise.get(id(noise))
+    def noise_of(self, f: Any, r: int) -> tuple:
+        """(mask (1, r*r), non-zero entries of R) of a factor's noise model, or raise for a
+        robust loss; one entry per noise model object (factors usually share a few)."""
+        loss = f.loss
+        w = self.per_noise.get(id(loss))
         if w is None:
-            r = info[3]
-            R = np.asarray(noise.sqrt_information, dtype=float)
+            from ...noise.models import LOSS_NONE, loss_code_and_param
+
+            if loss_code_and_param(loss)[0] != LOSS_NONE:
+                raise FgoptError(f"fixed formulation: {f.describe()} has a robust loss; only "
+                                 "Gaussian noise models are supported")
+            R = np.asarray(f.noise.sqrt_information, dtype=float)
             if R.shape != (r, r):
                 R = R * np.eye(r) if R.size == 1 else R.reshape(r, r)
             mask = R != 0.0
-            w = self.per_noise[id(noise)] = (mask.reshape(1, -1), R[mask], noise)
-        self.append(info, idx, f.constants.reshape(1, -1), w[0], w[1], [f])
+            w = self.per_noise[id(loss)] = (mask.reshape(1, -1), R[mask], loss)
+        return w
+
+    def factor_run(self, fs: list) -> None:
+        f0 = fs[0]
+        info = self.kernel_info(f0.kernel, lambda: f0, type(f0))
+        var_of = self.var_of
+        key_lists = [f.keys for f in fs]
+        flat = [k for keys in key_lists for k in keys]
+        for k in dict.fromkeys(flat):
+            if k not in var_of:
+                self.variable(k, fs[flat.index(k) // len(f0.keys)].describe)
+        m = len(fs)
+        idx = np.array([var_of[k] for k in flat], dtype=np.int64).reshape(m, -1)
+        self.check_kinds(idx, info[2], lambda row, j: fs[row].keys[j],
+                         lambda row: fs[row].describe())
+        losses = [f.loss for f in fs]
+        first: dict = {}  # id(loss) -> the first factor with it
+        for loss, f in zip(losses, fs):
+            first.setdefault(id(loss), f)
+        ws = {i: self.noise_of(f, info[3]) for i, f in first.items()}
+        if len(ws) == 1:
+            w = next(iter(ws.values()))
+            mask = np.broadcast_to(w[0], (m, w[0].shape[1]))
+            wv = np.tile(w[1], m)
+        else:
+            noises = [ws[id(loss)] for loss in losses]
+            mask = np.concatenate([w[0] for w in noises])
+            wv = np.concatenate([w[1] for w in noises])
+        consts = np.concatenate([f.constants for f in fs]).reshape(m, -1)
+        self.append(info, idx, consts, mask, wv, list(fs))
 
     def batch(self, b: Any) -> None:
         n = len(b)
@@ -316,7 +354,7 @@ class _Collector:
         if new:
             self.add_variables(new, lambda k: describe(flat.index(k) // keys.shape[1]))
         idx = np.array([var_of[k] for k in flat], dtype=np.int64).reshape(keys.shape)
-        self.check_kinds(idx, info[2], keys, describe)
+        self.check_kinds(idx, info[2], lambda row, j: int(keys[row, j]), describe)
         r = info[3]
         R = b.sqrt_information
         if R is None:
@@ -395,8 +433,7 @@ def collect(graph: Any, values: Any) -> Collected:
     """Read ``graph`` at ``values`` for the fixed formulation (raises FgoptError naming the
     first factor it cannot take)."""
     c = _Collector(values)
-    for f in graph.factors:
-        c.factor(f)
+    c.factors(graph.factors)
     for b in graph.batches:
         c.batch(b)
     return c.finish()
