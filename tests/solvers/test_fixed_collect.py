@@ -42,7 +42,8 @@ def pose_graph_two_ways(n: int = 6):
     batched, bulk = FactorGraph(), Variables()
     bulk.add_rows(np.arange(n), kind, rows)
     batched.add_batch(between_kernel_for(kind), np.array(edges),
-                      np.array([kind.to_storage(m) for m in meas]), np.repeat(R[None], len(edges), 0),
+                      np.array([kind.to_storage(m) for m in meas]),
+                      np.repeat(R[None], len(edges), 0),
                       origin=[f"edge {e}" for e in range(len(edges))])
     batched.add_batch(prior_kernel_for(kind), np.array([[0]]), rows[:1], R[None] * 100.0)
     single, per_key = FactorGraph(), Variables()
