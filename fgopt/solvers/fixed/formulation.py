@@ -39,7 +39,6 @@ import dataclasses
 import hashlib
 import math
 import time
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
