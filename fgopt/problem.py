@@ -186,6 +186,33 @@ def _upper_pairs(k: int) -> tuple[np.ndarray, np.ndarray]:
     return np.triu_indices(k, 1)
 
 
+def replaced_values(initial: Variables, groups: Any, unused: Any = None,
+                    objects: dict | None = None) -> Variables:
+    """A new ``Variables`` with ``initial``'s keys in their order: those of ``groups`` (``(kind,
+    keys, storage rows)`` per kind; rows on the manifold, as a retraction leaves them) and of
+    ``objects`` (key -> value) replaced, the ``unused`` ones (default: every other key) copied.
+    Bulk rows of ``initial`` are not turned into objects only to be overwritten (a file's
+    poses: ~1 us each); the new rows are an owned read-only copy wrapped row by row, as
+    ``Variables.add_rows`` does."""
+    out = Variables()
+    values = out._dict = dict(initial._dict)  # assignments keep its Key objects
+    for blk in initial._pending:
+        values.update(dict.fromkeys(map(Key, blk.keys.tolist())))
+    for kind, keys, rows in groups:
+        if kind.wrap is None:
+            values.update(zip(keys, map(kind.from_storage, rows)))
+        else:
+            rows = np.array(rows, dtype=float)
+            rows.flags.writeable = False
+            values.update(zip(keys, kind.wrap_all(rows)))
+    if objects:
+        values.update(objects)
+    for k in (unused if unused is not None else [k for k, x in values.items() if x is None]):
+        if values[k] is None:  # not optimized: returned unchanged
+            values[k] = initial.at(k)
+    return out
+
+
 class Problem:
     """A graph compiled against initial values; see the module docstring."""
 
@@ -868,29 +895,10 @@ class Problem:
             rows.flags.writeable = False
             out._pending.append(_Rows(blk.keys, self.kinds[0], rows))
             return out
-        # every key of the initial values in their order, without building the initial values'
-        # bulk rows as objects (a file's poses: ~1 us each) only to overwrite them below
-        values = out._dict = dict(extra._dict)  # assignments keep its Key objects
-        for blk in extra._pending:
-            values.update(dict.fromkeys(map(Key, blk.keys.tolist())))
-        for k in self.unused_keys:  # not optimized: returned unchanged
-            if values[k] is None:
-                values[k] = extra.at(k)
-        for kid, kind in enumerate(self.kinds):
-            vars_ = self._kind_vars[kid]
-            keys = self.var_keys[vars_].tolist()
-            S = state.storages[kid]
-            if kind.wrap is None:
-                values.update(zip(keys, map(kind.from_storage, S[self.var_row[vars_]])))
-                continue
-            # retract keeps rows on the manifold, so they need no normalization: an owned,
-            # read-only copy wrapped row by row (as Variables.add_rows does)
-            rows = np.array(S[self.var_row[vars_]], dtype=float)
-            rows.flags.writeable = False
-            values.update(zip(keys, kind.wrap_all(rows)))
-        for v, x in state.objects.items():
-            out._values[Key(int(self.var_keys[v]))] = x
-        return out
+        groups = ((kind, self.var_keys[vs].tolist(), state.storages[kid][self.var_row[vs]])
+                  for kid, (kind, vs) in enumerate(zip(self.kinds, self._kind_vars)))
+        objects = {Key(int(self.var_keys[v])): x for v, x in state.objects.items()}
+        return replaced_values(extra, groups, self.unused_keys, objects)
 
     def values_as_rows(self, state: State) -> Variables:
         """:meth:`values` with each kind's values left as storage rows (the bulk blocks of

@@ -44,7 +44,6 @@ from typing import Any
 import numpy as np
 
 from ...errors import FgoptError, NonFiniteError
-from ...key import Key
 from ..params import LMParams
 from ..diagnostics import fixed_clamp_hits, warn_clamps, warn_unused
 from ..result import IterationRecord, Result, Status, stall_status
@@ -164,26 +163,16 @@ class FixedProblem:
     def values(self, x: np.ndarray) -> Variables:
         """A new ``Variables``: the initial values with every variable replaced from ``x``
         (keys no factor uses copied unchanged), in the initial values' key order."""
-        init = self._values
-        out = Variables()
-        d = out._dict = dict(init._dict)  # assignments below keep its Key objects
-        for blk in init._pending:
-            d.update(dict.fromkeys(map(Key, blk.keys.tolist())))
+        from ...problem import replaced_values
+
         col = self._col
+        groups = []
         for no in range(len(col.kind_specs)):
             vs = np.flatnonzero(col.kind_no == no)
             kind = self.kinds[int(vs[0])]
-            keys = [self.keys[v] for v in vs.tolist()]
-            rows = x[np.add.outer(col.storage_off[vs], np.arange(kind.storage_dim))]  # a copy
-            if kind.wrap is None:
-                d.update(zip(keys, map(kind.from_storage, rows)))
-            else:  # the retraction keeps rows on the manifold: wrapped as add_rows does
-                rows.flags.writeable = False
-                d.update(zip(keys, kind.wrap_all(rows)))
-        for k, x_k in d.items():
-            if x_k is None:  # a bulk row no factor uses
-                d[k] = init.at(k)
-        return out
+            cols = np.add.outer(col.storage_off[vs], np.arange(kind.storage_dim))
+            groups.append((kind, [self.keys[v] for v in vs.tolist()], x[cols]))
+        return replaced_values(self._values, groups)
 
     def linearize(self, values: Variables | np.ndarray | None = None) -> tuple:
         """``(cost, H (N, N), g (N,))`` at ``values`` (dense, tangent order = ``keys``)."""
