@@ -214,8 +214,8 @@ def main() -> None:
                                    else "-" for r in (c, g))
                 fixed = f"{fx['cpu_s'] * 1e3:.3g} ({ratios})"
                 notes.append(f"{path.name}, fixed formulation: cost {fx['cost']:.10g} (dynamic "
-                             f"{f['cost']:.10g}); its module was {fx['module']} on the first "
-                             f"solve of this run, which took {fx['first_s']:.2f} s")
+                             f"{f['cost']:.10g}); the first solve of this run took "
+                             f"{fx['first_s']:.2f} s, its generated module from: {fx['module']}")
             lines.append(f"| {path.name} | {f['poses']} | {f['cpu_s'] * 1e3:.3g} | {cell(c)} | "
                          f"{cell(g)} | {share:.0%} | {fixed} |")
             print(lines[-1], flush=True)
