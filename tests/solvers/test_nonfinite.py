@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import fgopt
 from fgopt import FactorGraph, Variables, key
@@ -209,3 +211,23 @@ def test_nonfinite_jacobian_among_other_factors_is_rejected_mid_run():
         assert r.success, (method, r)
         xs = [float(r.values.at(key("x", i))) for i in range(3)]
         assert np.allclose(xs, [0.99, OPTIMUM["nan_jacobian"], 0.99], atol=1e-5), (method, xs)
+
+
+_entries = st.one_of(st.floats(allow_nan=True, allow_infinity=True),
+                     st.sampled_from([1e308, -1e308, 1.7e308, np.inf, -np.inf, np.nan]))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(_entries, min_size=0, max_size=12), st.lists(_entries, min_size=1, max_size=6),
+       _entries)
+def test_finiteness_checks_agree_with_isfinite_entry_by_entry(h, g, total):
+    """The solvers' finiteness tests (a sum of squares is finite iff every entry is, unless it
+    overflows: then entry by entry) say exactly what ``np.isfinite(...).all()`` says, also for
+    arrays of huge finite entries whose sum of squares overflows."""
+    from fgopt.problem import _all_finite, _linearization_finite
+
+    H, gv = np.array(h, dtype=float), np.array(g, dtype=float)
+    assert _all_finite(H) == bool(np.isfinite(H).all())
+    assert _all_finite(H.reshape(-1, 1)) == bool(np.isfinite(H).all())
+    expected = bool(np.isfinite(total) and np.isfinite(H).all() and np.isfinite(gv).all())
+    assert _linearization_finite(total, H, gv) == expected
