@@ -1,5 +1,5 @@
-"""Exactly 5 LM iterations on 2D pose graphs of 100-20,000 poses: fgopt vs C++ Ceres vs GTSAM,
-CPU time, in one run.
+"""Exactly 5 LM iterations on the shared pose graphs (2D and 3D, 2-20,000 poses): fgopt vs C++
+Ceres vs GTSAM, CPU time, in one run.
 
     python -m benchmarks.small_graphs [--files ...] [--sizes 400,1000,3500,10000,20000]
                                       [--repeats 7] [--out F.md]
@@ -14,7 +14,9 @@ each wrapped for Python when read), every stopping test off, from the file's gue
 single-threaded. On a machine that other processes load, wall times measure the scheduler as
 much as the solver (Ceres' wall time was 6x its CPU time at load 8), so the comparison uses
 process CPU time: the minimum over ``--repeats`` solves for fgopt and GTSAM (in this process)
-and the median for Ceres (its program). Files: the shared 2D graphs with an initial guess, ``benchmarks.extra_data``'s MIT,
+and the median for Ceres (its program). Files: every shared 2D and 3D graph with an initial guess
+that the sphere / torus / garage / cubicle rows of the README's peers table do not already
+cover (the tiny GTSAM example files included), ``benchmarks.extra_data``'s MIT,
 city10000, M3500a when present, and ``fgopt.datasets.manhattan_2d`` graphs of ``--sizes``
 poses written to g2o files in a temporary folder.
 """
@@ -38,8 +40,11 @@ import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-FILES = ["small/pose2example.txt", "small/w100.graph", "pose2d/FR079_P_toro.graph",
-         "pose2d/intel.g2o", "pose2d/input_M3500_g2o.g2o", "pose2d/w20000.txt"]
+FILES = ["small/pose2example.txt", "small/noisyToyGraph.txt", "small/w100.graph",
+         "pose2d/FR079_P_toro.graph", "pose2d/intel.g2o", "pose2d/input_M3500_g2o.g2o",
+         "pose2d/w20000.txt", "small/pose3example-offdiagonal.txt", "small/Klaus3.g2o",
+         "small/pose3Localizationexample.txt", "small/pose3example.txt", "small/toyExample.g2o",
+         "small/tinyGrid3D.g2o", "small/pose3example-grid.txt", "pose3d/smallGrid3D.g2o"]
 EXTRA = ["MIT.g2o", "M3500a.g2o", "city10000.g2o"]
 
 
@@ -110,16 +115,27 @@ def _cpu(fn) -> float:
     return time.process_time() - t
 
 
+def is_3d(path: Path) -> bool:
+    """Whether a g2o / TORO file holds 3D poses (its first vertex or edge line says)."""
+    with open(path) as fh:
+        for line in fh:
+            tag = line.split(maxsplit=1)[0] if line.strip() else ""
+            if tag.startswith(("VERTEX", "EDGE")):
+                return "SE3" in tag or tag.endswith("3")
+    return False
+
+
 def ceres_cpu(path: Path, repeats: int) -> dict:
     from .peers.ceres_cpp_runner import BINARY
 
     if not BINARY.exists():
         return {"error": "not built"}
     with tempfile.TemporaryDirectory() as tmp:
-        proc = subprocess.run([str(BINARY), "pose2d", str(path), "5it", str(repeats),
-                               str(Path(tmp) / "est.txt")], capture_output=True, text=True)
+        proc = subprocess.run([str(BINARY), "pose3d" if is_3d(path) else "pose2d", str(path),
+                               "5it", str(repeats), str(Path(tmp) / "est.txt")],
+                              capture_output=True, text=True)
     if proc.returncode != 0 or "solve_cpu_s" not in proc.stdout:
-        return {"error": "cannot read (g2o VERTEX_SE2/EDGE_SE2 only)"}
+        return {"error": "cannot read (g2o VERTEX/EDGE_SE2, SE3:QUAT only)"}
     rec = json.loads(proc.stdout.strip().splitlines()[-1])
     return {"cpu_s": rec["solve_cpu_s"], "wall_s": rec["solve_s"]}
 
@@ -129,16 +145,23 @@ def gtsam_cpu(path: Path, repeats: int) -> dict:
         import gtsam
     except ImportError:
         return {"error": "not installed"}
+    three = is_3d(path)
     try:
-        if str(path).endswith(".g2o"):
-            graph, initial = gtsam.readG2o(str(path), False)
+        if str(path).endswith(".g2o") or three:
+            graph, initial = gtsam.readG2o(str(path), three)
         else:
             graph, initial = gtsam.load2D(str(path))
     except Exception as exc:  # noqa: BLE001
         return {"error": f"reader: {str(exc)[:40]}"}
+    if initial.size() == 0:
+        return {"error": "no initial guess read"}
     first = min(initial.keys())
-    graph.add(gtsam.PriorFactorPose2(first, initial.atPose2(first),
-                                     gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)))
+    if three:
+        graph.add(gtsam.PriorFactorPose3(first, initial.atPose3(first),
+                                         gtsam.noiseModel.Isotropic.Sigma(6, 1e-6)))
+    else:
+        graph.add(gtsam.PriorFactorPose2(first, initial.atPose2(first),
+                                         gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)))
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(5)
     params.setRelativeErrorTol(0.0)
@@ -181,7 +204,7 @@ def main() -> None:
     paths = [p for p in paths if p.is_file()]
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True, cwd=Path(__file__).parent).stdout.strip()
-    lines = [f"# 5 LM iterations on 2D pose graphs, CPU ms (commit {commit}, {dt.date.today()})",
+    lines = [f"# 5 LM iterations on pose graphs, CPU ms (commit {commit}, {dt.date.today()})",
              "", "`python -m benchmarks.small_graphs`: fgopt includes set-up (problem, ordering, "
              "symbolic analysis) and the result's values (a file's poses: one block of storage "
              "rows, objects made when read, as GTSAM's C++ Values); ×N = peer / fgopt (> 1: fgopt "
