@@ -28,6 +28,16 @@ Fisheye; Newton converges quadratically, so a tight pixel tolerance costs one ex
 Closed forms for the pinhole models and the double sphere. Jacobians of ``calibrate`` follow
 from the implicit function theorem at the solution: ``xy_D_uv = uv_D_xy^-1`` and
 ``xy_D_k = -uv_D_xy^-1 uv_D_k`` (GTSAM's ``calibrateJacobians``).
+
+Domains. ``uncalibrate`` is False where a model is undefined (outside the unified / double
+sphere valid region, a degenerate parameter set) and where the pixel is not finite (a point so
+far off axis that an intermediate overflows: a saturating model would otherwise return its
+principal point). ``calibrate`` accepts a Newton root only where the distortion's Jacobian
+``M = K^-1 uv_D_xy`` (identity at the centre) has ``det M > 0`` and ``trace M > 0``: beyond a
+fold (``1 + 3 k1 r^2 < 0``, or the half-turn where ``1 + k1 r^2 < 0``) a root is another ray
+that lands on the same pixel, not an inverse. No division here can see a zero denominator for
+parameters the constructors accept. :func:`parameters_valid` is the constructors' invariant,
+for calibrations that are optimized variables.
 """
 
 from __future__ import annotations
@@ -44,6 +54,26 @@ MAX_TANGENT_DIM = 10
 
 #: ``calibrate`` status codes.
 OK, NOT_CONVERGED, INVALID = 0, 1, 2
+
+
+# inlined by numba: as a call, its few comparisons cost the batch kernels ~8% per row
+@njit(cache=True, inline="always")
+def parameters_valid(model, k):
+    """The constructors' invariant on ``k`` (positive focal lengths and stereo baseline, unified
+    ``xi >= 0``, double sphere ``xi`` in ``[-1, 1]`` and ``alpha`` in ``[0, 1]``), for a
+    calibration the optimizer moves: a step across it must be rejected, or the solve could end
+    on parameters no calibration object can hold. False for NaN too."""
+    if model == CAL3BUNDLER:
+        return k[0] > 0.0
+    if not (k[0] > 0.0 and k[1] > 0.0):
+        return False
+    if model == CAL3_S2STEREO:
+        return k[5] > 0.0
+    if model == CAL3UNIFIED:
+        return k[9] >= 0.0
+    if model == DOUBLESPHERE:  # no chained comparisons: numba compiles them 10x slower
+        return k[4] >= -1.0 and k[4] <= 1.0 and k[5] >= 0.0 and k[5] <= 1.0
+    return True
 
 
 @njit(cache=True)
@@ -132,10 +162,12 @@ def _bundler(k, x, y, uv, Dk, Dp, with_jac):
 @njit(cache=True)
 def _fisheye(k, x, y, uv, Dk, Dp, with_jac):
     """Kannala-Brandt: ``theta = atan(r)``, ``theta_d = theta (1 + k1 t^2 + .. + k4 t^8)``,
-    ``(xd, yd) = theta_d / r (x, y)``, then K."""
+    ``(xd, yd) = theta_d / r (x, y)``, then K. False where ``r^2`` overflows."""
     fx, fy, s, u0, v0 = k[0], k[1], k[2], k[3], k[4]
     k1, k2, k3, k4 = k[5], k[6], k[7], k[8]
     r2 = x * x + y * y
+    if not r2 < math.inf:  # atan saturates: theta / r = 0 would put the ray at the centre
+        return False
     r = math.sqrt(r2)
     t = math.atan(r)
     t2 = t * t
@@ -171,6 +203,7 @@ def _fisheye(k, x, y, uv, Dk, Dp, with_jac):
         Dp[0, 1] = fx * m01 + s * m11
         Dp[1, 0] = fy * m01
         Dp[1, 1] = fy * m11
+    return True
 
 
 @njit(cache=True)
@@ -180,7 +213,7 @@ def _unified(k, x, y, uv, Dk, Dp, with_jac):
     xi = k[9]
     sqrt_nx = math.sqrt(x * x + y * y + 1.0)
     den = 1.0 + xi * sqrt_nx
-    if not den > 0.0:
+    if not (den > 0.0 and den < math.inf):  # an infinite one would map the ray to the centre
         return False
     q = 1.0 / den
     _ds2(k, x * q, y * q, uv, Dk, Dp, with_jac)
@@ -209,7 +242,12 @@ def double_sphere_valid(xi, alpha, x, y, z):
         w1 = alpha / (1.0 - alpha)
     else:
         w1 = (1.0 - alpha) / alpha
-    w2 = (w1 + xi) / math.sqrt(2.0 * w1 * xi + xi * xi + 1.0)
+    s = 2.0 * w1 * xi + xi * xi + 1.0
+    if not s > 0.0:
+        # (xi + w1)^2 + 1 - w1^2 is 0 only at xi = -1, alpha = 1/2: w2 is 0 / 0 there (the
+        # model sends the optical axis to a circle), so no ray has a well-defined pixel
+        return False
+    w2 = (w1 + xi) / math.sqrt(s)
     d1 = math.sqrt(x * x + y * y + z * z)
     return z > -w2 * d1
 
@@ -225,7 +263,9 @@ def _double_sphere(k, x, y, uv, Dk, Dp, with_jac):
     w = xi * d1 + 1.0
     d2 = math.sqrt(rr + w * w)
     den = alpha * d2 + (1.0 - alpha) * w
-    if not (den > 0.0 and double_sphere_valid(xi, alpha, x, y, 1.0)):
+    # den > 0 also keeps d2 > 0 for the Jacobian; an infinite den (overflow far off axis) would
+    # map the ray to the centre
+    if not (den > 0.0 and den < math.inf and double_sphere_valid(xi, alpha, x, y, 1.0)):
         return False
     inv = 1.0 / den
     uv[0] = fx * x * inv + cx
@@ -254,7 +294,9 @@ def _double_sphere(k, x, y, uv, Dk, Dp, with_jac):
 @njit(cache=True)
 def uncalibrate(model, k, x, y, uv, Dk, Dp, with_jac):
     """Pixel ``uv`` of intrinsic point ``(x, y)``; ``Dk (2, >= dim)``, ``Dp (2, 2)`` when
-    ``with_jac``. Returns False where the model is undefined (``uv`` then unspecified)."""
+    ``with_jac``. Returns False where the model is undefined or the pixel is not finite
+    (``uv`` then unspecified)."""
+    ok = True
     if model == CAL3_S2:
         _pinhole(k, x, y, uv, Dk, Dp, with_jac)
     elif model == CAL3_S2STEREO:
@@ -267,12 +309,13 @@ def uncalibrate(model, k, x, y, uv, Dk, Dp, with_jac):
     elif model == CAL3BUNDLER:
         _bundler(k, x, y, uv, Dk, Dp, with_jac)
     elif model == CAL3FISHEYE:
-        _fisheye(k, x, y, uv, Dk, Dp, with_jac)
+        ok = _fisheye(k, x, y, uv, Dk, Dp, with_jac)
     elif model == CAL3UNIFIED:
-        return _unified(k, x, y, uv, Dk, Dp, with_jac)
+        ok = _unified(k, x, y, uv, Dk, Dp, with_jac)
     elif model == DOUBLESPHERE:
-        return _double_sphere(k, x, y, uv, Dk, Dp, with_jac)
-    return True
+        ok = _double_sphere(k, x, y, uv, Dk, Dp, with_jac)
+    # the polynomial models overflow to inf / NaN (1e-300 depth): no pixel, not a residual
+    return ok and math.isfinite(uv[0]) and math.isfinite(uv[1])
 
 
 @njit(cache=True)
@@ -301,11 +344,16 @@ def _double_sphere_unproject(k, u, v, xy):
     my = (v - cy) / fy
     r2 = mx * mx + my * my
     disc = 1.0 - (2.0 * alpha - 1.0) * r2
-    if disc < 0.0:
+    if not disc >= 0.0:
         return False
-    mz = (1.0 - alpha * alpha * r2) / (alpha * math.sqrt(disc) + 1.0 - alpha)
+    den = alpha * math.sqrt(disc) + 1.0 - alpha
+    if not den > 0.0:
+        # alpha = 1 on the rim r2 = 1: mz is 0 / 0. The rim is the largest radius the model
+        # reaches (d radius / d ray = 0 there), so it has no invertible preimage either way
+        return False
+    mz = (1.0 - alpha * alpha * r2) / den
     disc2 = mz * mz + (1.0 - xi * xi) * r2
-    if disc2 < 0.0:
+    if not disc2 >= 0.0:
         return False
     scale = (mz * xi + math.sqrt(disc2)) / (mz * mz + r2)
     z = scale * mz - xi
@@ -319,7 +367,8 @@ def _double_sphere_unproject(k, u, v, xy):
 @njit(cache=True)
 def calibrate(model, k, u, v, tol, max_iterations, xy):
     """Intrinsic point ``xy`` of pixel ``(u, v)``: a status code (``OK``, ``NOT_CONVERGED``,
-    ``INVALID``). Iterative models stop when ``|uncalibrate(xy) - (u, v)| <= tol`` pixels."""
+    ``INVALID``: outside the model's image, or the root found lies past a fold). Iterative models
+    stop when ``|uncalibrate(xy) - (u, v)| <= tol`` pixels."""
     K5 = np.empty(5)
     pinhole_part(model, k, K5)
     if model == CAL3_S2 or model == CAL3_S2STEREO:
@@ -352,9 +401,19 @@ def calibrate(model, k, u, v, tol, max_iterations, xy):
         if not uncalibrate(model, k, xy[0], xy[1], uv, Dk, Dp, True):
             return INVALID
         e0, e1 = uv[0] - u, uv[1] - v
-        if math.sqrt(e0 * e0 + e1 * e1) <= tol:
-            return OK
         det = Dp[0, 0] * Dp[1, 1] - Dp[0, 1] * Dp[1, 0]
+        if math.sqrt(e0 * e0 + e1 * e1) <= tol:
+            if det == 0.0 or not math.isfinite(det):  # calibrate_batch inverts uv_D_xy
+                return INVALID
+            if model == DOUBLESPHERE:  # the paper's closed-form inverse, only polished
+                return OK
+            # Beyond a fold of the distortion a root is another ray that the model sends onto
+            # this pixel, not its inverse: past the first fold det < 0, and where the radial
+            # factor 1 + k1 r^2 < 0 the map is a half-turn (det > 0, both eigenvalues < 0). So
+            # both eigenvalues of M = K^-1 uv_D_xy (identity at the centre) must have positive
+            # real parts: det > 0 and trace(M) fx fy > 0.
+            trace = K5[1] * Dp[0, 0] - K5[2] * Dp[1, 0] + K5[0] * Dp[1, 1]
+            return OK if det > 0.0 and trace > 0.0 else INVALID
         if det == 0.0 or not math.isfinite(det):
             return NOT_CONVERGED
         xy[0] -= (Dp[1, 1] * e0 - Dp[0, 1] * e1) / det

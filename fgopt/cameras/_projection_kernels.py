@@ -14,10 +14,15 @@ so ``p_D_w = hat(p)``, ``p_D_v = -I``, ``p_D_X = R^T``; then
 Cheirality: where ``p_z <= 0`` (with ``reject``) or the lens model is undefined, the status is
 non-zero and the factor kernels write NaN residuals, so a trial step that moves a point behind a
 camera is rejected by the optimizer and a bad initial estimate is reported by name. With
-``reject=False`` (the BAL convention) only ``p_z == 0`` is undefined.
+``reject=False`` (the BAL convention) only ``p_z == 0`` is undefined. A pixel that is not finite
+(a depth so small that it overflows) is undefined too, and so is a calibration variable that an
+optimizer step has moved outside its class's invariant (``fx <= 0``, stereo ``b <= 0``, ...:
+:func:`fgopt.cameras._calib_kernels.parameters_valid`), so that step is rejected.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from .._jit import njit
@@ -111,9 +116,14 @@ def projection_batch(model, pose, point, cal, m, reject, cal_var, with_jac):
     uv = np.empty(2)
     p, Dk, Dp, A = scratch()
     for i in range(n):
-        quat_to_rotation(pose[i, :4], R)
-        st = project_core(model, R, pose[i, 4:7], cal[i], point[i], reject, with_jac, uv, p, Dk,
-                          Dp, A)
+        k = cal[i]
+        # a constant calibration was checked when it was built; a variable one is checked here
+        if cal_var and not CK.parameters_valid(model, k):
+            st = INVALID_MODEL
+        else:
+            quat_to_rotation(pose[i, :4], R)
+            st = project_core(model, R, pose[i, 4:7], k, point[i], reject, with_jac, uv, p, Dk,
+                              Dp, A)
         if st != OK:
             res[i, 0] = np.nan
             res[i, 1] = np.nan
@@ -178,6 +188,8 @@ def stereo_core(R, t, k, X, reject, with_jac, out, p, A, Jk):
     out[0] = u0 + fx * x * iz
     out[1] = u0 + fx * (x - b) * iz
     out[2] = v0 + fy * y * iz
+    if not (math.isfinite(out[0]) and math.isfinite(out[1]) and math.isfinite(out[2])):
+        return INVALID_MODEL  # overflow at a tiny depth: no measurement, not an inf residual
     if with_jac:
         iz2 = iz * iz
         A[0, 0], A[0, 1], A[0, 2] = fx * iz, 0.0, -fx * x * iz2
@@ -206,8 +218,12 @@ def stereo_batch(pose, point, cal, m, reject, cal_var, with_jac):
     A = np.empty((3, 3))
     Jk = np.empty((3, 6))
     for i in range(n):
-        quat_to_rotation(pose[i, :4], R)
-        st = stereo_core(R, pose[i, 4:7], cal[i], point[i], reject, with_jac, out, p, A, Jk)
+        k = cal[i]
+        if cal_var and not CK.parameters_valid(CK.CAL3_S2STEREO, k):
+            st = INVALID_MODEL
+        else:
+            quat_to_rotation(pose[i, :4], R)
+            st = stereo_core(R, pose[i, 4:7], k, point[i], reject, with_jac, out, p, A, Jk)
         if st != OK:
             for r in range(3):
                 res[i, r] = np.nan
@@ -278,9 +294,13 @@ def camera_projection_batch(model, cam, point, m, reject, with_jac):
     uv = np.empty(2)
     p, Dk, Dp, A = scratch()
     for i in range(n):
-        quat_to_rotation(cam[i, :4], R)
-        st = project_core(model, R, cam[i, 4:7], cam[i, 7:], point[i], reject, with_jac, uv, p,
-                          Dk, Dp, A)
+        k = cam[i, 7:]
+        if not CK.parameters_valid(model, k):  # the camera is a variable
+            st = INVALID_MODEL
+        else:
+            quat_to_rotation(cam[i, :4], R)
+            st = project_core(model, R, cam[i, 4:7], k, point[i], reject, with_jac, uv, p, Dk,
+                              Dp, A)
         if st != OK:
             res[i, 0] = np.nan
             res[i, 1] = np.nan

@@ -16,9 +16,10 @@ factor). The core's Gauss-Newton / LM machinery then sees an ordinary residual a
 the compiled problem's H and g take the same sums from :func:`smart_hessian_batch`, which uses
 ``F``'s block diagonal instead of the dense ``J``.
 
-Degenerate tracks (DLT rank < 3, the point behind a view, ``E`` rank-deficient) give NaN (the
-step is rejected; at the initial estimate the optimizer names the factor) or, with
-``zero_on_degenerate``, a zero residual and Jacobian (GTSAM's ``ZERO_ON_DEGENERACY``).
+Degenerate tracks (a pixel that cannot be undistorted, DLT rank < 3, the point behind a view,
+``E`` rank-deficient) give NaN (the step is rejected; at the initial estimate the optimizer names
+the factor) or, with ``zero_on_degenerate``, a zero residual and Jacobian (GTSAM's
+``ZERO_ON_DEGENERACY``).
 """
 
 from __future__ import annotations

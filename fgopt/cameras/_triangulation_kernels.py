@@ -26,7 +26,8 @@ from . import _projection_kernels as PK
 @njit(cache=True)
 def undistort(model, k, u, v, tol, max_iterations, out):
     """``out = K calibrate(u, v)`` (the pixel a distortion-free camera would see); False if
-    calibrate fails."""
+    calibrate fails: the pixel is outside the model's image, Newton's root lies past a fold of
+    the distortion, or it did not converge."""
     if model == CK.CAL3_S2 or model == CK.CAL3_S2STEREO:
         out[0], out[1] = u, v
         return True

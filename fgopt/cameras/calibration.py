@@ -20,6 +20,7 @@ back, for one point ``(2,)`` or many ``(n, 2)``; ``jacobians=True`` also returns
 
 from __future__ import annotations
 
+import inspect
 from typing import Any, ClassVar
 
 import numpy as np
@@ -27,6 +28,7 @@ import numpy as np
 from ..errors import CalibrationError, CheiralityError, DimensionMismatchError, NonFiniteError
 from ..manifolds.base import BatchKind, register
 from . import _calib_kernels as CK
+from ._checks import float_array, is_count, is_positive, number
 
 #: Default pixel tolerance and iteration limit of the iterative ``calibrate``.
 CALIBRATE_TOL = 1e-9
@@ -35,7 +37,7 @@ CALIBRATE_MAX_ITERATIONS = 20
 
 def as_points2(values: Any, what: str) -> tuple[np.ndarray, bool]:
     """``(n, 2)`` float array of ``values`` (one ``(2,)`` point or many), and whether it was one."""
-    a = np.asarray(values, dtype=float)
+    a = float_array(values, what, "a (2,) point or an (n, 2) array of numbers")
     single = a.ndim == 1
     a = np.ascontiguousarray(a.reshape(1, -1) if single else a)
     if a.ndim != 2 or a.shape[1] != 2:
@@ -57,13 +59,37 @@ class Calibration:
     DIM: ClassVar[int] = 0
     _kind: ClassVar[BatchKind]
 
+    def __new__(cls, *args: Any, **kwargs: Any):
+        # a subclass's explicit GTSAM signature would raise a bare TypeError before __init__
+        names, init = cls.PARAMS, cls.__init__
+        required = len(names) - len(getattr(init, "__defaults__", None) or ())
+        given = set(names[len(args):required]) <= kwargs.keys() <= set(names[len(args):])
+        if init is not Calibration.__init__ and not (len(args) <= len(names) and given):
+            try:
+                inspect.signature(init).bind(None, *args, **kwargs)
+            except TypeError as e:
+                opt = f"[, {', '.join(names[required:])}]" if required < len(names) else ""
+                raise DimensionMismatchError(
+                    f"{cls.__name__}({', '.join(names[:required])}{opt}) takes "
+                    f"{f'{required} to ' if opt else ''}{len(names)} parameters, got "
+                    f"{len(args) + len(kwargs)}: {e}") from None
+        return object.__new__(cls)
+
     def __init__(self, *params: float):
         names = self.PARAMS
         if len(params) != len(names):
             raise DimensionMismatchError(
                 f"{type(self).__name__} takes {len(names)} parameters ({', '.join(names)}), "
                 f"got {len(params)}")
-        data = np.array(params, dtype=float)
+        try:
+            data = np.array(params, dtype=float)
+        except (TypeError, ValueError):
+            data = None
+        # np.array turns None into NaN: report it as what it is, not as "fx is nan"
+        if data is None or data.ndim != 1 or any(p is None for p in params):
+            name, p = next((n, p) for n, p in zip(names, params) if number(p) is None)
+            raise CalibrationError(f"{type(self).__name__}: parameter {name} must be a number, "
+                                   f"got {p!r}")
         self._check(data)
         data.setflags(write=False)
         object.__setattr__(self, "_data", data)
@@ -187,9 +213,18 @@ class Calibration:
         method elsewhere, stopping when the re-projection is within ``tol`` pixels.
 
         Raises :class:`CalibrationError` naming the point when Newton does not converge in
-        ``max_iterations`` or the pixel is outside the model's image.
+        ``max_iterations`` or the pixel is outside the model's image; up front for a ``tol`` not
+        > 0 or ``max_iterations`` < 0.
         """
-        pts, single = as_points2(uv, f"{type(self).__name__}.calibrate")
+        what = f"{type(self).__name__}.calibrate"
+        # checked for every model (the closed forms ignore them): same arguments, same errors
+        if not is_positive(tol):
+            raise CalibrationError(f"{what}: tol must be a finite number of pixels > 0, got "
+                                   f"{tol!r}")
+        if not is_count(max_iterations):
+            raise CalibrationError(f"{what}: max_iterations must be an integer >= 0, got "
+                                   f"{max_iterations!r}")
+        pts, single = as_points2(uv, what)
         xy, Dk, Dp, status = CK.calibrate_batch(self.MODEL, self._data, pts, float(tol),
                                                 int(max_iterations), bool(jacobians))
         bad = status != CK.OK
@@ -317,7 +352,7 @@ class Cal3Fisheye(Calibration):
 
 class Cal3Unified(Calibration):
     """Mei's unified model: ``m = (x, y) / (1 + xi |(x, y, 1)|)``, then Cal3DS2. Storage =
-    tangent ``(fx, fy, s, u0, v0, k1, k2, p1, p2, xi)``."""
+    tangent ``(fx, fy, s, u0, v0, k1, k2, p1, p2, xi)``, ``xi >= 0``."""
 
     __slots__ = ()
     MODEL = CK.CAL3UNIFIED
@@ -328,6 +363,14 @@ class Cal3Unified(Calibration):
                  k2: float, p1: float = 0.0, p2: float = 0.0, xi: float = 0.0):
         super().__init__(fx, fy, s, u0, v0, k1, k2, p1, p2, xi)
 
+    @classmethod
+    def _check(cls, data: np.ndarray) -> None:
+        super()._check(data)
+        # xi is the distance from the unit sphere's centre to the projection centre (Mei and
+        # Rives 2007; 0: pinhole, 1: parabolic mirror, > 1: fisheye), never negative
+        if not data[9] >= 0.0:
+            raise CalibrationError(f"Cal3Unified: xi must be >= 0, got {data[9]:g}")
+
     def xi(self) -> float:
         return float(self._data[9])
 
@@ -336,8 +379,8 @@ class DoubleSphere(Calibration):
     """Double sphere (Usenko, Demmel, Cremers, 3DV 2018), of the ray ``(x, y, 1)``:
     ``d1 = |(x, y, 1)|``, ``w = xi d1 + 1``, ``d2 = |(x, y, w)|``,
     ``(u, v) = (fx x, fy y) / (alpha d2 + (1 - alpha) w) + (cx, cy)``.
-    Storage = tangent ``(fx, fy, cx, cy, xi, alpha)``, ``alpha`` in ``[0, 1]``. ``calibrate``
-    is the paper's closed-form unprojection. Not a GTSAM model."""
+    Storage = tangent ``(fx, fy, cx, cy, xi, alpha)``, ``xi`` in ``[-1, 1]``, ``alpha`` in
+    ``[0, 1]``. ``calibrate`` is the paper's closed-form unprojection. Not a GTSAM model."""
 
     __slots__ = ()
     MODEL = CK.DOUBLESPHERE
@@ -350,6 +393,9 @@ class DoubleSphere(Calibration):
     @classmethod
     def _check(cls, data: np.ndarray) -> None:
         super()._check(data)
+        # the authors' range (basalt): with |xi| > 1 unprojection fails inside the image
+        if not -1.0 <= data[4] <= 1.0:
+            raise CalibrationError(f"DoubleSphere: xi must be in [-1, 1], got {data[4]:g}")
         if not 0.0 <= data[5] <= 1.0:
             raise CalibrationError(f"DoubleSphere: alpha must be in [0, 1], got {data[5]:g}")
 

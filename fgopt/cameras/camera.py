@@ -18,16 +18,18 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import CheiralityError, DimensionMismatchError, FgoptError, NonFiniteError
+from ..errors import (CheiralityError, DimensionMismatchError, FgoptError, ManifoldError,
+                      NonFiniteError)
 from ..manifolds import SE3, SO3
 from ..manifolds.base import BatchKind, register
 from . import _projection_kernels as PK
+from ._checks import float_array
 from .calibration import Cal3_S2, Cal3_S2Stereo, Calibration, as_points2
 
 
 def as_points3(values: Any, what: str) -> tuple[np.ndarray, bool]:
     """``(n, 3)`` float array of ``values`` (one ``(3,)`` point or many), and whether it was one."""
-    a = np.asarray(values, dtype=float)
+    a = float_array(values, what, "a (3,) point or an (n, 3) array of numbers")
     single = a.ndim == 1
     a = np.ascontiguousarray(a.reshape(1, -1) if single else a)
     if a.ndim != 2 or a.shape[1] != 3:
@@ -90,7 +92,16 @@ class PinholeCamera:
         """A camera at ``eye`` looking at ``target``, with ``up`` pointing up in the image
         (GTSAM's ``Lookat``: ``z = (target - eye) / |.|``, ``x = (-up) x z / |.|``,
         ``y = z x x``)."""
-        eye, target, up = (np.asarray(v, dtype=float).reshape(3) for v in (eye, target, up))
+        vecs = []
+        for name, v in (("eye", eye), ("target", target), ("up", up)):
+            a = float_array(v, f"PinholeCamera.lookat: {name}", "3 numbers")
+            if a.shape != (3,):
+                raise DimensionMismatchError(f"PinholeCamera.lookat: {name} must be a 3-vector, "
+                                             f"got shape {a.shape}")
+            if not np.all(np.isfinite(a)):
+                raise NonFiniteError(f"PinholeCamera.lookat: {name} has a NaN or inf: {a}")
+            vecs.append(a)
+        eye, target, up = vecs
         z = target - eye
         nz = np.linalg.norm(z)
         if not nz > 0.0:
@@ -125,9 +136,28 @@ class PinholeCamera:
 
     def backproject(self, uv: Any, depth: Any) -> np.ndarray:
         """World points at ``depth`` (along the optical axis) through pixels ``uv``:
-        ``pose * (depth * (x, y, 1))`` with ``(x, y) = calibrate(uv)``."""
-        pix, single = as_points2(uv, "PinholeCamera.backproject")
-        d = np.broadcast_to(np.asarray(depth, dtype=float).reshape(-1), (pix.shape[0],))
+        ``pose * (depth * (x, y, 1))`` with ``(x, y) = calibrate(uv)``.
+
+        ``depth`` is one number or one per pixel, finite and > 0 (else
+        :class:`NonFiniteError` / :class:`CheiralityError` naming its index)."""
+        what = "PinholeCamera.backproject"
+        pix, single = as_points2(uv, what)
+        d = float_array(depth, what, "a number per pixel").reshape(-1)
+        n = pix.shape[0]
+        if d.shape[0] == 1:
+            d = np.full(n, d[0])
+        elif d.shape[0] != n:
+            raise DimensionMismatchError(f"{what}: depth must be one number or one per pixel "
+                                         f"({n}), got {d.shape[0]} numbers")
+        bad = ~np.isfinite(d)
+        if np.any(bad):
+            i = int(np.nonzero(bad)[0][0])
+            raise NonFiniteError(f"{what}: depth {i} is {d[i]}")
+        bad = ~(d > 0.0)
+        if np.any(bad):
+            i = int(np.nonzero(bad)[0][0])
+            raise CheiralityError(f"{what}: depth {i} is {d[i]:g}; it must be > 0 (a point in "
+                                  "front of the camera)")
         xy = np.atleast_2d(self._calibration.calibrate(pix))
         pc = np.column_stack([xy * d[:, None], d])
         out = self._pose * pc
@@ -156,6 +186,9 @@ class PinholeCamera:
         return PinholeCamera(self._pose.retract(d[:6]), self._calibration.retract(d[6:]))
 
     def local(self, other: PinholeCamera) -> np.ndarray:
+        if not isinstance(other, PinholeCamera):
+            raise ManifoldError(f"PinholeCamera.local: expected a PinholeCamera, got "
+                                f"{type(other).__name__}")
         return np.concatenate([self._pose.local(other.pose()),
                                self._calibration.local(other.calibration())])
 

@@ -26,6 +26,10 @@ Cheirality policy (``cheirality=``):
 * ``"allow"``: project points behind the camera with the same formula (the BAL / Ceres
   convention: their cost counts such observations); only ``p_z = 0`` is undefined. The BAL and
   Bundler readers use it so the Pose3 form reaches the 9-vector form's cost.
+
+Where the residual is NaN, a factor's own ``jacobians(values)`` is NaN too (never a zero
+Jacobian passed off as valid), and ``checked_error`` / ``checked_jacobians`` / ``cost`` raise
+:class:`~fgopt.errors.NonFiniteError` naming the factor with the optimizer's hint.
 """
 
 from __future__ import annotations
@@ -41,12 +45,26 @@ from ..key import as_key, key_str
 from ..manifolds import SE3
 from ..manifolds.base import vector_kind
 from . import _projection_kernels as PK
+from ._checks import float_array
 from .calibration import Cal3_S2Stereo, Calibration
 
 CHEIRALITY = ("reject", "allow")
 _SOURCE = "hand-written in fgopt/cameras/_projection_kernels.py"
-_HINT = ("a point is at or behind its camera (cheirality) or outside the lens model's valid "
-         "region; fix the initial estimate, or use cheirality='allow'")
+
+
+def nonfinite_hint(reject: bool, lens: bool = True, settable: bool = True) -> str:
+    """Why a projection kernel's residual is NaN, for the optimizer's error: ``reject`` its
+    cheirality policy, ``lens`` whether the model has a valid region (not stereo), ``settable``
+    whether the user chose the policy (a reader's graph: no)."""
+    region = " or is outside the lens model's valid region" if lens else ""
+    if not reject:
+        # cheirality='allow' leaves only depth exactly 0 undefined: suggesting it again is wrong
+        return (f"a point has depth 0 in its camera (it lies on the plane through the camera "
+                f"centre, where even cheirality='allow' cannot project){region}; fix the "
+                "initial estimate")
+    fix = ", or use cheirality='allow'" if settable else ""
+    return (f"a point is at or behind its camera (cheirality){region}; fix the initial "
+            f"estimate{fix}")
 
 
 def _check_cheirality(cheirality: str) -> bool:
@@ -101,7 +119,7 @@ def projection_kernel(model: type[Calibration], calibration_variable: bool = Fal
     return FactorKernel(name, kinds, 2, 2 if var else 2 + s,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
-                        source=_SOURCE, nonfinite_hint=_HINT,
+                        source=_SOURCE, nonfinite_hint=nonfinite_hint(reject),
                         recipe=(projection_kernel, (model, var, cheirality)),
                         trusted_linearize=trusted)
 
@@ -126,18 +144,26 @@ def camera_projection_kernel(model: type[Calibration], cheirality: str = "reject
     return FactorKernel(name, kinds, 2, 2,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
-                        source=_SOURCE, nonfinite_hint=_HINT,
+                        source=_SOURCE, nonfinite_hint=nonfinite_hint(reject),
                         recipe=(camera_projection_kernel, (model, cheirality)),
                         trusted_linearize=lambda args, consts: PK.camera_projection_batch(
                             mid, args[0], args[1], consts, reject, True))
 
 
-@lru_cache(maxsize=None)
-def stereo_kernel(calibration_variable: bool = False, cheirality: str = "reject") -> FactorKernel:
+def stereo_kernel(calibration_variable: bool = False, cheirality: str = "reject",
+                  cheirality_settable: bool = True) -> FactorKernel:
     """Kernel of ``(uL, uR, v)(pose, point, K) - m``: args ``(SE3, R^3[, Cal3_S2Stereo])``,
-    constants ``m (3)`` then, for a constant calibration, its 6 numbers."""
+    constants ``m (3)`` then, for a constant calibration, its 6 numbers.
+
+    ``cheirality_settable=False``: the kernel of a reader that fixes the policy, whose
+    non-finite error does not suggest changing it (a separate kernel object, same numbers)."""
+    # one cache key per kernel, however many arguments were spelled out
+    return _stereo_kernel(bool(calibration_variable), cheirality, bool(cheirality_settable))
+
+
+@lru_cache(maxsize=None)
+def _stereo_kernel(var: bool, cheirality: str, settable: bool) -> FactorKernel:
     reject = _check_cheirality(cheirality)
-    var = bool(calibration_variable)
     name = f"stereo{'_selfcal' if var else ''}{'' if reject else '_allow_behind'}"
     kinds = (SE3.batch_kind(), vector_kind(3)) + ((Cal3_S2Stereo.batch_kind(),) if var else ())
     widths = (7, 3, 6, 3) if var else (7, 3, 9)
@@ -160,8 +186,9 @@ def stereo_kernel(calibration_variable: bool = False, cheirality: str = "reject"
     return FactorKernel(name, kinds, 3, 3 if var else 9,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
-                        source=_SOURCE, nonfinite_hint=_HINT,
-                        recipe=(stereo_kernel, (var, cheirality)),
+                        source=_SOURCE,
+                        nonfinite_hint=nonfinite_hint(reject, lens=False, settable=settable),
+                        recipe=(stereo_kernel, (var, cheirality, settable)),
                         trusted_linearize=trusted)
 
 
@@ -170,7 +197,7 @@ def _is_key(x: Any) -> bool:
 
 
 def _measurement(values: Any, n: int, what: str, where: str) -> np.ndarray:
-    m = np.asarray(values, dtype=float).reshape(-1)
+    m = float_array(values, f"{where}: {what}", f"{n} numbers").reshape(-1)
     if m.shape[0] != n:
         raise DimensionMismatchError(f"{where}: {what} needs {n} numbers, got {m.shape[0]}")
     if not np.all(np.isfinite(m)):
@@ -210,7 +237,38 @@ def _where(name: str, *keys: Any) -> str:
         return f"{name}({', '.join(map(repr, keys))})"
 
 
-class ProjectionFactor(KernelFactor):
+class CameraKernelFactor(KernelFactor):
+    """A kernel factor whose residual is NaN where it is undefined (a point behind a camera, a
+    degenerate smart track). The kernels leave the Jacobian there zero, which the optimizer never
+    reads (it rejects the NaN residual first); the per-factor API would pass the zeros on as a
+    valid linearization, so it turns them into NaN and its checked errors carry the kernel's hint.
+    """
+
+    def jacobians(self, values: Any) -> list[np.ndarray]:
+        res, jac = self.kernel.linearize(self._gather(values), self.constants.reshape(1, -1))
+        J = np.array(jac[0], dtype=float)
+        J[~np.isfinite(res[0])] = np.nan
+        return [J[:, o:o + kind.dim] for o, kind in
+                zip(self.kernel.arg_offsets, self.kernel.arg_kinds)]
+
+    def checked_error(self, values: Any) -> np.ndarray:
+        try:
+            return super().checked_error(values)
+        except NonFiniteError as e:
+            raise self._hinted(e) from None
+
+    def checked_jacobians(self, values: Any) -> list[np.ndarray]:
+        try:
+            return super().checked_jacobians(values)
+        except NonFiniteError as e:
+            raise self._hinted(e) from None
+
+    def _hinted(self, e: NonFiniteError) -> NonFiniteError:
+        hint = self.kernel.nonfinite_hint
+        return type(e)(f"{e}: {hint}") if hint else e
+
+
+class ProjectionFactor(CameraKernelFactor):
     """``ProjectionFactor(pose, point, measured, noise, calibration)``: a pixel ``measured`` of
     world point ``point`` seen by the camera at ``pose`` (``world_T_camera``, z forward).
 
@@ -243,16 +301,19 @@ class ProjectionFactor(KernelFactor):
         return f"ProjectionFactor({keys})"
 
 
-class GeneralSFMFactor(KernelFactor):
+class GeneralSFMFactor(CameraKernelFactor):
     """``GeneralSFMFactor(camera, point, measured, noise)``: a pixel of ``point`` seen by a
     :class:`~fgopt.cameras.PinholeCamera` *variable* (pose and calibration in one, GTSAM's
     ``GeneralSFMFactor``; the BAL / Bundler camera form). ``model`` names the calibration class
     of the camera variable. ``cheirality`` as ProjectionFactor's."""
 
     def __init__(self, camera: int, point: int, measured: Any, noise: Any = None, *,
-                 model: type[Calibration], cheirality: str = "reject"):
+                 model: type[Calibration] | None = None, cheirality: str = "reject"):
         where = _where("GeneralSFMFactor", camera, point)
         m = _measurement(measured, 2, "the measured pixel", where)
+        if model is None:
+            raise FgoptError(f"{where}: pass model=<the camera variable's calibration class> "
+                             "(Cal3Bundler, Cal3_S2, ...)")
         if not (isinstance(model, type) and issubclass(model, Calibration)):
             raise FgoptError(f"{where}: model must be a Calibration class, got {model!r}")
         self.measured = m
@@ -263,7 +324,7 @@ class GeneralSFMFactor(KernelFactor):
         return f"GeneralSFMFactor({keys})"
 
 
-class StereoFactor(KernelFactor):
+class StereoFactor(CameraKernelFactor):
     """``StereoFactor(pose, point, measured, noise, calibration)``: a rectified stereo
     measurement ``(uL, uR, v)`` of ``point`` from the left camera at ``pose``; ``calibration``
     a :class:`~fgopt.cameras.Cal3_S2Stereo` or a key. ``cheirality`` as ProjectionFactor's."""

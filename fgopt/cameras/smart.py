@@ -37,19 +37,21 @@ from typing import Any, Sequence
 import numpy as np
 
 from ..errors import DimensionMismatchError, FgoptError, NonFiniteError, TriangulationError
-from ..factors import FactorKernel, KernelFactor
+from ..factors import FactorKernel
 from ..noise import NoiseModel, RobustLoss, Unit
 from ..key import as_key, key_str
 from ..manifolds import SE3
 from . import _smart_kernels as SK
+from ._checks import float_array, is_positive
 from .calibration import Calibration
+from .factors import CameraKernelFactor
 
 TRIANGULATION = ("dlt", "nonlinear")
 DEGENERATE = ("reject", "zero")
 _SOURCE = "hand-written in fgopt/cameras/_smart_kernels.py"
 _HINT = ("a smart factor's landmark cannot be triangulated at this estimate (parallel rays, a "
-         "point behind a camera, or a rank-deficient track); fix the initial poses or use "
-         "degenerate='zero'")
+         "point behind a camera, a rank-deficient track, or a pixel its calibration cannot "
+         "undistort); fix the initial poses or use degenerate='zero'")
 
 
 @lru_cache(maxsize=None)
@@ -90,7 +92,7 @@ def smart_kernel(model: type[Calibration], num_views: int, triangulation: str = 
                                                pos, shift, H, g, w, cost))
 
 
-class SmartProjectionFactor(KernelFactor):
+class SmartProjectionFactor(CameraKernelFactor):
     """A landmark track over camera poses, the landmark eliminated (see the module docstring).
 
     Args:
@@ -100,18 +102,21 @@ class SmartProjectionFactor(KernelFactor):
         noise: a 2-D noise model per pixel (``None``: unit).
         triangulation: ``"dlt"`` (GTSAM's default) or ``"nonlinear"``.
         degenerate: ``"reject"`` or ``"zero"``.
-        rank_tol: DLT rank tolerance (GTSAM's smart-factor default 1.0, in pixels).
+        rank_tol: DLT rank tolerance (GTSAM's smart-factor default 1.0, in pixels), > 0.
     """
 
     def __init__(self, pose_keys: Sequence[int], measurements: Any, calibration: Calibration,
                  noise: NoiseModel | None = None, *, triangulation: str = "dlt",
                  degenerate: str = "reject", rank_tol: float = 1.0):
+        if isinstance(pose_keys, (str, bytes)) or not hasattr(pose_keys, "__iter__"):
+            raise FgoptError(f"SmartProjectionFactor: pose_keys must be a list of pose keys, got "
+                             f"{pose_keys!r}")
         keys = [as_key(k) for k in pose_keys]
         where = f"SmartProjectionFactor({', '.join(key_str(k) for k in keys)})"
         m = len(keys)
         if m < 2:
             raise TriangulationError(f"{where}: a track needs at least two views, got {m}")
-        z = np.asarray(measurements, dtype=float)
+        z = float_array(measurements, f"{where}: measurements", f"an ({m}, 2) array of numbers")
         if z.shape != (m, 2):
             raise DimensionMismatchError(f"{where}: measurements must be ({m}, 2), got {z.shape}")
         bad = ~np.all(np.isfinite(z), axis=1)
@@ -127,21 +132,24 @@ class SmartProjectionFactor(KernelFactor):
         noise = Unit(2) if noise is None else noise
         if not isinstance(noise, NoiseModel) or noise.dim != 2:
             raise DimensionMismatchError(f"{where}: noise must be a 2-D noise model (per pixel)")
-        if not (np.isfinite(rank_tol) and rank_tol >= 0):
-            raise FgoptError(f"{where}: rank_tol must be a finite number >= 0, got {rank_tol}")
+        # with 0 the rounding noise of a zero-baseline track counts toward the DLT's rank
+        if not is_positive(rank_tol):
+            raise FgoptError(f"{where}: rank_tol must be a finite number > 0, got {rank_tol!r}")
+        tol = float(rank_tol)
         self.measured = z.copy()
         self.calibration = calibration
         self.pixel_noise = noise
         self.triangulation = triangulation
         consts = np.concatenate([z.reshape(-1), calibration._data,
-                                 np.asarray(noise.sqrt_information).reshape(-1), [rank_tol]])
-        self._rank_tol = float(rank_tol)
+                                 np.asarray(noise.sqrt_information).reshape(-1), [tol]])
+        self._rank_tol = tol
         super().__init__(smart_kernel(type(calibration), m, triangulation, degenerate), keys,
                          consts, Unit(2 * m))
 
     def point(self, values: Any) -> np.ndarray | None:
         """The landmark triangulated from the poses in ``values``, or ``None`` if degenerate."""
-        rows = np.ascontiguousarray([values.at(k).to_storage() for k in self.keys])
+        # _gather checks every value is an SE3, as error() does
+        rows = np.ascontiguousarray(np.concatenate(self._gather(values), axis=0))
         X, ok = SK.smart_point(self.calibration.MODEL, rows, self.calibration._data,
                                np.ascontiguousarray(self.measured), self._rank_tol,
                                self.triangulation == "nonlinear")

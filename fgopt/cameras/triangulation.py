@@ -6,10 +6,11 @@
   error ``0.5 sum_i |project_i(X) - z_i|^2`` (GTSAM's ``optimize=true``, which stops at an
   absolute error decrease of 1.0; fgopt iterates to convergence).
 
-Checks: fewer than two views or a rank-deficient system (``rank < 3`` singular values above
-``rank_tol``, e.g. all rays parallel) raise :class:`~fgopt.errors.TriangulationError`; a result
-at or behind any camera raises :class:`~fgopt.errors.CheiralityError` naming the view (GTSAM
-built with ``GTSAM_THROW_CHEIRALITY_EXCEPTION``).
+Checks: fewer than two views, a rank-deficient system (``rank < 3`` singular values above
+``rank_tol``, e.g. all rays parallel), a point at infinity or a pixel that cannot be undistorted
+raise :class:`~fgopt.errors.TriangulationError`; a result at or behind any camera raises
+:class:`~fgopt.errors.CheiralityError` naming the view (GTSAM built with
+``GTSAM_THROW_CHEIRALITY_EXCEPTION``).
 """
 
 from __future__ import annotations
@@ -18,12 +19,29 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ..errors import (CheiralityError, DimensionMismatchError, FgoptError, NonFiniteError,
-                      TriangulationError)
+from ..errors import (CalibrationError, CheiralityError, DimensionMismatchError, FgoptError,
+                      NonFiniteError, TriangulationError)
 from . import _triangulation_kernels as TK
+from ._checks import float_array, is_count, is_positive
 from .camera import PinholeCamera
 
 METHODS = ("dlt", "nonlinear")
+#: ``TK.dlt``'s codes below any rank.
+TK_UNDISTORT_FAILED, TK_AT_INFINITY = -1, -2
+#: The tolerance and iteration limit ``TK.undistort`` gives ``calibrate``.
+_UNDISTORT_TOL, _UNDISTORT_ITERATIONS = 1e-10, 20
+
+
+def _undistort_failure(cams: list, z: np.ndarray) -> str:
+    """Which measurement the DLT kernel could not undistort, and why (found again in Python: the
+    kernel reports only that one failed)."""
+    for i, c in enumerate(cams):
+        try:
+            c.calibration().calibrate(z[i], tol=_UNDISTORT_TOL,
+                                      max_iterations=_UNDISTORT_ITERATIONS)
+        except CalibrationError as e:
+            return f"measurement {i} {z[i]} cannot be undistorted: {e}"
+    return "a measurement cannot be undistorted (its calibration's calibrate failed)"
 
 
 def triangulate(cameras: Sequence[PinholeCamera], measurements: Any, method: str = "dlt",
@@ -34,13 +52,22 @@ def triangulate(cameras: Sequence[PinholeCamera], measurements: Any, method: str
     Args:
         method: ``"dlt"`` or ``"nonlinear"`` (see the module docstring).
         rank_tol: singular values of the DLT system above this count toward its rank (GTSAM's
-            ``rank_tol``, in pixel units).
-        max_iterations: limit of the nonlinear refinement.
+            ``rank_tol``, in pixel units); > 0, as with 0 rounding noise counts as rank.
+        max_iterations: limit of the nonlinear refinement (>= 0).
     """
-    if method not in METHODS:
+    if not isinstance(method, str) or method not in METHODS:
         raise FgoptError(f"triangulate: method must be one of {METHODS}, got {method!r}")
+    if not is_positive(rank_tol):
+        raise FgoptError(f"triangulate: rank_tol must be a finite number > 0, got {rank_tol!r}")
+    if not is_count(max_iterations):
+        raise FgoptError(f"triangulate: max_iterations must be an integer >= 0, got "
+                         f"{max_iterations!r}")
+    if isinstance(cameras, (PinholeCamera, str, bytes)) or not hasattr(cameras, "__iter__"):
+        raise FgoptError(f"triangulate: cameras must be a sequence of PinholeCamera, got "
+                         f"{type(cameras).__name__}")
     cams = list(cameras)
-    z = np.ascontiguousarray(np.asarray(measurements, dtype=float))
+    z = np.ascontiguousarray(float_array(measurements, "triangulate: measurements",
+                                         f"a ({len(cams)}, 2) array of numbers"))
     if z.ndim != 2 or z.shape[1] != 2 or z.shape[0] != len(cams):
         raise DimensionMismatchError(
             f"triangulate: measurements must be ({len(cams)}, 2) for {len(cams)} cameras, got "
@@ -64,16 +91,17 @@ def triangulate(cameras: Sequence[PinholeCamera], measurements: Any, method: str
     ks = np.ascontiguousarray([c.calibration()._data for c in cams])
     X = np.empty(3)
     rank = TK.dlt(model.MODEL, Rs, ts, ks, z, float(rank_tol), X)
-    if rank == -1:
-        raise TriangulationError("triangulate: a measurement cannot be undistorted (calibrate "
-                                 "failed)")
+    if rank == TK_UNDISTORT_FAILED:
+        raise TriangulationError(f"triangulate: {_undistort_failure(cams, z)}")
+    if rank == TK_AT_INFINITY:
+        raise TriangulationError("triangulate: the DLT point is at infinity (parallel rays)")
     if rank < 3:
         raise TriangulationError(
-            f"triangulate: the DLT system has rank {max(rank, 0)} < 3 (rank_tol {rank_tol:g}): "
+            f"triangulate: the DLT system has rank {rank} < 3 (rank_tol {rank_tol:g}): "
             "the views' rays are (nearly) parallel or coincide")
     view = TK.in_front(Rs, ts, X)
     if view >= 0:
-        raise CheiralityError(f"triangulate: the DLT point {X} is behind camera {view}")
+        raise CheiralityError(f"triangulate: the DLT point {X} is at or behind camera {view}")
     if method == "nonlinear":
         TK.refine(model.MODEL, Rs, ts, ks, z, X, int(max_iterations))
     return X

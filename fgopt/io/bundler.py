@@ -45,7 +45,8 @@ def read_bundler(path: str | os.PathLike, form: str = "camera",
 
     Raises:
         FileFormatError: malformed input, a non-rotation R, a non-positive focal length, an
-            index out of range; the message names the file and line.
+            index out of range, a point seen by fewer than two cameras; the message names the
+            file and line.
     """
     if form not in FORMS:
         raise FgoptError(f"read_bundler: form must be one of {FORMS}, got {form!r}")
@@ -71,9 +72,13 @@ def read_bundler(path: str | os.PathLike, form: str = "camera",
             raise sc.error(f"camera {i}: focal length {f[i]:g} is not positive (an unregistered "
                            "camera?)", where)
         err = np.abs(R[i] @ R[i].T - np.eye(3)).max()
-        if err > 1e-6 or np.linalg.det(R[i]) < 0.0:
+        if err > 1e-6:
             raise sc.error(f"camera {i}: R is not a rotation matrix (|R R^T - I| = {err:.2g})",
                            sc.line_of_value(2 + 15 * i + 3))
+        det = np.linalg.det(R[i])
+        if det < 0.0:
+            raise sc.error(f"camera {i}: R is a reflection, not a rotation (det(R) = {det:.4g} "
+                           "< 0)", sc.line_of_value(2 + 15 * i + 3))
         u, _, vt = np.linalg.svd(R[i])  # re-orthonormalize the 10-digit matrix
         R[i] = u @ vt
     points = np.empty((npt, 3))
@@ -89,9 +94,15 @@ def read_bundler(path: str | os.PathLike, form: str = "camera",
             raise sc.error(f"point {j}: view count {sc.token(pos + 6)!r} is not a count",
                            sc.line_of_value(pos + 6))
         n = int(n)
+        if n < 2:
+            # one view leaves the point free along its ray (and none leaves it unused): the
+            # solver would report convergence on a rank-deficient problem
+            raise sc.error(f"point {j} has {n} view{'' if n == 1 else 's'}; a point needs at "
+                           "least two to be constrained", sc.line_of_value(pos + 6))
         start = pos + 7
         if start + 4 * n > v.shape[0]:
-            raise sc.error(f"point {j}: {n} views announced, the file ends first", sc.line[-1])
+            raise sc.error(f"point {j}: {sc.token(pos + 6)} views announced, the file ends first",
+                           sc.line[-1])
         cam_idx.append(v[start:start + 4 * n:4])
         pt_idx.append(np.full(n, j))
         obs_at.append(start + 4 * np.arange(n))

@@ -23,7 +23,8 @@ import numpy as np
 
 from ..cameras import Cal3_S2Stereo
 from ..cameras.factors import stereo_kernel
-from ..errors import CalibrationError, FileFormatError
+from ..cameras._checks import is_positive
+from ..errors import CalibrationError, FgoptError, FileFormatError
 from ..factors import PriorFactor
 from ..graph import FactorGraph
 from ..key import key
@@ -45,11 +46,34 @@ def _rows(path: str, width: int, what: str) -> tuple[np.ndarray, np.ndarray]:
     return sc.values.reshape(-1, width), np.asarray(sc.line)
 
 
+def _not_rigid(M: np.ndarray) -> str:
+    """What makes the 4x4 ``M`` not ``[[R, t], [0, 0, 0, 1]]`` with ``R`` a rotation; ''."""
+    if np.abs(M[3] - [0, 0, 0, 1]).max() > 0:
+        return f"its bottom row is {M[3].tolist()}, not [0, 0, 0, 1]"
+    R = M[:3, :3]
+    err = np.abs(R @ R.T - np.eye(3)).max()
+    if err > 1e-4:
+        return f"its rotation block is not orthonormal (|R R^T - I| = {err:.2g})"
+    det = np.linalg.det(R)
+    if det <= 0:
+        return f"its rotation block is a reflection (det(R) = {det:.4g} <= 0)"
+    return ""
+
+
 def read_stereo_vo(calibration: str | os.PathLike, poses: str | os.PathLike,
                    factors: str | os.PathLike, sigma: float = 1.0,
                    anchor_sigma: float | None = 1e-6
                    ) -> tuple[FactorGraph, Variables, Cal3_S2Stereo]:
-    """Read the three files; returns ``(graph, initial, calibration)`` (module docstring)."""
+    """Read the three files; returns ``(graph, initial, calibration)`` (module docstring).
+
+    ``sigma`` (pixels) and ``anchor_sigma`` must be finite and > 0 (``anchor_sigma`` may be
+    ``None``)."""
+    if not is_positive(sigma):
+        raise FgoptError(f"read_stereo_vo: sigma must be a finite number of pixels > 0, got "
+                         f"{sigma!r}")
+    if anchor_sigma is not None and not is_positive(anchor_sigma):
+        raise FgoptError(f"read_stereo_vo: anchor_sigma must be a finite number > 0 or None, "
+                         f"got {anchor_sigma!r}")
     cal_p, pose_p, fac_p = (os.fspath(p) for p in (calibration, poses, factors))
     c, c_lines = _rows(cal_p, 6, "the calibration")
     if c.shape[0] != 1:
@@ -67,10 +91,10 @@ def read_stereo_vo(calibration: str | os.PathLike, poses: str | os.PathLike,
             raise FileFormatError(f"pose id {row[0]:g} is not a non-negative integer", pose_p,
                                   int(line))
         M = row[1:].reshape(4, 4)
-        err = np.abs(M[:3, :3] @ M[:3, :3].T - np.eye(3)).max()
-        if err > 1e-4 or np.linalg.det(M[:3, :3]) <= 0 or np.abs(M[3] - [0, 0, 0, 1]).max() > 0:
-            raise FileFormatError(f"pose {int(row[0])} is not a rigid transform "
-                                  f"(|R R^T - I| = {err:.2g})", pose_p, int(line))
+        why = _not_rigid(M)
+        if why:
+            raise FileFormatError(f"pose {int(row[0])} is not a rigid transform: {why}", pose_p,
+                                  int(line))
         u, _, vt = np.linalg.svd(M[:3, :3])
         pose = SE3(SO3.from_matrix(u @ vt), M[:3, 3])
         k = key("x", int(row[0]))
@@ -96,7 +120,7 @@ def read_stereo_vo(calibration: str | os.PathLike, poses: str | os.PathLike,
     graph = FactorGraph()
     consts = np.column_stack([F[:, 2:5], np.tile(K.to_storage(), (F.shape[0], 1))])
     R = np.eye(3) / float(sigma)
-    graph.add_batch(stereo_kernel(False, "reject"), np.column_stack([xk, lk]), consts,
+    graph.add_batch(stereo_kernel(False, "reject", False), np.column_stack([xk, lk]), consts,
                     None if sigma == 1.0 else np.broadcast_to(R, (F.shape[0], 3, 3)).copy(),
                     origin=(fac_p, f_lines.astype(np.int64)))
     if anchor_sigma is not None and first is not None:
