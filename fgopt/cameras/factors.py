@@ -52,19 +52,18 @@ CHEIRALITY = ("reject", "allow")
 _SOURCE = "hand-written in fgopt/cameras/_projection_kernels.py"
 
 
-def nonfinite_hint(reject: bool, lens: bool = True, settable: bool = True) -> str:
+def nonfinite_hint(reject: bool, lens: bool = True) -> str:
     """Why a projection kernel's residual is NaN, for the optimizer's error: ``reject`` its
-    cheirality policy, ``lens`` whether the model has a valid region (not stereo), ``settable``
-    whether the user chose the policy (a reader's graph: no)."""
+    cheirality policy, ``lens`` whether the model has a valid region (not stereo)."""
     region = " or is outside the lens model's valid region" if lens else ""
     if not reject:
         # cheirality='allow' leaves only depth exactly 0 undefined: suggesting it again is wrong
         return (f"a point has depth 0 in its camera (it lies on the plane through the camera "
                 f"centre, where even cheirality='allow' cannot project){region}; fix the "
                 "initial estimate")
-    fix = ", or use cheirality='allow'" if settable else ""
+    # worded for graphs a reader built too, where the policy is the reader's
     return (f"a point is at or behind its camera (cheirality){region}; fix the initial "
-            f"estimate{fix}")
+            "estimate (factors built with cheirality='allow' project such points too)")
 
 
 def _check_cheirality(cheirality: str) -> bool:
@@ -150,20 +149,12 @@ def camera_projection_kernel(model: type[Calibration], cheirality: str = "reject
                             mid, args[0], args[1], consts, reject, True))
 
 
-def stereo_kernel(calibration_variable: bool = False, cheirality: str = "reject",
-                  cheirality_settable: bool = True) -> FactorKernel:
-    """Kernel of ``(uL, uR, v)(pose, point, K) - m``: args ``(SE3, R^3[, Cal3_S2Stereo])``,
-    constants ``m (3)`` then, for a constant calibration, its 6 numbers.
-
-    ``cheirality_settable=False``: the kernel of a reader that fixes the policy, whose
-    non-finite error does not suggest changing it (a separate kernel object, same numbers)."""
-    # one cache key per kernel, however many arguments were spelled out
-    return _stereo_kernel(bool(calibration_variable), cheirality, bool(cheirality_settable))
-
-
 @lru_cache(maxsize=None)
-def _stereo_kernel(var: bool, cheirality: str, settable: bool) -> FactorKernel:
+def stereo_kernel(calibration_variable: bool = False, cheirality: str = "reject") -> FactorKernel:
+    """Kernel of ``(uL, uR, v)(pose, point, K) - m``: args ``(SE3, R^3[, Cal3_S2Stereo])``,
+    constants ``m (3)`` then, for a constant calibration, its 6 numbers."""
     reject = _check_cheirality(cheirality)
+    var = bool(calibration_variable)
     name = f"stereo{'_selfcal' if var else ''}{'' if reject else '_allow_behind'}"
     kinds = (SE3.batch_kind(), vector_kind(3)) + ((Cal3_S2Stereo.batch_kind(),) if var else ())
     widths = (7, 3, 6, 3) if var else (7, 3, 9)
@@ -187,8 +178,8 @@ def _stereo_kernel(var: bool, cheirality: str, settable: bool) -> FactorKernel:
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
                         source=_SOURCE,
-                        nonfinite_hint=nonfinite_hint(reject, lens=False, settable=settable),
-                        recipe=(stereo_kernel, (var, cheirality, settable)),
+                        nonfinite_hint=nonfinite_hint(reject, lens=False),
+                        recipe=(stereo_kernel, (var, cheirality)),
                         trusted_linearize=trusted)
 
 

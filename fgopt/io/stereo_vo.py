@@ -120,7 +120,7 @@ def read_stereo_vo(calibration: str | os.PathLike, poses: str | os.PathLike,
     graph = FactorGraph()
     consts = np.column_stack([F[:, 2:5], np.tile(K.to_storage(), (F.shape[0], 1))])
     R = np.eye(3) / float(sigma)
-    graph.add_batch(stereo_kernel(False, "reject", False), np.column_stack([xk, lk]), consts,
+    graph.add_batch(stereo_kernel(False, "reject"), np.column_stack([xk, lk]), consts,
                     None if sigma == 1.0 else np.broadcast_to(R, (F.shape[0], 3, 3)).copy(),
                     origin=(fac_p, f_lines.astype(np.int64)))
     if anchor_sigma is not None and first is not None:

@@ -138,7 +138,7 @@ def test_triangulate_names_parallel_rays_and_undistortion_failures():
 # ---------------------------------------------------------------- D: messages that apply
 def test_allow_factor_at_camera_centre_does_not_suggest_allow():
     """cheirality='allow' with a point exactly at depth 0: the optimizer's and cost's messages
-    say depth 0 and do not suggest cheirality='allow' again (the default policy still does)."""
+    say depth 0, not the 'reject' policy's "at or behind its camera" (which points to 'allow')."""
     f = ProjectionFactor(X(0), L(0), [300.0, 200.0], None, K, cheirality="allow")
     g = fgopt.FactorGraph()
     g.add(f)
@@ -146,10 +146,10 @@ def test_allow_factor_at_camera_centre_does_not_suggest_allow():
     v = Variables({X(0): SE3(), L(0): np.array([1.0, 0.0, 0.0])})
     with pytest.raises(NonFiniteError, match="depth 0") as e:
         fgopt.optimize(g, v)
-    assert "use cheirality='allow'" not in str(e.value)
+    assert "at or behind" not in str(e.value)  # the 'reject' policy's hint
     with pytest.raises(NonFiniteError, match="depth 0") as e:
         f.cost(v)
-    assert "use cheirality='allow'" not in str(e.value)
+    assert "at or behind" not in str(e.value)
 
 
 def test_lookat_non_finite_is_named():
@@ -252,14 +252,16 @@ def test_read_stereo_vo_validates_sigma(tmp_path):
     assert g2.error(v2) == pytest.approx(g1.error(v1) / 4, rel=1e-12)
 
 
-def test_read_stereo_vo_behind_camera_message_has_no_allow_hint(tmp_path):
+def test_read_stereo_vo_behind_camera_message_points_to_the_estimate(tmp_path):
     """A stereo-VO landmark behind a camera at the initial estimate: optimize names the factor's
-    file:line and does not suggest cheirality='allow', which read_stereo_vo cannot take."""
+    file:line and asks to fix the estimate; it gives no instruction to pass cheirality='allow',
+    which read_stereo_vo does not take."""
     facs = ("1 3 609.5593 590.0 172.854 0 0 -20\n2 3 609.5593 590.0 172.854 0 0 19\n")
     g, v, _ = _vo(tmp_path, facs=facs)
-    with pytest.raises(NonFiniteError, match=r"vo_facs.txt:1.*behind its camera") as e:
+    with pytest.raises(NonFiniteError, match=r"vo_facs.txt:1.*behind its camera.*fix the "
+                                             r"initial estimate") as e:
         fgopt.optimize(g, v)
-    assert "cheirality='allow'" not in str(e.value)
+    assert "use cheirality='allow'" not in str(e.value)
 
 
 # ---------------------------------------------------------------- E: no bare Python errors
