@@ -263,6 +263,15 @@ class Problem:
             with self.kernel_mode():
                 self._build_structure(ordering or "natural", linear_solver)
 
+    def ensure_structure(self, ordering: str | None = "amd", linear_solver: Any = None) -> Problem:
+        """Build the sparse structure (ordering, H's pattern, scatter maps) if this problem was
+        made without it (``build_structure=False``: the small-problem driver needs none);
+        returns self."""
+        if self.pattern is None:
+            with self.kernel_mode():
+                self._build_structure(ordering or "natural", linear_solver)
+        return self
+
     def choose_backend(self, backend: str = "auto") -> str:
         """``backend`` resolved: ``"auto"`` is ``"numpy"`` when numba is not loaded in the
         process yet, its twin budget is not spent (``fgopt._jit``), the problem's tangent

@@ -50,7 +50,7 @@ from ..symbolic.lie import LieGroupBase
 from ..symbolic.matrix import Matrix, Scalar
 from ..symbolic.ops import normalize_type, type_key
 from .base import KernelFactor
-from .kernel import FactorKernel, module_trusted_linearize
+from .kernel import CompiledCall, FactorKernel, module_trusted_linearize
 
 _MISSING = object()
 _NO_CONSTANTS = np.zeros(0)
@@ -411,4 +411,6 @@ def _kernel_from_module(module: Any, params: tuple, pattern: tuple, name: str,
                         clamp_arguments=getattr(module, "clamp_arguments", None),
                         numpy_twin=all(hasattr(module, a) for a in
                                        ("use_numpy", "_residual_numpy", "_linearize_numpy")),
-                        trusted_linearize=trusted)
+                        trusted_linearize=trusted,
+                        compiled_call=None if raw is None else CompiledCall(
+                            module.__name__, "_linearize_kernel", fills=True))

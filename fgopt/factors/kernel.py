@@ -33,6 +33,23 @@ ResidualFn = Callable[[tuple, np.ndarray], np.ndarray]
 LinearizeFn = Callable[[tuple, np.ndarray], "tuple[np.ndarray, np.ndarray]"]
 
 
+@dataclass(frozen=True)
+class CompiledCall:
+    """How generated numba code calls a kernel's linearization, as source text.
+
+    The driver imports ``function`` from the module named ``module`` (already in
+    ``sys.modules``: the kernel's own module) and calls
+    ``function(<prefix>a_0, ..., a_k, consts, res, jac)`` when ``fills`` (writing ``res (n, r)``
+    and ``jac (n, r, D)``), else ``res, jac = function(<prefix>a_0, ..., a_k, consts<suffix>)``.
+    """
+
+    module: str
+    function: str
+    prefix: str = ""
+    suffix: str = ""
+    fills: bool = False
+
+
 @dataclass(frozen=True, eq=False)
 class FactorKernel:
     """Batched residual / Jacobian evaluator of one factor type and variable pattern.
@@ -76,6 +93,10 @@ class FactorKernel:
     #: block-diagonal ``F`` under a rank-3 projection). Used for unit noise without a robust
     #: loss; the same sums as ``linearize`` + scatter, up to rounding. ``None``: the scatter.
     scatter_hessian: Callable | None = field(default=None, repr=False)
+    #: How compiled code calls this kernel's numba linearization (:class:`CompiledCall`): what
+    #: lets :mod:`fgopt.solvers.small` run a whole small problem in one compiled driver.
+    #: ``None``: the driver cannot call it (the problem takes the general path).
+    compiled_call: "CompiledCall | None" = field(default=None, repr=False)
 
     def __reduce__(self):
         if self.recipe is None:

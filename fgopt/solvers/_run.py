@@ -38,14 +38,28 @@ def _needs_numba(pattern: Any) -> bool:
     return is_ba_shaped(pattern)
 
 
+def compile_problem(graph: Any, initial: Variables, params: Any, linear_solver: Any,
+                    build_structure: bool = True) -> Problem:
+    """``graph`` compiled against ``initial`` for a user's solve (warns about unused keys)."""
+    if not isinstance(initial, Variables):
+        raise FgoptError(f"initial values must be fgopt.Variables, got {type(initial).__name__}")
+    problem = Problem(graph, initial, ordering=params.ordering,
+                      threads=getattr(params, "threads", 1),
+                      backend=getattr(params, "backend", "auto"), linear_solver=linear_solver,
+                      build_structure=build_structure)
+    warn_unused(problem.unused_keys)
+    return problem
+
+
 class Run:
     """One optimization: the compiled problem, linear solver, current iterate and history."""
 
     def __init__(self, graph: Any, initial: Variables | None, params: Any, method: str,
                  callback: Callback | None, linear_solver: Any = None,
                  problem: Problem | None = None, state: State | None = None,
-                 solver: Any = None):
-        """Compile ``graph`` against ``initial``, or continue on an already compiled ``problem``
+                 solver: Any = None, compiled: Problem | None = None):
+        """Compile ``graph`` against ``initial`` (or take ``compiled``, what
+        :func:`compile_problem` made of them), or continue on an already compiled ``problem``
         from ``state`` with an already analyzed ``solver`` (GNC re-solves this way)."""
         self.t0 = time.perf_counter()
         self.params = params
@@ -59,14 +73,10 @@ class Run:
         self._graph, self._initial = graph, initial
         self._may_switch = False
         if problem is None:
-            if not isinstance(initial, Variables):
-                raise FgoptError(
-                    f"initial values must be fgopt.Variables, got {type(initial).__name__}")
             backend = getattr(params, "backend", "auto")
-            problem = Problem(graph, initial, ordering=params.ordering,
-                              threads=getattr(params, "threads", 1), backend=backend,
-                              linear_solver=choice)
-            warn_unused(problem.unused_keys)
+            if compiled is None:
+                compiled = compile_problem(graph, initial, params, choice)
+            problem = compiled.ensure_structure(params.ordering, choice)
             if backend == "auto" and problem.backend == "numpy" and _needs_numba(problem.pattern):
                 problem.backend = "numba"  # BA-shaped: the Schur complement solver is numba's
             self._may_switch = backend == "auto" and problem.backend == "numpy"

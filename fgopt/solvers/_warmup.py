@@ -126,15 +126,17 @@ def _take_lock(path: Path) -> bool:
     return True
 
 
-def warm_in_background(graph: Any, initial: Any, problem: Any) -> subprocess.Popen | None:
+def warm_in_background(graph: Any, initial: Any, problem: Any,
+                       small: bool = False) -> subprocess.Popen | None:
     """Start a detached low-priority process that solves ``graph`` for one iteration on the
-    numba backend (compiling or loading every kernel, then writing ``problem``'s marker);
+    numba backend (compiling or loading every kernel, then writing ``problem``'s marker; with
+    ``small``, compiling the small-problem driver of its kernels: :mod:`fgopt.solvers.small`);
     ``None`` when disabled (``FGOPT_BACKGROUND_WARMUP=0``), when another process is warming the
     same kernels (a ``.lock`` beside the marker), or when the graph cannot be pickled."""
     if os.environ.get("FGOPT_BACKGROUND_WARMUP", "1") == "0":
         return None
     try:
-        lock = marker(problem).with_suffix(".lock")
+        lock = marker(problem).with_suffix(".small.lock" if small else ".lock")
     except Exception:  # noqa: BLE001 - an unusable cache root
         return None
     if not _take_lock(lock):
@@ -147,6 +149,8 @@ def warm_in_background(graph: Any, initial: Any, problem: Any) -> subprocess.Pop
         lock.unlink(missing_ok=True)
         return None
     env = dict(os.environ)
+    if small:
+        env["FGOPT_SMALL_COMPILE"] = "1"
     pkg_parent = str(Path(__file__).resolve().parents[2])
     env["PYTHONPATH"] = pkg_parent + os.pathsep + env.get("PYTHONPATH", "")
     return subprocess.Popen([sys.executable, "-m", "fgopt.solvers._warmup", path, str(lock)],

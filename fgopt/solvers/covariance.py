@@ -50,6 +50,7 @@ def marginals(result: Any, keys: Iterable[int] | None = None, graph: Any = None,
 
         problem = Problem(graph, values)
         state = problem.initial_state()
+    problem.ensure_structure()  # a small problem's driver solved it without one
     problem.set_weights(None)
     problem.linearize(state)
     key_list = [as_key(k) for k in keys] if keys is not None else [

@@ -14,6 +14,7 @@ Damping changes only H's diagonal, so the linear solver's analysis is reused.
 from __future__ import annotations
 
 import math
+import time
 from typing import Any
 
 import numpy as np
@@ -21,7 +22,8 @@ import numpy as np
 from ..errors import NotPositiveDefiniteError
 from ..manifolds.base import is_vector_kind
 from ..variables import Variables
-from ._run import Callback, Run
+from . import small
+from ._run import Callback, Run, compile_problem
 from .params import LMParams
 from .result import Result, Status
 
@@ -84,7 +86,18 @@ class LevenbergMarquardt:
         self.linear_solver = linear_solver
 
     def optimize(self, graph: Any, initial: Variables, callback: Callback | None = None) -> Result:
-        return self.iterate(Run(graph, initial, self.params, "lm", callback, self.linear_solver))
+        t0 = time.perf_counter()
+        choice = self.linear_solver if self.linear_solver is not None else self.params.linear_solver
+        problem = compile_problem(graph, initial, self.params, choice, build_structure=False)
+        if callback is None and self.linear_solver is None and small.qualifies(problem,
+                                                                               self.params):
+            # a small problem in one compiled call (same iteration, dense; None: the initial
+            # linearization is not finite, and the general path names the factor)
+            result = small.optimize_small(problem, self.params, t0, graph, initial)
+            if result is not None:
+                return result
+        return self.iterate(Run(graph, initial, self.params, "lm", callback, self.linear_solver,
+                                compiled=problem))
 
     def optimize_problem(self, problem: Any, state: Any = None, solver: Any = None,
                          callback: Callback | None = None) -> Result:

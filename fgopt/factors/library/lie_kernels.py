@@ -37,7 +37,7 @@ from ...manifolds._kernels import (
 )
 from ...manifolds.base import SCALAR_KIND, BatchKind, vector_kind
 from ...manifolds.lie import group_id
-from ..kernel import FactorKernel
+from ..kernel import CompiledCall, FactorKernel
 
 _SOURCE = "hand-written in fgopt/factors/library/lie_kernels.py"
 
@@ -166,6 +166,7 @@ def between_kernel(kind: BatchKind) -> FactorKernel:
 
         def trusted(args, consts):
             return lie_between_batch(gid, args[0], args[1], consts, True)
+        call = CompiledCall(__name__, "lie_between_batch", prefix=f"{gid}, ", suffix=", True")
     elif _is_vector_kind(kind):
         def run(args, consts, with_jac):
             (a, b), c = _prepared(name, kind, 2, args, consts)
@@ -173,13 +174,14 @@ def between_kernel(kind: BatchKind) -> FactorKernel:
 
         def trusted(args, consts):
             return vector_between_batch(args[0], args[1], consts, True)
+        call = CompiledCall(__name__, "vector_between_batch", suffix=", True")
     else:
         raise _unsupported("between_kernel", kind)
     return FactorKernel(name, (kind, kind), kind.dim, kind.storage_dim,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
                         source=_SOURCE, recipe=(between_kernel, (kind,)),
-                        trusted_linearize=trusted)
+                        trusted_linearize=trusted, compiled_call=call)
 
 
 @cache
@@ -194,6 +196,7 @@ def prior_kernel(kind: BatchKind) -> FactorKernel:
 
         def trusted(args, consts):
             return lie_prior_batch(gid, args[0], consts, True)
+        call = CompiledCall(__name__, "lie_prior_batch", prefix=f"{gid}, ", suffix=", True")
     elif _is_vector_kind(kind):
         def run(args, consts, with_jac):
             (x,), c = _prepared(name, kind, 1, args, consts)
@@ -201,10 +204,11 @@ def prior_kernel(kind: BatchKind) -> FactorKernel:
 
         def trusted(args, consts):
             return vector_prior_batch(args[0], consts, True)
+        call = CompiledCall(__name__, "vector_prior_batch", suffix=", True")
     else:
         raise _unsupported("prior_kernel", kind)
     return FactorKernel(name, (kind,), kind.dim, kind.storage_dim,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
                         source=_SOURCE, recipe=(prior_kernel, (kind,)),
-                        trusted_linearize=trusted)
+                        trusted_linearize=trusted, compiled_call=call)

@@ -29,7 +29,7 @@ from typing import Any
 from ...symbolic.cse import Program, optimize, prune, total_ops
 
 #: Bumped when the emitted source changes meaning (part of the cache key).
-FIXED_CODEGEN_VERSION = "5"
+FIXED_CODEGEN_VERSION = "6"
 
 
 @dataclass(frozen=True)
@@ -206,7 +206,7 @@ def _index_of(sym: Any) -> int:
     return int(sym.name[1:])
 
 
-_LM_TEMPLATE = '''
+_FIXED_PROLOGUE = '''
 @numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
 def _precompute(_c, _w, _aux):
     """Iteration-independent terms (constants, whitening) -> _aux."""
@@ -214,10 +214,14 @@ def _precompute(_c, _w, _aux):
 
 
 @numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
-def _retract(_x, _d, _out, _tmp):
+def _retract(_x, _d, _out, _tmp, _aux):
 {retract}
+'''
 
-
+#: The dense LM of a generated module, around its ``_lin(x, aux, H, g) -> cost`` and
+#: ``_retract(x, delta, out, tmp, aux)``; ``{n}`` is the tangent dimension's expression. Shared
+#: by the fixed formulation and :mod:`fgopt.solvers.small` (one driver per set of kernels).
+LM_TEMPLATE = '''
 # reassociation lets LLVM vectorize the dot products (33 unknowns: 4.1 -> 2.9 us, 72: 34 -> 14
 # us); the order of a sum's terms is all it changes, the same on every call
 @numba.njit(cache=True, fastmath={"reassoc", "contract"}, error_model="numpy", nogil=True)
@@ -321,7 +325,7 @@ def _lm(x0, aux, prm, hist, H, g):
     lam, min_lam, max_lam = prm[5], prm[6], prm[7]
     min_diag, max_diag, min_dec = prm[8], prm[9], prm[10]
     identity, by_factor, lam_factor = prm[11] > 0.5, prm[12] > 0.5, prm[13]
-    n = N
+    n = {n}
     x = x0.copy()
     xc = x0.copy()
     Hc = np.zeros((n, n))
@@ -425,7 +429,7 @@ def _lm(x0, aux, prm, hist, H, g):
             gd += g[i] * delta[i]
         step_norm = math.sqrt(sn)
         predicted = 0.5 * (pred - gd)
-        _retract(x, delta, xc, tmp)
+        _retract(x, delta, xc, tmp, aux)
 '''
 
 
@@ -552,6 +556,7 @@ def module_source(variables: list, prog: Program, const_syms: set, header: dict)
         '_lin = make_intrinsic(_LIN_CODE, 4, "fixed_linearize")',
         "",
     ]
-    src = "\n".join(head) + "\n" + _LM_TEMPLATE.replace("{retract}", _retract_source(variables)) \
-        + "\n\n" + "\n".join(py) + "\n"
+    src = ("\n".join(head) + "\n"
+           + _FIXED_PROLOGUE.replace("{retract}", _retract_source(variables)) + "\n"
+           + LM_TEMPLATE.replace("{n}", "N") + "\n\n" + "\n".join(py) + "\n")
     return src, meta

@@ -1,0 +1,277 @@
+"""Small problems in one compiled call: a dense LM driver per set of kernels.
+
+On a problem of a few dozen variables the general path's fixed costs dominate: dozens of
+NumPy calls of 1-5 us to set up the sparse structure and ordering, the solver's analysis, and
+per iteration the Python around kernels that take a few microseconds (a 2-pose graph took
+0.69 ms where GTSAM takes 0.075). :func:`optimize_small` skips all of it for problems of
+tangent dimension at most :data:`SMALL_MAX_SIZE` whose kernels have a
+:class:`~fgopt.factors.kernel.CompiledCall`: one generated driver per *set of kernels* (not per
+structure, unlike :mod:`fgopt.solvers.fixed`) takes the problem's layout as arrays, linearizes
+every batch with the kernels' own numba functions into a dense H and runs
+:class:`~fgopt.solvers.lm.LevenbergMarquardt`'s iteration (same damping, gain ratio, lambda
+rules and stopping tests, from the same :func:`~fgopt.solvers.lm.auto_policy`) with a dense
+Cholesky. Its result is the general path's up to rounding; iteration records carry no wall time
+(``IterationRecord.time`` is NaN: the loop runs compiled).
+
+``LevenbergMarquardt.optimize`` takes this path by itself when the problem qualifies and the
+run needs nothing only the general path gives (a callback, ``verbose``, a chosen
+``linear_solver``, robust losses, Python factors or manifolds, the NumPy backend of a process
+that has not loaded numba). A driver is generated and compiled the first time its set of kernels
+is seen on a machine (a few seconds), then loaded from fgopt's cache.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..._jit import numpy_budget_left
+from ...manifolds.base import is_vector_kind
+from ...manifolds.lie import group_id
+from ...problem import State
+from ..diagnostics import clamp_hits, warn_clamps
+from ..result import IterationRecord, Result, Status, stall_status
+from . import _driver
+
+#: Largest tangent dimension solved densely: dense Cholesky costs N^3 / 6 per iteration, the
+#: general path's sparse one far less on a sparse graph (measured: see benchmarks/small_graphs).
+SMALL_MAX_SIZE = 60
+
+#: Counters (tests): drivers ``generated`` (source written and compiled) or ``loaded``.
+STATS = {"generated": 0, "loaded": 0, "solves": 0}
+
+
+def qualifies(problem: Any, params: Any) -> bool:
+    """Whether :func:`optimize_small` can solve ``problem`` under LM ``params``."""
+    if problem.backend != "numba" or (numpy_budget_left() and params.backend != "numba"):
+        return False  # a process still on NumPy twins for small batches (fgopt._jit)
+    if (problem._slow or len(problem._slow_vars)
+            or getattr(params, "verbose", False) or params.linear_solver != "auto"
+            or problem.size > SMALL_MAX_SIZE or problem.threads != 1):
+        return False
+    for b in problem.batches:
+        if b.kernel.compiled_call is None or b.source.loss_code != 0:
+            return False
+    return all(group_id(k) is not None or is_vector_kind(k) for k in problem.kinds)
+
+
+#: Compile a kernel set's driver in this process when fgopt's cache does not hold it yet (a few
+#: seconds per set of kernels). Off by default: a cold driver means the general path for now and
+#: a background process (:func:`fgopt.solvers._warmup.warm_in_background`) that compiles it for
+#: later solves; on in that process (and with ``FGOPT_SMALL_COMPILE=1``).
+COMPILE_IN_FOREGROUND = os.environ.get("FGOPT_SMALL_COMPILE", "0") == "1"
+
+
+class _Plan:
+    """What a set of kernels needs, found once per process: its driver, the slot of each kernel
+    (by signature, so one driver serves any order of batches) and their argument tables."""
+
+    def __init__(self, kernels: list):
+        self.kernels = kernels  # kept: the plan is found by their ids
+        sigs = [_driver.signature(k) for k in kernels]
+        order = sorted(range(len(kernels)), key=lambda j: repr(sigs[j]))
+        self.slot_of = {id(kernels[j]): s for s, j in enumerate(order)}
+        self.signatures = tuple(sigs[j] for j in order)
+        self.names = tuple(kernels[j].name for j in order)
+        self.tables = [(np.array([a.dim for a in kernels[j].arg_kinds], dtype=np.int64),
+                        np.array(kernels[j].arg_offsets, dtype=np.int64)) for j in order]
+        self.key = _driver.module_key(self.signatures)
+        self.name = f"small_{len(sigs)}k"
+        self.module: Any = None
+        self.compiled = False  # machine code known to be in numba's cache (the marker exists)
+        self.warming = False
+
+    def marker(self) -> Path:
+        from ...symbolic import cache as _cache
+
+        return _cache.module_path(self.name, self.key).with_suffix(".ready")
+
+    def ready(self) -> bool:
+        """Whether the driver can run now without compiling (else, with
+        :data:`COMPILE_IN_FOREGROUND`, it is made here)."""
+        if self.module is not None and (self.compiled or COMPILE_IN_FOREGROUND):
+            return True
+        from ...symbolic import cache as _cache
+
+        try:
+            self.compiled = self.compiled or self.marker().exists()
+        except OSError:
+            return False
+        if not (self.compiled or COMPILE_IN_FOREGROUND):
+            return False
+        m = _cache.load(self.name, self.key, required=_driver.REQUIRED)
+        if m is not None:
+            STATS["loaded"] += 1
+        elif COMPILE_IN_FOREGROUND:
+            m = _cache.store(self.name, self.key,
+                             _driver.module_source(self.signatures, self.names))
+            STATS["generated"] += 1
+        else:
+            return False
+        self.module = m
+        return True
+
+    def mark_compiled(self) -> None:
+        if not self.compiled:
+            try:
+                self.marker().touch()
+            except OSError:
+                pass
+            self.compiled = True
+
+
+_PLANS: dict[tuple, _Plan] = {}
+
+
+def _plan(problem: Any) -> _Plan:
+    kernels = list({id(b.kernel): b.kernel for b in problem.batches}.values())
+    ids = tuple(sorted(id(k) for k in kernels))  # any order of batches: one plan
+    plan = _PLANS.get(ids)
+    if plan is None:
+        plan = _PLANS[ids] = _Plan(kernels)
+    return plan
+
+
+def _inputs(problem: Any, plan: _Plan) -> tuple:
+    """The driver's ``aux``: the problem's batches as one slot per kernel, and the layout."""
+    sdim = np.array([k.storage_dim for k in problem.kinds], dtype=np.int64)
+    sizes = [s.size for s in problem._initial_storages]
+    base = np.array([0] + sizes[:-1], dtype=np.int64).cumsum()
+    kind = problem.var_kind
+    var_soff = base[kind] + problem.var_row * sdim[kind]
+    var_toff = problem.var_dim.cumsum() - problem.var_dim
+    per_slot: list[list] = [[] for _ in plan.tables]
+    for b in problem.batches:
+        per_slot[plan.slot_of[id(b.kernel)]].append(b)
+    slots = []
+    for (dims, offs), bs in zip(plan.tables, per_slot):
+        if len(bs) == 1:
+            b = bs[0]
+            var_idx, consts = b.var_idx, b.source.constants
+            R = b.sqrt_info if not b.unit else _NO_R[b.kernel.residual_dim]
+        else:  # one kernel in several batches (a reader's and factors added one by one)
+            var_idx = np.concatenate([b.var_idx for b in bs])
+            consts = np.concatenate([b.source.constants for b in bs])
+            r = bs[0].kernel.residual_dim
+            R = (_NO_R[r] if all(b.unit for b in bs) else np.concatenate(
+                [np.broadcast_to(b.sqrt_info, (len(b.source), r, r)) for b in bs]))
+        slots.append((var_soff[var_idx], var_toff[var_idx], consts, R, dims, offs))
+    layout = np.empty((problem.num_variables, 5), dtype=np.int64)
+    layout[:, 0] = var_soff
+    layout[:, 1] = var_toff
+    layout[:, 2] = _group_ids(problem.kinds)[kind]
+    layout[:, 3] = sdim[kind]
+    layout[:, 4] = problem.var_dim
+    return tuple(slots), layout
+
+
+def _group_ids(kinds: list) -> np.ndarray:
+    return np.array([-1 if group_id(k) is None else group_id(k) for k in kinds], dtype=np.int64)
+
+
+class _NoR(dict):
+    """``(0, r, r)`` arrays: the driver's "unit noise" square-root information."""
+
+    def __missing__(self, r: int) -> np.ndarray:
+        self[r] = np.zeros((0, r, r))
+        return self[r]
+
+
+_NO_R = _NoR()
+
+
+_MESSAGES = {
+    1: lambda v, p, rel: f"gradient norm {v:.3g} <= {p.gradient_tolerance:g}",
+    2: lambda v, p, rel: f"absolute cost decrease {v:.3g} < {p.absolute_tolerance:g}",
+    3: lambda v, p, rel: f"relative cost decrease {v:.3g} < {rel:g}",
+    4: lambda v, p, rel: f"step norm {v:.3g} below step_tolerance",
+    5: lambda v, p, rel: ("damping exceeded max_lambda: the linear system stays singular (is a "
+                          "variable unconstrained?)"),
+    6: lambda v, p, rel: "no step decreases the cost (damping exceeded max_lambda)",
+    7: lambda v, p, rel: f"reached max_iterations={p.max_iterations}",
+}
+
+
+def optimize_small(problem: Any, params: Any, t0: float, graph: Any = None,
+                   initial: Any = None) -> Result | None:
+    """LM on ``problem`` (a :class:`~fgopt.problem.Problem`, structure not needed) in one call of
+    its kernel set's driver. ``None``: the driver is not compiled yet (a background process
+    compiles it from ``graph`` and ``initial``), or the initial linearization is not finite
+    (the general path then names the factor). ``t0``: when the solve started
+    (``perf_counter``)."""
+    from ..lm import auto_policy, problem_class_for
+
+    p = params
+    plan = _plan(problem)
+    if not plan.ready():
+        if not plan.warming and graph is not None:
+            from .. import _warmup
+
+            plan.warming = True  # once per process and set of kernels
+            _warmup.warm_in_background(graph, initial, problem, small=True)
+        return None
+    aux = _inputs(problem, plan)
+    identity, by_factor = auto_policy(
+        problem_class_for(problem.kinds, False, lambda: problem.ensure_structure().pattern), p)
+    rel_tol = p.relative_tolerance if p.relative_tolerance is not None else (
+        1e-5 if identity else 1e-6)
+    lam0 = p.initial_lambda if p.initial_lambda is not None else (1e-5 if identity else 1e-4)
+    prm = np.array([p.max_iterations, rel_tol, p.absolute_tolerance, p.gradient_tolerance,
+                    p.step_tolerance, lam0, p.min_lambda, p.max_lambda, p.min_diagonal,
+                    p.max_diagonal, p.min_relative_decrease, float(identity), float(by_factor),
+                    p.lambda_factor])
+    storages = problem._initial_storages
+    x0 = np.concatenate([s.reshape(-1) for s in storages]) if len(storages) > 1 else \
+        storages[0].reshape(-1).copy()
+    n = problem.size
+    hist = np.empty((max(p.max_iterations, 1), 8))
+    H = np.empty((n, n))
+    g = np.empty(n)
+    t1 = time.perf_counter()
+    x, status, msg, val, its, cost, init = plan.module._lm(x0, aux, prm, hist, H, g)
+    t2 = time.perf_counter()
+    plan.mark_compiled()
+    if status == -1:
+        return None
+    STATS["solves"] += 1
+    nan = math.nan
+    records = [IterationRecord(i, h[0], h[1], h[2], h[3], h[4], h[5], h[6] > 0.5, nan)
+               for i, h in enumerate(hist[:its].tolist(), 1)]
+    since, gain = None, 0.0  # the trailing run of rejected steps, as Run tracks it
+    for i in range(its - 1, -1, -1):
+        if hist[i, 6] > 0.5:
+            break
+        since = i + 1
+        gi = float(hist[i, 7]) if math.isfinite(hist[i, 1]) else math.inf
+        gain = max(gain, gi if gi == gi else math.inf)
+    st = {0: Status.CONVERGED, 1: Status.MAX_ITERATIONS, 2: Status.FAILED}[int(status)]
+    st, message = stall_status(st, _MESSAGES[int(msg)](float(val), p, rel_tol), float(cost),
+                               since, gain)
+    state = State(_split(x, storages), {})
+    clamps, num_clamped = clamp_hits(problem, state)
+    warn_clamps(clamps, num_clamped)
+    total = time.perf_counter() - t0
+    timing = {"setup": t1 - t0, "lm": t2 - t1, "total": total}
+    result = Result(None, status=st, message=message, iterations=len(records),
+                    initial_cost=float(init), final_cost=float(cost),
+                    cost_history=[float(init)] + [r.cost for r in records if r.accepted],
+                    iteration_records=records, timing=timing, method="lm",
+                    linear_solver="dense cholesky (small-problem driver)", problem=problem,
+                    state=state, unused_keys=tuple(problem.unused_keys), clamps=tuple(clamps),
+                    num_clamped=num_clamped)
+    result.info["backend"] = "numba"
+    return result
+
+
+def _split(x: np.ndarray, storages: list) -> list[np.ndarray]:
+    """``x`` cut into per-kind storage arrays shaped as ``storages``."""
+    out, o = [], 0
+    for s in storages:
+        out.append(x[o:o + s.size].reshape(s.shape))
+        o += s.size
+    return out

@@ -1,0 +1,210 @@
+"""The small-problem driver (fgopt.solvers.small) against the general LM path.
+
+Every test solves with ``backend="numba"`` (the driver's condition) and compares with the same
+solve forced onto the general path (``SMALL_MAX_SIZE = -1``): same iterations, statuses,
+messages and costs, values equal to rounding.
+"""
+
+import pickle
+
+import numpy as np
+import pytest
+
+import fgopt
+from fgopt import SE2, SE3, SO3, BetweenFactor, FactorGraph, PriorFactor, Variables, key
+from fgopt.errors import NonFiniteError
+from fgopt.solvers import LevenbergMarquardt, LMParams, small
+from fgopt.solvers.small import _driver
+
+DRIVER = "dense cholesky (small-problem driver)"
+
+
+@pytest.fixture(autouse=True)
+def compile_drivers(monkeypatch):
+    """Drivers compile in the test process (by default a cold one goes to a background process)."""
+    monkeypatch.setattr(small, "COMPILE_IN_FOREGROUND", True)
+
+
+def solve(graph, init, general=False, monkeypatch=None, **options):
+    params = LMParams(backend="numba", **options)
+    if general:
+        with pytest.MonkeyPatch.context() as mp:
+            mp.setattr(small, "SMALL_MAX_SIZE", -1)
+            r = LevenbergMarquardt(params).optimize(graph, init)
+        assert r.linear_solver != DRIVER
+        return r
+    return LevenbergMarquardt(params).optimize(graph, init)
+
+
+def storage(values):
+    out = {}
+    for k in values.keys():
+        x = values.at(k)
+        out[int(k)] = np.asarray(x.to_storage() if hasattr(x, "to_storage") else x, dtype=float)
+    return out
+
+
+def assert_same(a, b, rtol=1e-9, atol=1e-8):
+    """``a`` (driver) and ``b`` (general path) took the same iterations to the same point."""
+    assert a.linear_solver == DRIVER
+    assert (a.status, a.message, a.iterations) == (b.status, b.message, b.iterations)
+    assert [r.accepted for r in a.iteration_records] == [r.accepted for r in b.iteration_records]
+    np.testing.assert_allclose(a.cost_history, b.cost_history, rtol=rtol,
+                               atol=1e-12 * b.initial_cost)
+    np.testing.assert_allclose([r.lam for r in a.iteration_records],
+                               [r.lam for r in b.iteration_records], rtol=1e-12)
+    sa, sb = storage(a.values), storage(b.values)
+    assert sa.keys() == sb.keys()
+    for k in sa:
+        np.testing.assert_allclose(sa[k], sb[k], atol=atol)
+
+
+def mixed_graph(seed=0, n=4):
+    """SE3 poses with priors and odometry (full / diagonal / unit noise), an SO3 chain and an R3
+    chain: several kernels, storage layouts and noise forms in one problem."""
+    rng = np.random.default_rng(seed)
+    graph, init = FactorGraph(), Variables()
+    full = np.linalg.cholesky(np.cov(rng.normal(size=(6, 40))))
+    for i in range(n):
+        init.add(key("x", i), SE3.exp(rng.normal(size=6) * 0.3))
+        init.add(key("r", i), SO3.exp(rng.normal(size=3)))
+        init.add(key("v", i), rng.normal(size=3))
+    graph.add(PriorFactor(key("x", 0), SE3(), fgopt.noise.Isotropic.sigma(6, 0.01)))
+    graph.add(PriorFactor(key("r", 0), SO3()))
+    graph.add(PriorFactor(key("v", 0), np.zeros(3), fgopt.noise.Diagonal.sigmas([1, 2, 3.0])))
+    for i in range(n - 1):
+        step = SE3.exp(np.array([0.1, 0.0, 0.05, 1.0, 0.2, 0.0]) + 0.05 * rng.normal(size=6))
+        noise = (fgopt.noise.Gaussian.from_covariance(full @ full.T) if i % 2 else
+                 fgopt.noise.Diagonal.sigmas([0.1, 0.1, 0.1, 0.3, 0.3, 0.3]))
+        graph.add(BetweenFactor(key("x", i), key("x", i + 1), step, noise))
+        graph.add(BetweenFactor(key("r", i), key("r", i + 1), SO3.exp(rng.normal(size=3) * 0.2)))
+        graph.add(BetweenFactor(key("v", i), key("v", i + 1), rng.normal(size=3)))
+    return graph, init
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_same_iterations_as_the_general_path(seed):
+    graph, init = mixed_graph(seed)
+    before = storage(init)
+    a = solve(graph, init)
+    b = solve(graph, init, general=True)
+    assert_same(a, b)
+    assert a.final_cost < a.initial_cost
+    after = storage(init)
+    assert all(np.array_equal(before[k], after[k]) for k in before)  # caller's values untouched
+
+
+@pytest.mark.parametrize("name", ["small/pose2example.txt", "small/noisyToyGraph.txt",
+                                  "small/Klaus3.g2o", "small/pose3example.txt",
+                                  "small/pose3Localizationexample.txt", "small/toyExample.g2o",
+                                  "small/tinyGrid3D.g2o"])
+def test_shared_tiny_files_match_the_general_path(data_file, name):
+    """GTSAM's tiny example files (read as batches, one block of storage rows): 5 LM iterations
+    with every stopping test off, then to convergence with the defaults."""
+    graph, init = fgopt.io.read(str(data_file(name)), add_prior=True)
+    off = dict(max_iterations=5, relative_tolerance=0.0, absolute_tolerance=0.0,
+               gradient_tolerance=0.0, step_tolerance=0.0)
+    assert_same(solve(graph, init, **off), solve(graph, init, general=True, **off))
+    assert_same(solve(graph, init), solve(graph, init, general=True))
+
+
+def test_one_kernel_in_a_batch_and_in_single_factors(data_file):
+    """A reader's batch and factors of the same kernel added one by one share a driver slot."""
+    graph, init = fgopt.io.read(str(data_file("small/pose2example.txt")), add_prior=True)
+    keys = sorted(int(k) for k in init.keys())
+    graph.add(BetweenFactor(keys[0], keys[5], SE2.from_xytheta(4.0, 0.1, 0.2),
+                            fgopt.noise.Diagonal.sigmas([0.3, 0.3, 0.1])))
+    assert_same(solve(graph, init), solve(graph, init, general=True))
+
+
+def test_one_driver_per_kernel_set_whatever_the_structure():
+    """Graphs of other sizes, and the same factors added in another order, reuse the driver."""
+    graph, init = mixed_graph(0, n=4)
+    solve(graph, init)
+    made = dict(small.STATS)
+    for n in (2, 3, 5):
+        g2, i2 = mixed_graph(1, n=n)
+        solve(g2, i2)
+        reordered = FactorGraph(list(reversed(g2.factors)))
+        assert_same(solve(reordered, i2), solve(reordered, i2, general=True))
+    assert small.STATS["generated"] == made["generated"]
+    assert small.STATS["loaded"] == made["loaded"]
+    assert small.STATS["solves"] == made["solves"] + 6
+
+
+def test_what_the_driver_does_not_take_goes_the_general_way():
+    graph, init = mixed_graph(0, n=3)
+    robust = FactorGraph(list(graph.factors))
+    robust.add(PriorFactor(key("v", 1), np.ones(3), fgopt.noise.Huber(1.0, fgopt.noise.Unit(3))))
+    seen = []
+    cases = {
+        "robust loss": (robust, init, LMParams(backend="numba")),
+        "verbose": (graph, init, LMParams(backend="numba", verbose=True)),
+        "chosen linear solver": (graph, init, LMParams(backend="numba", linear_solver="ldlt")),
+        "numpy backend": (graph, init, LMParams(backend="numpy")),
+    }
+    for why, (g, i, p) in cases.items():
+        r = LevenbergMarquardt(p).optimize(g, i)
+        assert r.linear_solver != DRIVER, why
+    r = LevenbergMarquardt(LMParams(backend="numba")).optimize(graph, init, callback=seen.append)
+    assert r.linear_solver != DRIVER and len(seen) == r.iterations
+    big_graph, big_init = mixed_graph(0, n=small.SMALL_MAX_SIZE // 12 + 1)
+    assert solve(big_graph, big_init).linear_solver != DRIVER
+
+
+def test_nonfinite_start_names_the_factor():
+    """The driver reports a non-finite start; the general path then raises naming the factor."""
+    graph, init = mixed_graph(0, n=3)
+    bad = Variables()
+    for k in init.keys():
+        bad.add(k, init.at(k))
+    bad.update(key("v", 2), np.array([np.inf, 0.0, 0.0]))
+    with pytest.raises(NonFiniteError, match="v2"):
+        solve(graph, bad)
+
+
+def test_result_supports_marginals_and_pickling():
+    graph, init = mixed_graph(0, n=3)
+    a = solve(graph, init)
+    b = solve(graph, init, general=True)
+    ma = fgopt.marginals(a, keys=[key("x", 2), key("v", 1)])
+    mb = fgopt.marginals(b, keys=[key("x", 2), key("v", 1)])
+    for k in ma:
+        np.testing.assert_allclose(ma[k], mb[k], rtol=1e-6, atol=1e-12)
+    back = pickle.loads(pickle.dumps(a))
+    sa, sb = storage(back.values), storage(a.values)
+    assert all(np.array_equal(sa[k], sb[k]) for k in sa)
+
+
+def test_a_cold_driver_is_compiled_in_the_background(monkeypatch, tmp_path):
+    """Without foreground compilation a kernel set not yet compiled takes the general path and
+    starts one background compilation (once per process); its marker then enables the driver."""
+    from fgopt.solvers import _warmup
+
+    monkeypatch.setattr(small, "COMPILE_IN_FOREGROUND", False)
+    monkeypatch.setattr(small, "_PLANS", {})
+    started = []
+    monkeypatch.setattr(_warmup, "warm_in_background",
+                        lambda graph, initial, problem, small=False: started.append(small))
+    graph, init = mixed_graph(3, n=2)
+    problem = fgopt.Problem(graph, init, backend="numba", build_structure=False)
+    small._plan(problem).marker().unlink(missing_ok=True)
+    assert solve(graph, init).linear_solver != DRIVER
+    assert solve(graph, init).linear_solver != DRIVER
+    assert started == [True]
+    monkeypatch.setattr(small, "COMPILE_IN_FOREGROUND", True)
+    assert solve(graph, init).linear_solver == DRIVER  # compiles, then marks it compiled
+    monkeypatch.setattr(small, "COMPILE_IN_FOREGROUND", False)
+    monkeypatch.setattr(small, "_PLANS", {})  # a new process: the marker says it is compiled
+    assert solve(graph, init).linear_solver == DRIVER
+
+
+def test_driver_source_names_its_kernels():
+    graph, init = mixed_graph(0, n=3)
+    problem = fgopt.Problem(graph, init, backend="numba", build_structure=False)
+    plan = small._plan(problem)
+    assert plan.ready()
+    names = plan.module.KERNELS
+    assert sorted(names) == sorted({b.kernel.name for b in problem.batches})
+    sigs = tuple(_driver.signature(b.kernel) for b in problem.batches)
+    assert _driver.module_key(sigs) != _driver.module_key(tuple(reversed(sigs)))
