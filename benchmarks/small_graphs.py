@@ -31,6 +31,9 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_
 # this after 0.5 s of NumPy-twin work, see fgopt/_jit.py); without it the first small graphs of
 # the run would be timed on the twins while the budget lasts.
 os.environ.setdefault("FGOPT_NUMPY_BUDGET", "0")
+# ... and the small-problem drivers (fgopt.solvers.small) compiled by the warm-up solve, not in a
+# background process while the timed solves run
+os.environ.setdefault("FGOPT_SMALL_COMPILE", "1")
 
 import argparse  # noqa: E402
 import datetime as dt  # noqa: E402

@@ -96,7 +96,7 @@ class FactorKernel:
     #: How compiled code calls this kernel's numba linearization (:class:`CompiledCall`): what
     #: lets :mod:`fgopt.solvers.small` run a whole small problem in one compiled driver.
     #: ``None``: the driver cannot call it (the problem takes the general path).
-    compiled_call: "CompiledCall | None" = field(default=None, repr=False)
+    compiled_call: CompiledCall | None = field(default=None, repr=False)
 
     def __reduce__(self):
         if self.recipe is None:

@@ -27,7 +27,6 @@ from ._run import Callback, Run, compile_problem
 from .params import LMParams
 from .result import Result, Status
 
-
 PROBLEM_CLASSES = ("pose", "mixed", "scaled")
 
 
