@@ -17,7 +17,8 @@ Cholesky. Its result is the general path's up to rounding; iteration records car
 run needs nothing only the general path gives (a callback, ``verbose``, a chosen
 ``linear_solver``, robust losses, Python factors or manifolds, the NumPy backend of a process
 that has not loaded numba). A driver is generated and compiled the first time its set of kernels
-is seen on a machine (a few seconds), then loaded from fgopt's cache.
+is seen on a machine (14-16 s measured), in a background process while that solve takes the
+general path (:data:`COMPILE_IN_FOREGROUND`), then loaded from fgopt's cache.
 """
 
 from __future__ import annotations
