@@ -38,6 +38,9 @@ for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_
 # Warm-process figures: small batches on the compiled kernels from the first timed call (a
 # process reaches this after 0.5 s of NumPy-twin work; see fgopt/_jit.py).
 os.environ.setdefault("FGOPT_NUMPY_BUDGET", "0")
+# ... and the small-problem drivers (fgopt.solvers.small: the smart SFM scene) compiled by the
+# warm-up solve, not in a background process while the timed solves run
+os.environ.setdefault("FGOPT_SMALL_COMPILE", "1")
 
 import argparse
 import json

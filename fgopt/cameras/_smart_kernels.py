@@ -213,6 +213,66 @@ def _landmark_r(E, m, R):
 
 
 @njit(cache=True)
+def _track_schur(model, storage, rows, i, consts, m, s, refine, ws):
+    """Track ``i``'s triangulated system and landmark elimination into the workspace ``ws`` of
+    :func:`_schur_workspace`: ``b``, ``F`` (:func:`_track_system`), ``V_j = F_j^T E_j R^-1``
+    and ``y = R^-T E^T b`` with ``R^T R = E^T E``. False when the track is degenerate."""
+    Rs, ts, ks, z, X, b, E, F, R, V, y, pose = ws
+    r2 = 2 * m
+    for j in range(m):
+        row = rows[i, j]
+        for q in range(7):
+            pose[j, q] = storage[row, q]
+    unpack(pose, Rs, ts)
+    if not _track_system(model, Rs, ts, ks, z, consts[i], m, s, refine, b, F, E, X):
+        return False
+    # c = E^T b and W_j = F_j^T E_j before the QR overwrites E
+    c0 = c1 = c2 = 0.0
+    for r in range(r2):
+        c0 += E[r, 0] * b[r]
+        c1 += E[r, 1] * b[r]
+        c2 += E[r, 2] * b[r]
+    for j in range(m):
+        for a in range(6):
+            for q in range(3):
+                V[j, a, q] = F[2 * j, a] * E[2 * j, q] + F[2 * j + 1, a] * E[2 * j + 1, q]
+    if not _landmark_r(E, m, R):
+        return False
+    # V_j <- W_j R^-1 (row by row: v R = w), y = R^-T c
+    for j in range(m):
+        for a in range(6):
+            v0 = V[j, a, 0] / R[0, 0]
+            v1 = (V[j, a, 1] - v0 * R[0, 1]) / R[1, 1]
+            V[j, a, 0], V[j, a, 1] = v0, v1
+            V[j, a, 2] = (V[j, a, 2] - v0 * R[0, 2] - v1 * R[1, 2]) / R[2, 2]
+    y[0] = c0 / R[0, 0]
+    y[1] = (c1 - R[0, 1] * y[0]) / R[1, 1]
+    y[2] = (c2 - R[0, 2] * y[0] - R[1, 2] * y[1]) / R[2, 2]
+    return True
+
+
+@njit(cache=True)
+def _schur_workspace(m, s):
+    Rs, ts, ks, z, X, b, E, F = _track_workspace(m, s)
+    return (Rs, ts, ks, z, X, b, E, F, np.empty((3, 3)), np.empty((m, 6, 3)), np.empty(3),
+            np.empty((m, 7)))
+
+
+@njit(cache=True)
+def _track_gradient(F, b, V, y, m, toff, i, g):
+    """``g_j += F_j^T b_j - V_j y`` for each view ``j`` of track ``i``; returns ``|b|^2``."""
+    e2 = 0.0
+    for r in range(2 * m):
+        e2 += b[r] * b[r]
+    for p in range(m):
+        gbase = toff[i, p]
+        for a in range(6):
+            g[gbase + a] += (F[2 * p, a] * b[2 * p] + F[2 * p + 1, a] * b[2 * p + 1]
+                             - V[p, a, 0] * y[0] - V[p, a, 1] * y[1] - V[p, a, 2] * y[2])
+    return e2
+
+
+@njit(cache=True)
 def smart_hessian_batch(model, storage, rows, consts, m, s, refine, zero_on_degenerate, toff,
                         pos, col_shift, H_data, g, weights, cost):
     """Add the batch's Schur complements straight into ``H_data`` / ``g`` (the scatter map of
@@ -227,56 +287,16 @@ def smart_hessian_batch(model, storage, rows, consts, m, s, refine, zero_on_dege
     the DLTs take ~12). ``storage[rows[i, j]]``: the pose of track ``i``'s view ``j``.
     """
     n = consts.shape[0]
-    r2 = 2 * m
-    Rs, ts, ks, z, X, b, E, F = _track_workspace(m, s)
-    R = np.empty((3, 3))
-    V = np.empty((m, 6, 3))
-    y = np.empty(3)
-    pose = np.empty((m, 7))
+    ws = _schur_workspace(m, s)
+    F, V = ws[7], ws[9]
     for i in range(n):
-        for j in range(m):
-            row = rows[i, j]
-            for q in range(7):
-                pose[j, q] = storage[row, q]
-        unpack(pose, Rs, ts)
         weights[i] = 1.0
-        ok = _track_system(model, Rs, ts, ks, z, consts[i], m, s, refine, b, F, E, X)
-        if ok:
-            # c = E^T b and W_j = F_j^T E_j before the QR overwrites E
-            c0 = c1 = c2 = 0.0
-            for r in range(r2):
-                c0 += E[r, 0] * b[r]
-                c1 += E[r, 1] * b[r]
-                c2 += E[r, 2] * b[r]
-            for j in range(m):
-                for a in range(6):
-                    for q in range(3):
-                        V[j, a, q] = (F[2 * j, a] * E[2 * j, q]
-                                      + F[2 * j + 1, a] * E[2 * j + 1, q])
-            ok = _landmark_r(E, m, R)
-        if not ok:
+        if not _track_schur(model, storage, rows, i, consts, m, s, refine, ws):
             if not zero_on_degenerate:
                 cost += np.nan
             continue
-        # V_j <- W_j R^-1 (row by row: v R = w), y = R^-T c
-        for j in range(m):
-            for a in range(6):
-                v0 = V[j, a, 0] / R[0, 0]
-                v1 = (V[j, a, 1] - v0 * R[0, 1]) / R[1, 1]
-                V[j, a, 0], V[j, a, 1] = v0, v1
-                V[j, a, 2] = (V[j, a, 2] - v0 * R[0, 2] - v1 * R[1, 2]) / R[2, 2]
-        y[0] = c0 / R[0, 0]
-        y[1] = (c1 - R[0, 1] * y[0]) / R[1, 1]
-        y[2] = (c2 - R[0, 2] * y[0] - R[1, 2] * y[1]) / R[2, 2]
-        e2 = 0.0
-        for r in range(r2):
-            e2 += b[r] * b[r]
-        cost += 0.5 * e2
+        cost += 0.5 * _track_gradient(F, ws[5], V, ws[10], m, toff, i, g)
         for p in range(m):
-            gbase = toff[i, p]
-            for a in range(6):
-                g[gbase + a] += (F[2 * p, a] * b[2 * p] + F[2 * p + 1, a] * b[2 * p + 1]
-                                 - V[p, a, 0] * y[0] - V[p, a, 1] * y[1] - V[p, a, 2] * y[2])
             for q in range(m):
                 p00 = pos[i, p, q]
                 if p00 < 0:
@@ -295,6 +315,36 @@ def smart_hessian_batch(model, storage, rows, consts, m, s, refine, zero_on_dege
                         for a in range(6):
                             H_data[base + a] -= (V[p, a, 0] * u0 + V[p, a, 1] * u1
                                                  + V[p, a, 2] * u2)
+    return cost
+
+
+@njit(cache=True)
+def smart_dense_batch(model, storage, rows, consts, m, s, refine, zero_on_degenerate, toff, H,
+                      g, cost):
+    """:func:`smart_hessian_batch`'s sums into a dense ``H (N, N)`` (both triangles) and ``g``,
+    for the small-problem driver (:mod:`fgopt.solvers.small`): the ``F_j^T F_j`` blocks by
+    hand, every track's ``-V V^T`` as one product ``-B B^T`` of the ``(N, 3 n)`` matrix ``B``
+    whose column block ``i`` holds track ``i``'s ``V`` at its poses' rows (one BLAS call instead
+    of ``m^2`` scattered 6 x 6 blocks per track: 60 -> ~25 us on SFMExample's eight tracks)."""
+    n = consts.shape[0]
+    ws = _schur_workspace(m, s)
+    F, V = ws[7], ws[9]
+    B = np.zeros((H.shape[0], 3 * n))
+    for i in range(n):
+        if not _track_schur(model, storage, rows, i, consts, m, s, refine, ws):
+            if not zero_on_degenerate:
+                cost += np.nan
+            continue
+        cost += 0.5 * _track_gradient(F, ws[5], V, ws[10], m, toff, i, g)
+        for p in range(m):
+            t = toff[i, p]
+            for a in range(6):
+                for q in range(3):
+                    B[t + a, 3 * i + q] = V[p, a, q]
+                fa0, fa1 = F[2 * p, a], F[2 * p + 1, a]
+                for c in range(6):
+                    H[t + a, t + c] += fa0 * F[2 * p, c] + fa1 * F[2 * p + 1, c]
+    H -= np.dot(B, B.T)
     return cost
 
 

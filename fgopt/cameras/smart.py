@@ -38,6 +38,7 @@ import numpy as np
 
 from ..errors import DimensionMismatchError, FgoptError, NonFiniteError, TriangulationError
 from ..factors import FactorKernel
+from ..factors.kernel import CompiledCall
 from ..noise import NoiseModel, RobustLoss, Unit
 from ..key import as_key, key_str
 from ..manifolds import SE3
@@ -89,7 +90,12 @@ def smart_kernel(model: type[Calibration], num_views: int, triangulation: str = 
                         # every argument is an SE3 pose: one storage for all
                         scatter_hessian=lambda st, rows, consts, toff, pos, shift, H, g, w, cost:
                         SK.smart_hessian_batch(mid, st[0], rows, consts, m, s, refine, zero, toff,
-                                               pos, shift, H, g, w, cost))
+                                               pos, shift, H, g, w, cost),
+                        # the same sums from a small-problem driver (fgopt.solvers.small)
+                        compiled_call=CompiledCall(SK.__name__, "smart_dense_batch",
+                                                   prefix=f"{mid}, ",
+                                                   suffix=f", {m}, {s}, {refine}, {zero}",
+                                                   hessian=True))
 
 
 class SmartProjectionFactor(CameraKernelFactor):

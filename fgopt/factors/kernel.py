@@ -41,6 +41,13 @@ class CompiledCall:
     ``sys.modules``: the kernel's own module) and calls
     ``function(<prefix>a_0, ..., a_k, consts, res, jac)`` when ``fills`` (writing ``res (n, r)``
     and ``jac (n, r, D)``), else ``res, jac = function(<prefix>a_0, ..., a_k, consts<suffix>)``.
+
+    ``hessian``: the function adds the batch's ``J^T J`` / ``J^T r`` itself (a kernel whose
+    Hessian is cheaper than its Jacobian, e.g. a smart factor's Schur complement), called as
+    ``cost = function(<prefix>storage, rows, consts<suffix>, toff, H, g, cost)``: every argument
+    of one kind, its storage rows ``storage[rows[i, j]]``, tangent offsets ``toff (n, k)``, a
+    dense ``H (N, N)`` (both triangles) and ``g``; unit noise, no robust loss. It returns ``cost``
+    plus the batch's cost.
     """
 
     module: str
@@ -48,6 +55,7 @@ class CompiledCall:
     prefix: str = ""
     suffix: str = ""
     fills: bool = False
+    hessian: bool = False
 
 
 @dataclass(frozen=True, eq=False)

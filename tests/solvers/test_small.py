@@ -212,3 +212,59 @@ def test_driver_source_names_its_kernels():
     assert sorted(names) == sorted({b.kernel.name for b in problem.batches})
     sigs = tuple(_driver.signature(b.kernel) for b in problem.batches)
     assert _driver.module_key(sigs) != _driver.module_key(tuple(reversed(sigs)))
+
+
+def smart_scene(seed=0, degenerate="reject"):
+    """SFMExample's cube seen by 8 cameras as smart factors: four 8-view tracks and four 3-view
+    tracks (two kernels whose driver call adds the Schur complement itself), noisy pixels, the
+    SFM priors on x0 and x1."""
+    from fgopt.cameras import SmartProjectionFactor
+    from fgopt.datasets import sfm_cube
+
+    sfm = sfm_cube(smart=True)
+    rng = np.random.default_rng(seed)
+    z = sfm.measurements + rng.normal(scale=0.5, size=sfm.measurements.shape)
+    graph = FactorGraph()
+    for f in sfm.graph.factors:
+        if not isinstance(f, SmartProjectionFactor):
+            graph.add(f)
+    pixel = fgopt.noise.Isotropic.sigma(2, 1.0)
+    for j in range(z.shape[1]):
+        views = list(range(8)) if j < 4 else [j - 4, j - 3, j - 2]
+        graph.add(SmartProjectionFactor([key("x", i) for i in views], z[views, j],
+                                        sfm.calibration, pixel, degenerate=degenerate))
+    return graph, sfm.initial
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_smart_factors_match_the_general_path(seed):
+    """Smart factors' Schur complements added by the driver (a dense B B^T) equal the general
+    path's scattered blocks: same iterations, lambdas and costs."""
+    graph, init = smart_scene(seed)
+    a, b = solve(graph, init), solve(graph, init, general=True)
+    assert_same(a, b, atol=1e-7)
+    assert a.final_cost < 0.01 * a.initial_cost
+
+
+def test_smart_factor_degenerate_track_policies():
+    """A track degenerate at the start (its two views at one place: no baseline) follows its
+    policy in the driver as on the general path: 'zero' adds nothing there (same iterations),
+    'reject' makes the solve raise the general path's error naming the factor."""
+    from fgopt.cameras import SmartProjectionFactor
+
+    graph, init = smart_scene(0)
+    start = Variables()
+    for k in init.keys():
+        start.add(k, init.at(k))
+    start.update(key("x", 1), init.at(key("x", 0)))
+    K = graph.factors[-1].calibration
+    pixels = np.array([[40.0, 55.0], [40.0, 55.0]])
+    zero = SmartProjectionFactor([key("x", 0), key("x", 1)], pixels, K, degenerate="zero")
+    graph.add(zero)
+    assert zero.point(start) is None  # no baseline: not triangulable
+    a = solve(graph, start)
+    assert_same(a, solve(graph, start, general=True), atol=1e-7)
+    reject = SmartProjectionFactor([key("x", 0), key("x", 1)], pixels, K)
+    graph.add(reject)
+    with pytest.raises(NonFiniteError, match=r"smart_cal3_s2_2views\(x0, x1\)"):
+        solve(graph, start)

@@ -56,8 +56,11 @@ def qualifies(problem: Any, params: Any) -> bool:
             or problem.size > SMALL_MAX_SIZE or problem.threads != 1):
         return False
     for b in problem.batches:
-        if b.kernel.compiled_call is None or b.source.loss_code != 0:
+        call = b.kernel.compiled_call
+        if call is None or b.source.loss_code != 0:
             return False
+        if call.hessian and not (b.unit and len({k.storage_dim for k in b.kernel.arg_kinds}) == 1):
+            return False  # the kernel's own J^T J assumes both (CompiledCall)
     return all(group_id(k) is not None or is_vector_kind(k) for k in problem.kinds)
 
 

@@ -104,3 +104,20 @@ def clear(H, g):
         g[i] = 0.0
         for j in range(H.shape[1]):
             H[i, j] = 0.0
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def stacked(x, soff, s):
+    """A ``hessian`` call's storage and rows (:class:`~fgopt.factors.kernel.CompiledCall`): the
+    batch's argument storages (all of dimension ``s``) stacked ``(n k, s)``, and ``rows (n, k)``
+    into them."""
+    n, k = soff.shape
+    P = np.empty((n * k, s))
+    rows = np.empty((n, k), dtype=np.int64)
+    for i in range(n):
+        for p in range(k):
+            rows[i, p] = i * k + p
+            o = soff[i, p]
+            for c in range(s):
+                P[i * k + p, c] = x[o + c]
+    return P, rows

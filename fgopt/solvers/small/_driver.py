@@ -5,7 +5,8 @@ factors and variables (the structure comes in as arrays), and runs the dense LM 
 :data:`fgopt.solvers.fixed._codegen.LM_TEMPLATE` around it, all compiled: no Python between
 iterations. Each kernel is called once per linearization on its whole batch (the kernel's own
 numba function, :class:`~fgopt.factors.kernel.CompiledCall`), then whitened and added into a
-dense H by :func:`fgopt.solvers.small._common.accumulate`.
+dense H by :func:`fgopt.solvers.small._common.accumulate` (or, for a ``hessian`` call such as a
+smart factor's Schur complement, the kernel adds its own ``J^T J``).
 
 ``aux`` is ``(slots, layout)``: one ``(soff, toff, consts, R, dims, offs)`` tuple per kernel, in
 the driver's kernel order (storage / tangent offsets of each argument, constants, square-root
@@ -24,7 +25,7 @@ from typing import Any
 from ..fixed._codegen import LM_TEMPLATE
 
 #: Bumped when the emitted source changes meaning (part of the cache key).
-SMALL_CODEGEN_VERSION = "1"
+SMALL_CODEGEN_VERSION = "2"
 #: What a loaded module must define (else it is regenerated).
 REQUIRED = ("_lin", "_retract", "_lm", "KERNELS")
 
@@ -32,7 +33,7 @@ REQUIRED = ("_lin", "_retract", "_lm", "KERNELS")
 def signature(kernel: Any) -> tuple:
     """What a driver's code depends on for one kernel: its call and its shapes."""
     c = kernel.compiled_call
-    return ((c.module, c.function, c.prefix, c.suffix, c.fills),
+    return ((c.module, c.function, c.prefix, c.suffix, c.fills, c.hessian),
             tuple(k.storage_dim for k in kernel.arg_kinds), kernel.residual_dim,
             kernel.tangent_dim)
 
@@ -50,10 +51,14 @@ def module_key(signatures: tuple) -> str:
 def module_source(signatures: tuple, names: tuple) -> str:
     """The driver module for kernels with these :func:`signature` s (in slot order)."""
     imports, body = [], []
-    for j, ((mod, fn, prefix, suffix, fills), sdims, r, D) in enumerate(signatures):
+    for j, ((mod, fn, prefix, suffix, fills, hessian), sdims, r, D) in enumerate(signatures):
         imports.append(f"_k{j} = sys.modules[{mod!r}].{fn}")
         body.append(f"    # slot {j}: {names[j]}")
         body.append(f"    soff, toff, consts, R, dims, offs = slots[{j}]")
+        if hessian:  # the kernel adds its own J^T J (unit noise: R unused)
+            body.append(f"    P, rows = stacked(x, soff, {sdims[0]})")
+            body.append(f"    cost = _k{j}({prefix}P, rows, consts{suffix}, toff, H, g, cost)")
+            continue
         body.append("    n = soff.shape[0]")
         args = []
         for a, s in enumerate(sdims):
@@ -82,7 +87,7 @@ def module_source(signatures: tuple, names: tuple) -> str:
         "import numba",
         "import numpy as np",
         "",
-        "from fgopt.solvers.small._common import accumulate, clear, gather, retract",
+        "from fgopt.solvers.small._common import accumulate, clear, gather, retract, stacked",
         "",
         *imports,
         f"KERNELS = {names!r}",
