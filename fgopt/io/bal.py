@@ -120,12 +120,14 @@ def read_bal(path: str | os.PathLike, data: bytes | None = None,
     sc.check_finite(slice(start, start + need))
     cams = sc.values[start:start + 9 * nc].reshape(nc, 9)
     pts = sc.values[start + 9 * nc:].reshape(npt, 3)
+    # every form: a non-positive focal length is a broken camera (the 9-vector kernel would
+    # optimize it all the same, to a mirrored or degenerate projection)
+    bad = ~(cams[:, 6] > 0.0)
+    if np.any(bad):
+        i = int(np.nonzero(bad)[0][0])
+        raise sc.error(f"camera {i}: focal length {cams[i, 6]:g} is not positive",
+                       sc.line_of_value(start + 9 * i + 6))
     if form != "snavely":
-        bad = ~(cams[:, 6] > 0.0)
-        if np.any(bad):
-            i = int(np.nonzero(bad)[0][0])
-            raise sc.error(f"camera {i}: focal length {cams[i, 6]:g} is not positive",
-                           sc.line_of_value(start + 9 * i + 6))
         return gtsam_form_graph(rotations_from_angle_axis(cams[:, :3]), cams[:, 3:6],
                                 cams[:, 6:9], ci, pj, obs[:, 2:4], pts, form,
                                 (str(p), _compact_lines(obs_lines)))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass, field, fields
 
 import numpy as np
@@ -75,6 +76,34 @@ class _RecordTable:
             d["iteration"], d["accepted"] = int(d["iteration"]), bool(d["accepted"])
             out.append(IterationRecord(**d))
         return out
+
+
+def compiled_history(hist: np.ndarray, its: int, status: int, message: str,
+                     cost: float) -> tuple[list[IterationRecord], Status, str]:
+    """Iteration records, status and message of a compiled LM loop (the dense template of
+    :mod:`fgopt.solvers.fixed._codegen`): ``hist[:its]`` rows are (cost, candidate cost,
+    relative decrease, lambda, step norm, gradient norm, accepted, predicted decrease), a
+    ``status`` of 0 / 1 / 2 is converged / max iterations / failed, and a converged run whose
+    trailing steps were all rejected becomes :func:`stall_status`'s STALLED. Records carry no
+    time (NaN: the loop runs compiled)."""
+    rows = hist[:its].tolist()
+    new, names, nan = object.__new__, _RecordTable.FIELDS, math.nan
+    records = []
+    for i, h in enumerate(rows, 1):  # frozen dataclass: __init__ costs ~1.5 us a record
+        r = new(IterationRecord)
+        r.__dict__.update(zip(names, (i, h[0], h[1], h[2], h[3], h[4], h[5], h[6] > 0.5, nan)))
+        records.append(r)
+    since, gain = None, 0.0  # the trailing run of rejected steps, as Run tracks it
+    for i in range(its - 1, -1, -1):
+        h = rows[i]
+        if h[6] > 0.5:
+            break
+        since = i + 1
+        g = h[7] if math.isfinite(h[1]) else math.inf
+        gain = max(gain, g if g == g else math.inf)
+    st = {0: Status.CONVERGED, 1: Status.MAX_ITERATIONS, 2: Status.FAILED}[int(status)]
+    st, message = stall_status(st, message, float(cost), since, gain)
+    return records, st, message
 
 
 #: A rejected step whose model predicted a decrease above this fraction of the cost was one the

@@ -89,6 +89,10 @@ def test_round_trip_plain_and_compressed(tmp_path, suffix):
     (BAL.replace("-0.02", "-0.02x"), r":9: '-0.02x' is not a number"),
     (BAL.replace("0 0 1\n", "0 0\n"), r":20: expected 27 camera and point parameters .* found 26"),
     (BAL + "7\n", r":21: unexpected extra number '7'"),
+    # a broken camera in every form (the 9-vector one too)
+    (BAL.replace("0 0 0 0 0 -6 400 0 0", "0 0 0 0 0 -6 0 0 0"),
+     r":17: camera 1: focal length 0 is not positive"),
+    (BAL.replace("\n500\n", "\n-500\n"), r":14: camera 0: focal length -500 is not positive"),
     ("2 3 40\n0 0 1 1\n", r":2: the header announces 40 observations"),
 ])
 def test_malformed_bal_names_file_and_line(tmp_path, text, match):

@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import math
 import time
 from typing import Any
 
@@ -46,7 +45,7 @@ import numpy as np
 from ...errors import FgoptError, NonFiniteError
 from ..params import LMParams
 from ..diagnostics import fixed_clamp_hits, warn_clamps, warn_unused
-from ..result import IterationRecord, Result, Status, stall_status
+from ..result import IterationRecord, Result, compiled_history
 from ...variables import Variables
 from ...symbolic import cache as _cache
 from ._collect import Collected as _Collected
@@ -217,20 +216,9 @@ class FixedProblem:
         t2 = time.perf_counter()
         if status == -1:
             raise NonFiniteError("fixed formulation: " + self._locate_nonfinite(x0))
-        nan = float("nan")
-        records = [IterationRecord(i, h[0], h[1], h[2], h[3], h[4], h[5], h[6] > 0.5, nan)
-                   for i, h in enumerate(hist[:its].tolist(), 1)]
+        records, st, message = compiled_history(hist, its, status,
+                                                _message(int(msg), float(val), p), cost)
         costs = [float(init)] + [r.cost for r in records if r.accepted]
-        st = {0: Status.CONVERGED, 1: Status.MAX_ITERATIONS, 2: Status.FAILED}[int(status)]
-        since, gain = None, 0.0  # the trailing run of rejected steps, as Run tracks it
-        for i in range(its - 1, -1, -1):
-            if hist[i, 6] > 0.5:
-                break
-            since = i + 1
-            g = float(hist[i, 7]) if math.isfinite(hist[i, 1]) else math.inf
-            gain = max(gain, g if g == g else math.inf)
-        st, message = stall_status(st, _message(int(msg), float(val), p), float(cost), since,
-                                   gain)
         timing = {"setup": t1 - t0, "lm": t2 - t1, "total": time.perf_counter() - t0}
         clamps, num_clamped = fixed_clamp_hits(self, x)
         warn_clamps(clamps, num_clamped)

@@ -23,7 +23,6 @@ general path (:data:`COMPILE_IN_FOREGROUND`), then loaded from fgopt's cache.
 
 from __future__ import annotations
 
-import math
 import os
 import time
 from pathlib import Path
@@ -36,7 +35,7 @@ from ...manifolds.base import is_vector_kind
 from ...manifolds.lie import group_id
 from ...problem import State
 from ..diagnostics import clamp_hits, warn_clamps
-from ..result import IterationRecord, Result, Status, stall_status
+from ..result import Result, compiled_history
 from . import _driver
 
 #: Largest tangent dimension solved densely: dense Cholesky costs N^3 / 6 per iteration, the
@@ -243,19 +242,8 @@ def optimize_small(problem: Any, params: Any, t0: float, graph: Any = None,
     if status == -1:
         return None
     STATS["solves"] += 1
-    nan = math.nan
-    records = [IterationRecord(i, h[0], h[1], h[2], h[3], h[4], h[5], h[6] > 0.5, nan)
-               for i, h in enumerate(hist[:its].tolist(), 1)]
-    since, gain = None, 0.0  # the trailing run of rejected steps, as Run tracks it
-    for i in range(its - 1, -1, -1):
-        if hist[i, 6] > 0.5:
-            break
-        since = i + 1
-        gi = float(hist[i, 7]) if math.isfinite(hist[i, 1]) else math.inf
-        gain = max(gain, gi if gi == gi else math.inf)
-    st = {0: Status.CONVERGED, 1: Status.MAX_ITERATIONS, 2: Status.FAILED}[int(status)]
-    st, message = stall_status(st, _MESSAGES[int(msg)](float(val), p, rel_tol), float(cost),
-                               since, gain)
+    records, st, message = compiled_history(hist, its, status, _MESSAGES[int(msg)](
+        float(val), p, rel_tol), cost)
     state = State(_split(x, storages), {})
     clamps, num_clamped = clamp_hits(problem, state)
     warn_clamps(clamps, num_clamped)
