@@ -107,6 +107,9 @@ def projection_batch(model, pose, point, cal, m, reject, cal_var, with_jac):
     ``(n, 2, 9 [+ dim])``: columns pose ``[w, v]``, point, then the calibration's tangent when
     ``cal_var``. Undefined projections give NaN residuals (see the module docstring).
     """
+    if model == CK.CAL3BUNDLER:
+        return _bundler_batch(pose, cal, 0, point, m, reject, cal_var, with_jac,
+                              9 if cal_var else -1, 6, 12 if cal_var else 9)
     n = pose.shape[0]
     d = CK.tangent_dim(model)
     ncol = 9 + (d if cal_var else 0)
@@ -286,8 +289,8 @@ def camera_projection_batch(model, cam, point, m, reject, with_jac):
     """Reprojection errors with one camera variable per observation: ``cam (n, 7 + s)`` =
     pose storage then calibration storage (GTSAM's ``PinholeCamera<Cal>`` manifold) -> res
     ``(n, 2)``, jac ``(n, 2, 6 + dim + 3)``: columns pose ``[w, v]``, calibration, point."""
-    if model == CK.CAL3BUNDLER:
-        return _bundler_camera_batch(cam, point, m, reject, with_jac)
+    if model == CK.CAL3BUNDLER:  # the camera's calibration follows its pose in its storage
+        return _bundler_batch(cam, cam, 7, point, m, reject, True, with_jac, 6, 9, 12)
     n = cam.shape[0]
     d = CK.tangent_dim(model)
     res = np.empty((n, 2))
@@ -319,19 +322,27 @@ def camera_projection_batch(model, cam, point, m, reject, with_jac):
 
 
 @njit(cache=True, nogil=True)
-def _bundler_camera_batch(cam, point, m, reject, with_jac):
-    """:func:`camera_projection_batch` for ``Cal3Bundler`` cameras (BAL in GTSAM's camera
-    form), the same numbers from scalar code: no work arrays or views per observation, so
-    everything stays in registers (Ladybug-49's 31,843 observations: 12 ms -> 1.4 ms; the
-    general loop's calls and small arrays cost ~330 ns an observation). Same statuses: f <= 0
-    (or NaN), a point at depth 0 (or behind, with ``reject``) and a non-finite pixel give NaN
-    residuals and zero Jacobian rows."""
-    n = cam.shape[0]
+def _bundler_batch(pose, cal, cal_col, point, m, reject, check_cal, with_jac, col_cal, col_point,
+                   ncol):
+    """:func:`projection_batch` / :func:`camera_projection_batch` for ``Cal3Bundler`` (BAL's
+    model), the same numbers from scalar code: no work arrays or views per observation, so
+    everything stays in registers (Ladybug-49's 31,843 observations in the camera form: 12 ms
+    -> 1.4 ms; the per-model loop's calls and small arrays cost ~330 ns an observation).
+
+    ``pose[i, :7]`` is observation ``i``'s pose storage, ``cal[i, cal_col:cal_col + 5]`` its
+    calibration (the camera form passes its camera rows as both). Jacobian ``(n, 2, ncol)``:
+    pose ``[w, v]`` in columns 0-5, the point at ``col_point``, the calibration's
+    ``(f, k1, k2)`` at ``col_cal`` (``-1``: constant). Same statuses as the per-model loop:
+    ``f <= 0`` or NaN (``check_cal``: a calibration the optimizer moves), a point at depth 0
+    (or behind, with ``reject``) and a non-finite pixel give NaN residuals and zero Jacobian
+    rows."""
+    n = pose.shape[0]
     res = np.empty((n, 2))
-    jac = np.zeros((n if with_jac else 0, 2, 12))
+    jac = np.zeros((n if with_jac else 0, 2, ncol))
     for i in range(n):
-        qx, qy, qz, qw = cam[i, 0], cam[i, 1], cam[i, 2], cam[i, 3]
-        f, k1, k2, u0, v0 = cam[i, 7], cam[i, 8], cam[i, 9], cam[i, 10], cam[i, 11]
+        qx, qy, qz, qw = pose[i, 0], pose[i, 1], pose[i, 2], pose[i, 3]
+        f, k1, k2 = cal[i, cal_col], cal[i, cal_col + 1], cal[i, cal_col + 2]
+        u0, v0 = cal[i, cal_col + 3], cal[i, cal_col + 4]
         # R of the quaternion (quat_to_rotation), p = R^T (X - t) (to_camera)
         r00 = 1.0 - 2.0 * (qy * qy + qz * qz)
         r01 = 2.0 * (qx * qy - qz * qw)
@@ -342,11 +353,11 @@ def _bundler_camera_batch(cam, point, m, reject, with_jac):
         r20 = 2.0 * (qx * qz - qy * qw)
         r21 = 2.0 * (qy * qz + qx * qw)
         r22 = 1.0 - 2.0 * (qx * qx + qy * qy)
-        d0, d1, d2 = point[i, 0] - cam[i, 4], point[i, 1] - cam[i, 5], point[i, 2] - cam[i, 6]
+        d0, d1, d2 = point[i, 0] - pose[i, 4], point[i, 1] - pose[i, 5], point[i, 2] - pose[i, 6]
         p0 = r00 * d0 + r10 * d1 + r20 * d2
         p1 = r01 * d0 + r11 * d1 + r21 * d2
         p2 = r02 * d0 + r12 * d1 + r22 * d2
-        if not f > 0.0 or (reject and not p2 > 0.0) or p2 == 0.0:
+        if (check_cal and not f > 0.0) or (reject and not p2 > 0.0) or p2 == 0.0:
             res[i, 0] = np.nan
             res[i, 1] = np.nan
             continue
@@ -370,7 +381,7 @@ def _bundler_camera_batch(cam, point, m, reject, with_jac):
                 e0, e1, c = f * (g + a * x * x), e01, x
             else:
                 e0, e1, c = e01, f * (g + a * y * y), y
-            # A = uv_D_p, then [A hat(p), -A | uv_D_k | A R^T] (_chain)
+            # A = uv_D_p, then [A hat(p), -A], A R^T and uv_D_k (_chain, _bundler)
             a0, a1, a2 = e0 * iz, e1 * iz, -(e0 * x + e1 * y) * iz
             J = jac[i, row]
             J[0] = a1 * p2 - a2 * p1
@@ -379,10 +390,11 @@ def _bundler_camera_batch(cam, point, m, reject, with_jac):
             J[3] = -a0
             J[4] = -a1
             J[5] = -a2
-            J[6] = g * c
-            J[7] = f * r * c
-            J[8] = f * r * r * c
-            J[9] = a0 * r00 + a1 * r01 + a2 * r02
-            J[10] = a0 * r10 + a1 * r11 + a2 * r12
-            J[11] = a0 * r20 + a1 * r21 + a2 * r22
+            J[col_point] = a0 * r00 + a1 * r01 + a2 * r02
+            J[col_point + 1] = a0 * r10 + a1 * r11 + a2 * r12
+            J[col_point + 2] = a0 * r20 + a1 * r21 + a2 * r22
+            if col_cal >= 0:
+                J[col_cal] = g * c
+                J[col_cal + 1] = f * r * c
+                J[col_cal + 2] = f * r * r * c
     return res, jac

@@ -328,35 +328,52 @@ def test_camera_graphs_pickle():
 
 
 @pytest.mark.parametrize("reject", [True, False])
-def test_bundler_camera_fast_path_equals_the_general_loop(reject):
-    """The scalar Cal3Bundler loop of camera_projection_batch (BAL in GTSAM's camera form)
-    returns what the general per-model loop returns for the same pose, point and calibration
-    (projection_batch with a calibration variable, columns reordered): residuals, Jacobians and
-    NaN statuses (f <= 0 or NaN, depth 0, points behind under either cheirality policy)."""
+def test_bundler_scalar_loop_equals_the_per_model_code(reject):
+    """The scalar Cal3Bundler loop (BAL's model) behind projection_batch and
+    camera_projection_batch returns what the per-model code (project_points: project_core,
+    uncalibrate) returns for each observation's camera: residuals, Jacobians in each kernel's
+    column layout, and NaN statuses (f <= 0 or NaN for a moved calibration, depth 0, points
+    behind under either cheirality policy)."""
     from fgopt.cameras import _calib_kernels as CK
     from fgopt.cameras import _projection_kernels as PK
 
     rng = np.random.default_rng(41)
-    n = 400
+    n = 300
     poses = np.array([H.random_pose(rng, a).to_storage() for a in rng.uniform(0, math.pi, n)])
     cal = np.column_stack([rng.uniform(200, 800, n), rng.normal(scale=0.1, size=n),
                            rng.normal(scale=0.01, size=n), rng.normal(size=n), rng.normal(size=n)])
     points = rng.normal(scale=5.0, size=(n, 3))  # about half behind each camera
-    cal[:5, 0] = [0.0, -3.0, np.nan, 1e-300, 500.0]
+    cal[:4, 0] = [0.0, -3.0, np.nan, 1e-300]
     points[5] = poses[5, 4:7]  # at the camera centre: depth 0
     m = rng.normal(scale=50.0, size=(n, 2))
+    ref_res = np.full((n, 2), np.nan)
+    ref_pose, ref_point, ref_k = (np.zeros((n, 2, d)) for d in (6, 3, 3))
+    for i in range(n):
+        R = PK.rotation_of_storage(poses[i])
+        uv, jp, jx, jk, status = PK.project_points(CK.CAL3BUNDLER, R, poses[i, 4:7], cal[i],
+                                                   points[i:i + 1], reject, True)
+        if status[0] == PK.OK:
+            ref_res[i] = uv[0] - m[i]
+            ref_pose[i], ref_point[i], ref_k[i] = jp[0], jx[0], jk[0]
+    moved = ref_res.copy()
+    moved[:3] = np.nan  # f <= 0 or NaN: invalid when the calibration is a variable
     cam = np.ascontiguousarray(np.hstack([poses, cal]))
-    res, jac = PK.camera_projection_batch(CK.CAL3BUNDLER, cam, points, m, reject, True)
-    ref_res, ref_jac = PK.projection_batch(CK.CAL3BUNDLER, np.ascontiguousarray(poses), points,
-                                           np.ascontiguousarray(cal), m, reject, True, True)
-    assert np.isnan(res[:3]).all() and np.isnan(res[5]).all()
-    assert 0 < np.isnan(res[:, 0]).sum() < n
-    np.testing.assert_array_equal(np.isnan(res), np.isnan(ref_res))
-    ok = ~np.isnan(res[:, 0])
-    np.testing.assert_allclose(res[ok], ref_res[ok], rtol=1e-13, atol=1e-9)
-    # ours: pose 0-5, calibration 6-8, point 9-11; the general loop: pose, point, calibration
-    np.testing.assert_allclose(jac[:, :, [0, 1, 2, 3, 4, 5, 9, 10, 11, 6, 7, 8]], ref_jac,
-                               rtol=1e-12, atol=1e-9 * np.abs(ref_jac).max())
-    res0, jac0 = PK.camera_projection_batch(CK.CAL3BUNDLER, cam, points, m, reject, False)
-    np.testing.assert_array_equal(res0, res)
-    assert jac0.shape == (0, 2, 12)
+    runs = {"camera form": (PK.camera_projection_batch(CK.CAL3BUNDLER, cam, points, m, reject,
+                                                        True), moved, (0, 9, 6)),
+            "variable K": (PK.projection_batch(CK.CAL3BUNDLER, poses, points, cal, m, reject,
+                                               True, True), moved, (0, 6, 9)),
+            "constant K": (PK.projection_batch(CK.CAL3BUNDLER, poses[4:], points[4:], cal[4:],
+                                               m[4:], reject, False, True), ref_res[4:],
+                           (0, 6, None))}
+    for name, ((res, jac), expected, (c_pose, c_point, c_k)) in runs.items():
+        rows = slice(4, None) if name == "constant K" else slice(None)
+        np.testing.assert_array_equal(np.isnan(res), np.isnan(expected), err_msg=name)
+        ok = ~np.isnan(res[:, 0])
+        assert 0 < ok.sum() < len(ok)
+        np.testing.assert_allclose(res[ok], expected[ok], rtol=1e-13, atol=1e-9, err_msg=name)
+        blocks = [(c_pose, ref_pose), (c_point, ref_point)] + ([(c_k, ref_k)] if c_k else [])
+        for col, ref in blocks:
+            ref = ref[rows][ok]
+            np.testing.assert_allclose(jac[ok][:, :, col:col + ref.shape[2]], ref, rtol=1e-12,
+                                       atol=1e-9 * np.abs(ref).max(), err_msg=name)
+        assert not jac[~ok].any()

@@ -102,9 +102,9 @@ def test_shared_tiny_files(data_file, name, monkeypatch):
 
 
 def test_larger_graphs_take_the_general_path(monkeypatch):
-    """Above SMALL_COLLECT_MAX factors the vectorized collection runs (same result)."""
+    """Above SMALL_COLLECT_MAX factors and values the vectorized collection runs."""
     graph, init = mixed()
-    monkeypatch.setattr(P, "SMALL_COLLECT_MAX", len(graph) - 1)
+    monkeypatch.setattr(P, "SMALL_COLLECT_MAX", len(graph) + len(init) - 1)
     calls = []
     original = P.Problem._collect_variables
     monkeypatch.setattr(P.Problem, "_collect_variables",
