@@ -7,7 +7,8 @@ per iteration the Python around kernels that take a few microseconds (a 2-pose g
 tangent dimension at most :data:`SMALL_MAX_SIZE` whose kernels have a
 :class:`~fgopt.factors.kernel.CompiledCall`: one generated driver per *set of kernels* (not per
 structure, unlike :mod:`fgopt.solvers.fixed`) takes the problem's layout as arrays, linearizes
-every batch with the kernels' own numba functions into a dense H and runs
+every batch with the kernels' own numba functions into a dense H (smart factors add their Schur
+complements themselves: a ``hessian`` :class:`~fgopt.factors.kernel.CompiledCall`) and runs
 :class:`~fgopt.solvers.lm.LevenbergMarquardt`'s iteration (same damping, gain ratio, lambda
 rules and stopping tests, from the same :func:`~fgopt.solvers.lm.auto_policy`) with a dense
 Cholesky. Its result is the general path's up to rounding; iteration records carry no wall time
