@@ -151,6 +151,25 @@ def eliminate(H, indptr, e_off, e_dim, c_ptr, edge_ptr, edge_f, f_dim, X, bbase,
             continue
         p = pair_ptr[i]
         wi = 0
+        if d == 3:  # points: one pass over each column of S, not three (pose + calibration
+            # variables, SE3 + landmark SfM)
+            s0, s1, s2 = bshift[o], bshift[o + 1], bshift[o + 2]
+            for ki in range(k0, k1):
+                dfi = f_dim[edge_f[ki]]
+                w1, w2 = wi + dfi, wi + 2 * dfi
+                for kj in range(k0, ki + 1):
+                    dfj = f_dim[edge_f[kj]]
+                    bj = bbase[kj]
+                    bp = blk_ptr[pair_blk[p]]
+                    p += 1
+                    diag = ki == kj
+                    for b in range(dfj):
+                        base = blk_base[bp + b]
+                        x0, x1, x2 = X[bj + s0 + b], X[bj + s1 + b], X[bj + s2 + b]
+                        for a in range(b if diag else 0, dfi):
+                            S[base + a] -= W[wi + a] * x0 + W[w1 + a] * x1 + W[w2 + a] * x2
+                wi += dfi * 3
+            continue
         for ki in range(k0, k1):
             dfi = f_dim[edge_f[ki]]
             for kj in range(k0, ki + 1):
