@@ -24,59 +24,6 @@ def gather(x, soff, arg, out):
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
-def accumulate(res, jac, toff, R, dims, offs, H, g):
-    """Add one batch's whitened ``J^T J`` to ``H`` and ``J^T r`` to ``g``; return its cost
-    ``0.5 sum |R_i r_i|^2``.
-
-    ``res (n, r)`` and ``jac (n, r, D)``: the kernel's unwhitened residuals and Jacobians;
-    ``toff (n, k)``: each argument's tangent offset in H; ``R``: ``(0, r, r)`` for unit noise,
-    ``(1, r, r)`` one square-root information for all rows, or ``(n, r, r)``; ``dims`` /
-    ``offs``: each argument's tangent dimension and first Jacobian column.
-    """
-    n, r = res.shape
-    D = jac.shape[2]
-    k = dims.shape[0]
-    wr = res[0].copy()
-    wJ = jac[0].copy()
-    cost = 0.0
-    for i in range(n):
-        if R.shape[0] == 0:
-            for a in range(r):
-                wr[a] = res[i, a]
-                for c in range(D):
-                    wJ[a, c] = jac[i, a, c]
-        else:
-            Ri = R[i] if R.shape[0] > 1 else R[0]
-            for a in range(r):
-                s = 0.0
-                for b in range(r):
-                    s += Ri[a, b] * res[i, b]
-                wr[a] = s
-                for c in range(D):
-                    s = 0.0
-                    for b in range(r):
-                        s += Ri[a, b] * jac[i, b, c]
-                    wJ[a, c] = s
-        for a in range(r):
-            cost += 0.5 * wr[a] * wr[a]
-        for p in range(k):
-            tp, op = toff[i, p], offs[p]
-            for u in range(dims[p]):
-                s = 0.0
-                for a in range(r):
-                    s += wJ[a, op + u] * wr[a]
-                g[tp + u] += s
-                for q in range(k):
-                    tq, oq = toff[i, q], offs[q]
-                    for v in range(dims[q]):
-                        s = 0.0
-                        for a in range(r):
-                            s += wJ[a, op + u] * wJ[a, oq + v]
-                        H[tp + u, tq + v] += s
-    return cost
-
-
-@njit(cache=True, error_model="numpy", nogil=True)
 def retract(x, delta, out, tmp, layout):
     """``out = x (+) delta`` per variable; ``layout (V, 5)``: storage offset, tangent offset,
     Lie group id (-1: a vector, added), storage dim, tangent dim."""
