@@ -55,9 +55,9 @@ def accumulate_source(slot: int, r: int, tdims: tuple) -> str:
     ``res (n, r)``, ``jac (n, r, D)``: the kernel's unwhitened residuals and Jacobians (argument
     ``p``'s columns at ``sum(tdims[:p])``); ``toff (n, k)``: each argument's tangent offset in H;
     ``R``: ``(0, r, r)`` for unit noise, ``(1, r, r)`` one square-root information for all rows,
-    or ``(n, r, r)``. Sizes are literals, so LLVM unrolls and vectorizes the small products
-    (toyExample's 6 Pose3 between rows: 8.5 -> see the closing note), and each ``(p, q)`` block
-    with ``p <= q`` is computed once and mirrored.
+    or ``(n, r, r)``. Sizes are literals, so LLVM unrolls the small products, and each ``(p, q)``
+    block with ``p <= q`` is computed once and mirrored (toyExample's 6 Pose3 between rows with
+    full square-root information: 3.5 us, 8.5 us in a runtime-sized loop).
     """
     offs = [sum(tdims[:p]) for p in range(len(tdims))]
     D = sum(tdims)
