@@ -143,12 +143,15 @@ def _plan(problem: Any) -> _Plan:
 
 def _inputs(problem: Any, plan: _Plan) -> tuple:
     """The driver's ``aux``: the problem's batches as one slot per kernel, and the layout."""
-    sdim = np.array([k.storage_dim for k in problem.kinds], dtype=np.int64)
-    sizes = [s.size for s in problem._initial_storages]
-    base = np.array([0] + sizes[:-1], dtype=np.int64).cumsum()
-    kind = problem.var_kind
-    var_soff = base[kind] + problem.var_row * sdim[kind]
-    var_toff = problem.var_dim.cumsum() - problem.var_dim
+    from ._common import layout_of  # numba-decorated: imported with the first small solve
+
+    kinds = problem.kinds
+    per_kind = _KIND_TABLES.get(tuple(map(id, kinds)))
+    if per_kind is None:
+        per_kind = _KIND_TABLES[tuple(map(id, kinds))] = (
+            kinds, np.array([k.storage_dim for k in kinds], dtype=np.int64), _group_ids(kinds))
+    var_soff, var_toff, layout = layout_of(problem.var_kind, problem.var_row, problem.var_dim,
+                                           per_kind[1], per_kind[2])
     per_slot: list[list] = [[] for _ in plan.tables]
     for b in problem.batches:
         per_slot[plan.slot_of[id(b.kernel)]].append(b)
@@ -165,13 +168,12 @@ def _inputs(problem: Any, plan: _Plan) -> tuple:
             R = (_NO_R[r] if all(b.unit for b in bs) else np.concatenate(
                 [np.broadcast_to(b.sqrt_info, (len(b.source), r, r)) for b in bs]))
         slots.append((var_soff[var_idx], var_toff[var_idx], consts, R, dims, offs))
-    layout = np.empty((problem.num_variables, 5), dtype=np.int64)
-    layout[:, 0] = var_soff
-    layout[:, 1] = var_toff
-    layout[:, 2] = _group_ids(problem.kinds)[kind]
-    layout[:, 3] = sdim[kind]
-    layout[:, 4] = problem.var_dim
     return tuple(slots), layout
+
+
+#: Per tuple of kinds (by id; the kinds are kept so the ids stay theirs): storage dims and Lie
+#: group ids, the per-kind half of :func:`_inputs`.
+_KIND_TABLES: dict[tuple, tuple] = {}
 
 
 def _group_ids(kinds: list) -> np.ndarray:

@@ -46,6 +46,34 @@ def retract(x, delta, out, tmp, layout):
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
+def layout_of(var_kind, var_row, var_dim, kind_sdim, kind_gid):
+    """Variables' storage and tangent offsets and the ``(V, 5)`` layout of :func:`retract`, for
+    storage laid out kind after kind (each kind's rows in order), tangents in variable order."""
+    V, K = var_kind.shape[0], kind_sdim.shape[0]
+    count = np.zeros(K, dtype=np.int64)
+    for v in range(V):
+        count[var_kind[v]] += 1
+    base = np.zeros(K, dtype=np.int64)
+    for t in range(1, K):
+        base[t] = base[t - 1] + count[t - 1] * kind_sdim[t - 1]
+    soff = np.empty(V, dtype=np.int64)
+    toff = np.empty(V, dtype=np.int64)
+    layout = np.empty((V, 5), dtype=np.int64)
+    o = 0
+    for v in range(V):
+        t = var_kind[v]
+        soff[v] = base[t] + var_row[v] * kind_sdim[t]
+        toff[v] = o
+        o += var_dim[v]
+        layout[v, 0] = soff[v]
+        layout[v, 1] = toff[v]
+        layout[v, 2] = kind_gid[t]
+        layout[v, 3] = kind_sdim[t]
+        layout[v, 4] = var_dim[v]
+    return soff, toff, layout
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
 def clear(H, g):
     for i in range(H.shape[0]):
         g[i] = 0.0
