@@ -44,6 +44,7 @@ from ..factors import FactorKernel, KernelFactor
 from ..key import as_key, key_str
 from ..manifolds import SE3
 from ..manifolds.base import vector_kind
+from ..symbolic.runtime import kernel_array
 from . import _projection_kernels as PK
 from ._checks import float_array
 from .calibration import Cal3_S2Stereo, Calibration
@@ -76,8 +77,8 @@ def _contiguous(name: str, arrays: tuple, consts: np.ndarray, widths: tuple) -> 
     if len(arrays) != len(widths) - 1:
         raise DimensionMismatchError(f"{name}: expected {len(widths) - 1} argument arrays, "
                                      f"got {len(arrays)}")
-    out = [np.ascontiguousarray(a, dtype=np.float64) for a in arrays]
-    out.append(np.ascontiguousarray(consts, dtype=np.float64))
+    out = [kernel_array(a) for a in arrays]
+    out.append(kernel_array(consts))
     n = out[0].shape[0] if out[0].ndim == 2 else -1
     for a, w in zip(out, widths):
         if a.shape != (n, w):

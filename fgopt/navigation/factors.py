@@ -23,6 +23,7 @@ from ..key import Key, key_str
 from ..manifolds import SE3
 from ..manifolds.base import vector_kind
 from ..noise import Gaussian
+from ..symbolic.runtime import kernel_array
 from . import _imu_kernels as IK
 from .bias import ImuBias
 from .preintegration import PreintegratedCombinedImu, PreintegratedImu
@@ -34,9 +35,9 @@ def _prepared(name: str, args: tuple, consts: np.ndarray, dims: tuple, nconst: i
     if len(args) != len(dims):
         raise DimensionMismatchError(f"{name}: expected {len(dims)} argument arrays, got "
                                      f"{len(args)}")
-    c = np.ascontiguousarray(consts, dtype=np.float64)
+    c = kernel_array(consts)
     n = c.shape[0] if c.ndim == 2 else -1
-    arrs = [np.ascontiguousarray(a, dtype=np.float64) for a in args]
+    arrs = [kernel_array(a) for a in args]
     if c.shape != (n, nconst) or any(a.shape != (n, d) for a, d in zip(arrs, dims)):
         raise DimensionMismatchError(
             f"{name}: expected argument arrays {[(n, d) for d in dims]} and constants "

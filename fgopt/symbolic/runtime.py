@@ -10,7 +10,8 @@ import numpy as np
 from .._jit import charge_numpy, numpy_budget_left, numpy_only
 from ..errors import DimensionMismatchError
 
-__all__ = ["NUMPY_MAX_BATCH", "charge_numpy", "numpy_budget_left", "prepare", "use_numpy"]
+__all__ = ["NUMPY_MAX_BATCH", "charge_numpy", "kernel_array", "numpy_budget_left", "prepare",
+           "use_numpy"]
 
 #: Batches up to this size run a generated kernel's NumPy twin (same program on whole columns)
 #: while the process's twin budget lasts (``fgopt._jit.numpy_budget_left``): no numba
@@ -27,8 +28,11 @@ def use_numpy(n: int) -> bool:
     return numpy_only() or (n <= NUMPY_MAX_BATCH and numpy_budget_left())
 
 
-def _as_kernel_array(a: Any) -> np.ndarray:
-    """C-contiguous, writeable float64 (one numba signature for every caller)."""
+def kernel_array(a: Any) -> np.ndarray:
+    """``a`` as a C-contiguous, writeable float64 array: one numba signature for every caller.
+    numba types a read-only array apart from a writeable one and compiles the kernel again for
+    it (the IMU kernel took 40 s per extra signature; read-only arrays come from values and
+    noise parameters that fgopt freezes)."""
     a = np.ascontiguousarray(a, dtype=np.float64)
     return a if a.flags.writeable else a.copy()
 
@@ -50,7 +54,7 @@ def prepare(args: Sequence[Any], consts: Any, storage_dims: Sequence[int], num_c
     out = []
     n = None
     for k, (a, s) in enumerate(zip(args, storage_dims)):
-        a = _as_kernel_array(a)
+        a = kernel_array(a)
         if a.ndim != 2 or a.shape[1] != s or (n is not None and a.shape[0] != n):
             raise DimensionMismatchError(
                 f"{name}: variable array {k} has shape {a.shape}, expected "
@@ -60,7 +64,7 @@ def prepare(args: Sequence[Any], consts: Any, storage_dims: Sequence[int], num_c
     if consts is None or (num_consts == 0 and np.size(consts) == 0):
         c = np.empty((n, 0))
     else:
-        c = _as_kernel_array(consts)
+        c = kernel_array(consts)
         if c.ndim == 1 and n == 1:
             c = c.reshape(1, -1)
         if c.ndim != 2 or c.shape != (n, num_consts):

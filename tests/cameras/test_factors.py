@@ -61,6 +61,25 @@ def test_projection_kernel_jacobians_equal_central_differences(cls, var):
         np.testing.assert_allclose(jac[0], num, rtol=1e-6, atol=1e-6 * scale)
 
 
+def test_read_only_inputs_compile_no_second_signature():
+    """Read-only argument and constant arrays reach the projection kernel as writeable copies:
+    one compiled signature serves them (numba types a read-only array apart and would compile
+    the kernel again)."""
+    from fgopt.cameras import _projection_kernels as PK
+
+    rng = np.random.default_rng(32)
+    kernel, args, consts, _ = _instance(rng, Cal3_S2, 0.3, False)
+    expected = kernel.linearize(args, consts)
+    signatures = len(PK.projection_batch.signatures)
+    frozen = [np.array(a, dtype=float) for a in (*args, consts)]
+    for a in frozen:
+        a.flags.writeable = False
+    got = kernel.linearize(tuple(frozen[:-1]), frozen[-1])
+    kernel.residual(tuple(frozen[:-1]), frozen[-1])
+    assert len(PK.projection_batch.signatures) == signatures
+    assert np.array_equal(got[0], expected[0]) and np.array_equal(got[1], expected[1])
+
+
 @pytest.mark.parametrize("var", [False, True], ids=["fixed_K", "variable_K"])
 def test_stereo_kernel_jacobians_equal_central_differences(var):
     """The stereo kernel's Jacobian equals central differences at rotations 0 .. pi."""

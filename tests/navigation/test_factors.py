@@ -170,6 +170,32 @@ def test_jacobians_equal_central_differences(case, error_mode, combined):
             assert np.allclose(Ja, Jn, atol=1e-6 * max(1.0, np.abs(Jn).max()), rtol=0)
 
 
+def test_read_only_inputs_compile_no_second_signature():
+    """Read-only arrays (frozen values, a preintegration's packed state) reach the IMU kernel as
+    writeable copies: its one compiled signature serves them (numba types a read-only array
+    apart; each extra compile of this kernel took ~40 s)."""
+    from fgopt.navigation import _imu_kernels as IK
+
+    rng = np.random.default_rng(18)
+    pim, _ = _pim(rng, False, n=20)
+    xi, xj = _states(rng, pim)
+    values = Variables()
+    for k, x in ((X(0), xi.pose()), (V(0), xi.velocity()), (X(1), xj.pose()),
+                 (V(1), xj.velocity()), (B(0), N.BIAS_HAT)):
+        values.add(k, x)
+    f = ImuFactor(X(0), V(0), X(1), V(1), B(0), pim)
+    args, consts = f._gather(values), f.constants.reshape(1, -1).copy()
+    expected = f.kernel.linearize(args, consts)
+    signatures = len(IK.imu_batch.signatures)
+    frozen = [a.copy() for a in (*args, consts)]
+    for a in frozen:
+        a.flags.writeable = False
+    got = f.kernel.linearize(tuple(frozen[:-1]), frozen[-1])
+    f.kernel.residual(tuple(frozen[:-1]), frozen[-1])
+    assert len(IK.imu_batch.signatures) == signatures
+    assert np.array_equal(got[0], expected[0]) and np.array_equal(got[1], expected[1])
+
+
 def test_gps_jacobians():
     """GpsFactor Jacobians (with and without lever arm) equal central differences."""
     rng = np.random.default_rng(15)
