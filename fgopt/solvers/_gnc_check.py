@@ -211,8 +211,11 @@ class _Verifier:
                 if rows.size == 0:
                     continue
                 c = self.c2_ellipse[i][rows]
-                pred = prediction_sq_norms(sub, sub_state, b.source, rows)
-                ok = (plain[i][rows] <= c) & (pred <= s2 * self.c2_back[i][rows])
+                inside = plain[i][rows] <= c  # only these can come back: predict only them
+                pred = np.full(rows.size, np.inf)
+                pred[inside] = prediction_sq_norms(sub, sub_state, b.source, rows[inside],
+                                                   bound=s2 * self.c2_back[i][rows[inside]])
+                ok = inside & (pred <= s2 * self.c2_back[i][rows])
                 back += [(i, int(r)) for r in rows[ok]]
             ranked.sort(reverse=True)
             n_rej = int(np.ceil(fraction * len(ranked)))
@@ -269,8 +272,8 @@ class _Verifier:
             rows = rows[[all(int(k) in have for k in b.source.keys[r]) for r in rows]]
             if rows.size == 0:
                 continue
-            pred = prediction_sq_norms(sub, sub_state, b.source, rows)
             c = self.c2_snoop[i][rows]
+            pred = prediction_sq_norms(sub, sub_state, b.source, rows, bound=s2b * c)
             ok = pred <= s2b * c
             if s2b < 0.25:  # see the docstring: the prediction alone is not to be trusted
                 ok &= plain[i][rows] <= c

@@ -122,7 +122,7 @@ def leave_one_out_sq_norms(problem: Problem, state: State, masks: list[np.ndarra
 
 
 def prediction_sq_norms(problem: Problem, state: State, batch: Any,
-                        rows: np.ndarray) -> np.ndarray:
+                        rows: np.ndarray, bound: np.ndarray | None = None) -> np.ndarray:
     """For factors *not* in ``problem`` (rows ``rows`` of the :class:`~fgopt.batch.FactorBatch`
     ``batch``, over variables of ``problem``): the squared prediction error normalized by its
     covariance, ``r^T (I + h')^-1 r`` with ``r`` the whitened residual at ``state`` (which is
@@ -130,12 +130,21 @@ def prediction_sq_norms(problem: Problem, state: State, batch: Any,
     estimate of the factor's relative pose is, in the factor's own units). Under the factor's
     noise model (times a scale ``s^2``) it is ``s^2 chi2(dim)`` distributed: Baarda's test of a
     left-out measurement, as ``r^T (I - h)^-1 r`` is for one that is in.
+
+    ``bound`` (one value per row), for callers that only test ``value <= bound``: a row whose
+    cheap lower bound already exceeds its bound gets that lower bound (above the bound, so the
+    test fails as it would on the exact value), the others the exact value. The lower bound
+    replaces the cross blocks of ``H^-1`` over the factor's ``k`` variables by ``k`` times its
+    diagonal blocks (``Sigma <= k blockdiag(Sigma_pp)`` for positive semidefinite ``Sigma``, so
+    ``h' <= h'_up`` and ``r^T (I + h'_up)^-1 r <= r^T (I + h')^-1 r``); the diagonal blocks come
+    from the selected inverse of one block Cholesky factorization. Gross outliers then need no
+    forward solves, which for hundreds of left-out loop closures in 3D (nearly dense columns of
+    ``L^-1``) took ~6 s per call on sphere2500.
     """
     rows = np.asarray(rows, dtype=np.int64)
     out = np.zeros(rows.shape[0])
     if rows.size == 0:
         return out
-    leverages, cap = _leverage_fn(problem, state)
     kernel = batch.kernel
     var_idx = problem._vars_of(batch.keys[rows])
     args = tuple(state.storages[problem._kind_id[id(kind)]][problem.var_row[var_idx[:, j]]]
@@ -148,14 +157,43 @@ def prediction_sq_norms(problem: Problem, state: State, batch: Any,
     Jw = np.einsum("nab,nbc->nac", R, jac)
     dims = np.array([k.dim for k in kernel.arg_kinds], dtype=np.int64)
     offs = np.concatenate([[0], np.cumsum(dims)[:-1]]).astype(np.int64)
-    toff = problem.pattern.var_offset[var_idx]
-    h = np.empty((rows.size, m, m))
+    todo = np.arange(rows.size)
+    if bound is not None:
+        out[:] = _prediction_lower_bounds(problem, state, r, Jw, var_idx, dims, offs)
+        # a relative margin: the bound and the exact value come from two factorizations
+        todo = np.nonzero(out <= np.asarray(bound, dtype=float) * (1.0 + 1e-6))[0]
+        if todo.size == 0:
+            return out
+    leverages, cap = _leverage_fn(problem, state)
+    toff = problem.pattern.var_offset[var_idx[todo]]
+    Jt = Jw[todo]
+    h = np.empty((todo.size, m, m))
     step = min(cap, 4000)
-    for a in range(0, rows.size, step):
+    for a in range(0, todo.size, step):
         sl = slice(a, a + step)
-        h[sl] = leverages(_whitened_columns(problem.pattern.size, Jw[sl], toff[sl], dims, offs),
-                          Jw[sl].shape[0], m)
+        h[sl] = leverages(_whitened_columns(problem.pattern.size, Jt[sl], toff[sl], dims, offs),
+                          Jt[sl].shape[0], m)
     A = np.eye(m)[None] + h
+    rt = r[todo]
+    out[todo] = np.einsum("na,na->n", rt, np.linalg.solve(A, rt[:, :, None])[:, :, 0])
+    return out
+
+
+def _prediction_lower_bounds(problem: Problem, state: State, r: np.ndarray, Jw: np.ndarray,
+                             var_idx: np.ndarray, dims: np.ndarray,
+                             offs: np.ndarray) -> np.ndarray:
+    """``r^T (I + h'_up)^-1 r`` with ``h'_up = k sum_p Jw_p Sigma_pp Jw_p^T`` (the bound of
+    :func:`prediction_sq_norms`): only diagonal blocks of ``H^-1``, always on L's pattern."""
+    covariance = _covariance_fn(problem, state)
+    k = dims.shape[0]
+    m = r.shape[1]
+    h = np.zeros((r.shape[0], m, m))
+    for p in range(k):
+        d, o = int(dims[p]), int(offs[p])
+        sigma = covariance(var_idx[:, p:p + 1], dims[p:p + 1], np.zeros(1, dtype=np.int64))
+        Jp = Jw[:, :, o:o + d]
+        h += Jp @ sigma @ Jp.transpose(0, 2, 1)
+    A = np.eye(m)[None] + k * h
     return np.einsum("na,na->n", r, np.linalg.solve(A, r[:, :, None])[:, :, 0])
 
 

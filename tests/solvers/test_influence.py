@@ -114,3 +114,33 @@ def test_prediction_of_a_left_out_factor_matches_dense_algebra():
         expected = r @ np.linalg.solve(np.eye(2) + J @ Hinv @ J.T, r)
         assert np.isclose(got[row], expected, rtol=1e-8)
     assert got.max() > 100 * got.min()  # the outlier stands out, the loop does not
+
+
+def test_prediction_with_a_bound_is_exact_below_it_and_above_it_otherwise():
+    """With ``bound``: rows whose exact statistic is at most their bound get it exactly; rows
+    above get a value above their bound (the cheap lower bound from the diagonal blocks of
+    ``H^-1``), never below the exact value: the caller's test ``value <= bound`` decides as on
+    the exact values."""
+    from fgopt.solvers.influence import prediction_sq_norms
+
+    graph, values = linear_graph(seed=5, n=30, loops=25)
+    factors = list(graph)
+    left_out = list(range(len(factors) - 12, len(factors)))  # loops, the gross outlier last
+    kept = fgopt.FactorGraph([f for i, f in enumerate(factors) if i not in left_out])
+    sol = fgopt.optimize(kept, values, method="gn", max_iterations=3).values
+    problem = Problem(kept, sol)
+    state = problem.initial_state()
+    extra = Problem(fgopt.FactorGraph([factors[i] for i in left_out]), sol,
+                    build_structure=False).batches[0].source
+    rows = np.arange(len(extra))
+    exact = prediction_sq_norms(problem, state, extra, rows)
+    for bound in (np.full(rows.size, np.median(exact)), exact * 1.5, exact / 1.5,
+                  np.zeros(rows.size)):
+        got = prediction_sq_norms(problem, state, extra, rows, bound=bound)
+        below = exact <= bound
+        assert np.allclose(got[below], exact[below], rtol=1e-10)
+        assert np.all(got[~below] > bound[~below])
+        assert np.all(got <= exact * (1 + 1e-9))
+    # with a bound of 0 every row gets its lower bound: positive, and the outlier's stays large
+    low = prediction_sq_norms(problem, state, extra, rows, bound=np.zeros(rows.size))
+    assert np.all(low > 0) and low[-1] > 10 * np.median(low)
