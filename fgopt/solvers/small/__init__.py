@@ -150,8 +150,9 @@ def _inputs(problem: Any, plan: _Plan) -> tuple:
     if per_kind is None:
         per_kind = _KIND_TABLES[tuple(map(id, kinds))] = (
             kinds, np.array([k.storage_dim for k in kinds], dtype=np.int64), _group_ids(kinds))
+    sizes = np.array([s.size for s in problem._initial_storages], dtype=np.int64)
     var_soff, var_toff, layout = layout_of(problem.var_kind, problem.var_row, problem.var_dim,
-                                           per_kind[1], per_kind[2])
+                                           per_kind[1], per_kind[2], sizes)
     per_slot: list[list] = [[] for _ in plan.tables]
     for b in problem.batches:
         per_slot[plan.slot_of[id(b.kernel)]].append(b)
