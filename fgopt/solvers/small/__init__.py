@@ -73,7 +73,7 @@ COMPILE_IN_FOREGROUND = os.environ.get("FGOPT_SMALL_COMPILE", "0") == "1"
 
 class _Plan:
     """What a set of kernels needs, found once per process: its driver, the slot of each kernel
-    (by signature, so one driver serves any order of batches) and their argument tables."""
+    (by signature, so one driver serves any order of batches)."""
 
     def __init__(self, kernels: list):
         self.kernels = kernels  # kept: the plan is found by their ids
@@ -82,8 +82,6 @@ class _Plan:
         self.slot_of = {id(kernels[j]): s for s, j in enumerate(order)}
         self.signatures = tuple(sigs[j] for j in order)
         self.names = tuple(kernels[j].name for j in order)
-        self.tables = [(np.array([a.dim for a in kernels[j].arg_kinds], dtype=np.int64),
-                        np.array(kernels[j].arg_offsets, dtype=np.int64)) for j in order]
         self.key = _driver.module_key(self.signatures)
         self.name = f"small_{len(sigs)}k"
         self.module: Any = None
@@ -153,11 +151,11 @@ def _inputs(problem: Any, plan: _Plan) -> tuple:
     sizes = np.array([s.size for s in problem._initial_storages], dtype=np.int64)
     var_soff, var_toff, layout = layout_of(problem.var_kind, problem.var_row, problem.var_dim,
                                            per_kind[1], per_kind[2], sizes)
-    per_slot: list[list] = [[] for _ in plan.tables]
+    per_slot: list[list] = [[] for _ in plan.names]
     for b in problem.batches:
         per_slot[plan.slot_of[id(b.kernel)]].append(b)
     slots = []
-    for (dims, offs), bs in zip(plan.tables, per_slot):
+    for bs in per_slot:
         if len(bs) == 1:
             b = bs[0]
             var_idx, consts = b.var_idx, b.source.constants
@@ -168,7 +166,7 @@ def _inputs(problem: Any, plan: _Plan) -> tuple:
             r = bs[0].kernel.residual_dim
             R = (_NO_R[r] if all(b.unit for b in bs) else np.concatenate(
                 [np.broadcast_to(b.sqrt_info, (len(b.source), r, r)) for b in bs]))
-        slots.append((var_soff[var_idx], var_toff[var_idx], consts, R, dims, offs))
+        slots.append((var_soff[var_idx], var_toff[var_idx], consts, R))
     return tuple(slots), layout
 
 

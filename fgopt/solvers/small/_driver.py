@@ -8,10 +8,10 @@ numba function, :class:`~fgopt.factors.kernel.CompiledCall`), then whitened and 
 dense H by an ``_acc<slot>`` function generated with the kernel's sizes as literals (or, for a
 ``hessian`` call such as a smart factor's Schur complement, the kernel adds its own ``J^T J``).
 
-``aux`` is ``(slots, layout)``: one ``(soff, toff, consts, R, dims, offs)`` tuple per kernel, in
-the driver's kernel order (storage / tangent offsets of each argument, constants, square-root
-information ``(0 | 1 | n, r, r)``, argument tangent dims and Jacobian column offsets), and the
-variables' ``(V, 5)`` layout of :func:`fgopt.solvers.small._common.retract`.
+``aux`` is ``(slots, layout)``: one ``(soff, toff, consts, R)`` tuple per kernel, in the driver's
+kernel order (storage / tangent offsets of each argument, constants, square-root information
+``(0 | 1 | n, r, r)``; the argument dims are literals of the generated code), and the variables'
+``(V, 5)`` layout of :func:`fgopt.solvers.small._common.retract`.
 
 Modules live in fgopt's kernel cache (:mod:`fgopt.symbolic.cache`), keyed by the kernels' calls
 and shapes, this template and fgopt's version; numba caches their machine code.
@@ -25,7 +25,7 @@ from typing import Any
 from ..fixed._codegen import LM_TEMPLATE
 
 #: Bumped when the emitted source changes meaning (part of the cache key).
-SMALL_CODEGEN_VERSION = "3"
+SMALL_CODEGEN_VERSION = "4"
 #: What a loaded module must define (else it is regenerated).
 REQUIRED = ("_lin", "_retract", "_lm", "KERNELS")
 
@@ -117,7 +117,7 @@ def module_source(signatures: tuple, names: tuple) -> str:
             signatures):
         imports.append(f"_k{j} = sys.modules[{mod!r}].{fn}")
         body.append(f"    # slot {j}: {names[j]}")
-        body.append(f"    soff, toff, consts, R, dims, offs = slots[{j}]")
+        body.append(f"    soff, toff, consts, R = slots[{j}]")
         if hessian:  # the kernel adds its own J^T J (unit noise: R unused)
             body.append(f"    P, rows = stacked(x, soff, {sdims[0]})")
             body.append(f"    cost = _k{j}({prefix}P, rows, consts{suffix}, toff, H, g, cost)")
