@@ -20,7 +20,6 @@ from __future__ import annotations
 import functools
 import math
 import time
-import weakref
 from itertools import chain
 from contextlib import nullcontext
 from dataclasses import dataclass, field
@@ -80,19 +79,38 @@ SMALL_COLLECT_MAX = 160
 _PYTHON_CHECK_ROWS = 32
 
 
-_KERNEL_TABLES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
 def _kernel_tables(kernel: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A kernel's argument tangent dims, Jacobian column offsets and ``(1, r, r)`` identity
     (the unit noise's square-root information), made once per kernel and shared by its batches
     (read only: GNC replaces a batch's ``sqrt_info``, never writes into it)."""
-    t = _KERNEL_TABLES.get(kernel)
+    # kept in the kernel's own __dict__ (a frozen dataclass): a WeakKeyDictionary lookup costs
+    # ~1 us, a tenth of a small batch's collection
+    t = kernel.__dict__.get("_problem_tables")
     if t is None:
-        t = _KERNEL_TABLES[kernel] = (
+        t = kernel.__dict__["_problem_tables"] = (
             np.array([k.dim for k in kernel.arg_kinds], dtype=np.int64),
             np.array(kernel.arg_offsets, dtype=np.int64), np.eye(kernel.residual_dim)[None])
     return t
+
+
+#: ``_slow_vars`` of problems without slow-path variables (shared: empty, nothing to write).
+_NO_VARIABLES = np.zeros(0, dtype=np.int64)
+_NO_VARIABLES.flags.writeable = False
+
+#: Bulk blocks' kinds (by id, kept alive here) -> the kind the per-key path finds for their
+#: values (a block's kind wraps its rows into the values :func:`ops_for` knows).
+_ROWS_KIND: dict[int, tuple] = {}
+
+
+def _kind_of_rows(blk: Any) -> BatchKind | None:
+    """The kind the per-key collection finds for the values of bulk block ``blk``."""
+    hit = _ROWS_KIND.get(id(blk.kind))
+    if hit is None:
+        if len(_ROWS_KIND) > 1000:  # kinds made on the fly: do not keep them all
+            _ROWS_KIND.clear()
+        x = blk.kind.wrap(blk.rows[0])
+        hit = _ROWS_KIND[id(blk.kind)] = (blk.kind, ops_for(x).batch_kind(x))
+    return hit[1]
 
 
 class _BulkRow(NamedTuple):
@@ -276,7 +294,7 @@ class Problem:
         eliminated variables come first in H and no fill-reducing order is computed
         (:func:`fgopt.structure.schur_order`); otherwise ``ordering`` orders H. ``backend``:
         see :meth:`choose_backend`."""
-        if len(graph) == 0:
+        if not graph.factors and all(len(b) == 0 for b in graph.batches):
             raise EmptyProblemError("the factor graph is empty: add factors before optimizing")
         if backend not in BACKENDS:
             raise FgoptError(f"unknown backend {backend!r}: choose 'auto', 'numba' or 'numpy'")
@@ -310,6 +328,8 @@ class Problem:
         dimension is at most ``NUMPY_BACKEND_MAX_SIZE``, linearization is serial and every
         kernel / manifold has a NumPy form; else ``"numba"``.
         ``"numpy"`` where some kernel has no NumPy form raises."""
+        if backend == "numba" or (backend == "auto" and _jit.is_numba_loaded()):
+            return "numba"
         ok = numpy_backend_supported([b.kernel for b in self.batches], self.kinds)
         if backend == "numpy":
             if not ok:
@@ -318,8 +338,6 @@ class Problem:
                                  f"has a NumPy form ({', '.join(bad) or 'a manifold retract'}); "
                                  "use backend='numba'")
             return "numpy"
-        if backend == "numba":
-            return "numba"
         if (ok and self.threads == 1 and not _jit.is_numba_loaded() and numpy_budget_left()
                 and int(self.var_dim.sum()) <= NUMPY_BACKEND_MAX_SIZE):
             return "numpy"
@@ -338,8 +356,14 @@ class Problem:
         numbering and batches. Anything unusual -- Python factors or manifolds, a missing key,
         a large bulk block -- returns False: the general collection then runs (and raises its
         errors)."""
-        factors, batches = graph.factors, graph.batches
-        if len(factors) + sum(len(b) for b in batches) + len(values) > SMALL_COLLECT_MAX:
+        factors, batches, pending = graph.factors, graph.batches, values._pending
+        num_values = len(values._dict)
+        for blk in pending:
+            num_values += blk.keys.shape[0]
+        size = len(factors) + num_values
+        for b in batches:
+            size += b.keys.shape[0]
+        if size > SMALL_COLLECT_MAX:
             return False
         var_of: dict = {}  # key -> variable: the factors' keys in order of first use, ...
         key_var: list[int] = []
@@ -356,7 +380,7 @@ class Problem:
             for k in sorted(more):
                 var_of[k] = len(var_of)
         value_of = values._dict
-        blocks = [(blk, blk.row_index()) for blk in values._pending]
+        blocks = [(blk, blk.row_index()) for blk in pending]
         if any(index is None for _, index in blocks):
             return False
         kinds: list[BatchKind] = []
@@ -376,15 +400,16 @@ class Problem:
                         return False
                 item = x
             else:
-                item = next((_BulkRow(blk, index[k]) for blk, index in blocks if k in index),
-                            None)
-                if item is None:
+                for blk, index in blocks:
+                    row = index.get(k)
+                    if row is not None:
+                        break
+                else:
                     return False
-                blk = item[0]
+                item = _BulkRow(blk, row)
                 kind = kind_of_type.get(id(blk))
-                if kind is None:  # the kind the per-key path would find for these values
-                    x = blk.kind.wrap(blk.rows[0])
-                    kind = kind_of_type[id(blk)] = ops_for(x).batch_kind(x)
+                if kind is None:
+                    kind = kind_of_type[id(blk)] = _kind_of_rows(blk)
             if kind is None:
                 return False
             kid = kind_id.get(id(kind))
@@ -400,25 +425,30 @@ class Problem:
         self.var_keys = np.array(list(var_of), dtype=np.int64)
         self.var_kind = np.array(var_kind, dtype=np.int64)
         self.var_row = np.array(var_row, dtype=np.int64)
-        self.var_dim = np.array([kinds[t].dim for t in var_kind], dtype=np.int64)
-        by_kind: list[list[int]] = [[] for _ in kinds]
-        for v, t in enumerate(var_kind):
-            by_kind[t].append(v)
-        self._kind_vars = [np.array(vs, dtype=np.int64) for vs in by_kind]
+        dims = [kind.dim for kind in kinds]
+        var_dims = [dims[t] for t in var_kind]
+        self.var_dim = np.array(var_dims, dtype=np.int64)
+        self.__dict__["size"] = sum(var_dims)  # the cached property, known here
+        if len(kinds) == 1:
+            self._kind_vars = [np.arange(len(var_kind), dtype=np.int64)]
+        else:
+            by_kind: list[list[int]] = [[] for _ in kinds]
+            for v, t in enumerate(var_kind):
+                by_kind[t].append(v)
+            self._kind_vars = [np.array(vs, dtype=np.int64) for vs in by_kind]
         self._initial_storages = [self._small_storage(kind, items)
                                   for kind, items in zip(kinds, members)]
-        self._slow_vars = np.zeros(0, dtype=np.int64)
+        self._slow_vars = _NO_VARIABLES
         self._slow_values = []
         self._extra = values
         self.unused_keys = []
-        if len(values) > len(var_of):
+        if num_values > len(var_of):
             have = chain(value_of, *(blk.keys.tolist() for blk, _ in blocks))
             self.unused_keys = [Key(k) for k in have if k not in var_of]
-        self._sorted = np.argsort(self.var_keys)
-        self._key_start = np.zeros(len(factors) + 1, dtype=np.int64)
-        if factors:
+        if factors:  # for _add_factor_batch
+            self._key_start = np.zeros(len(factors) + 1, dtype=np.int64)
             np.cumsum([len(f.keys) for f in factors], out=self._key_start[1:])
-        self._key_var = np.array(key_var, dtype=np.int64)
+            self._key_var = np.array(key_var, dtype=np.int64)
         # batches: factors by kernel in order of first appearance, then by robust loss; then
         # the graph's batches
         groups: dict[int, list[int]] = {}
@@ -430,15 +460,35 @@ class Problem:
             for rs, fs in self._by_loss(np.array(rows, dtype=np.int64),
                                         [factors[i] for i in rows]):
                 self._add_factor_batch(rs, fs)
-        self.batches += [self._make_batch(b, check_repeats=True) for b in batches]
+        for b in batches:
+            self.batches.append(self._small_batch(b, var_of, var_kind)
+                                or self._make_batch(b, check_repeats=True))
         return True
+
+    def _small_batch(self, b: FactorBatch, var_of: dict, var_kind: list) -> _Batch | None:
+        """:meth:`_make_batch` of a graph's batch in :meth:`_collect_small`: variables, kinds and
+        repeated keys in one Python pass over its few rows (NumPy's searchsorted and checks cost
+        ~6 us whatever the size). None when a check fails: :meth:`_make_batch` then says which."""
+        kind_ids = tuple(self._kind_id.get(id(kind), -2) for kind in b.kernel.arg_kinds)
+        want, k = list(kind_ids), len(kind_ids)
+        idx = []
+        for row in b.keys.tolist():
+            vs = [var_of[q] for q in row]
+            if [var_kind[v] for v in vs] != want or (k > 1 and len(set(vs)) < k):
+                return None
+            idx.append(vs)
+        return self._batch(b, np.array(idx, dtype=np.int64).reshape(len(idx), k), kind_ids)
 
     @classmethod
     def _small_storage(cls, kind: BatchKind, items: list) -> np.ndarray:
         """``(n, storage_dim)`` storage of one kind's variables in :meth:`_collect_small`:
         value objects, or :class:`_BulkRow` s taken as their block's rows."""
-        if not any(type(x) is _BulkRow for x in items):
-            return cls._storage_of(kind, items)
+        first = items[0]
+        if type(first) is not _BulkRow:
+            if not any(type(x) is _BulkRow for x in items):
+                return cls._storage_of(kind, items)
+        elif all(type(x) is _BulkRow and x.block is first.block for x in items):
+            return first.block.rows[[x.row for x in items]]  # a new array: the block stays
         S = np.empty((len(items), kind.storage_dim))
         for r, x in enumerate(items):
             S[r] = x.block.rows[x.row] if type(x) is _BulkRow else cls._storage_of(kind, [x])[0]
@@ -519,9 +569,8 @@ class Problem:
                                    count=len(tkeys))
         for b, blk in enumerate(values._pending):
             on = block == b
-            if on.any():  # the kind the per-key path would find for these values
-                x = blk.kind.wrap(blk.rows[0])
-                tok[on] = number(ops_for(x).batch_kind(x))
+            if on.any():
+                tok[on] = number(_kind_of_rows(blk))
         first = [int(np.argmax(tok == t)) for t in range(len(kinds))]
         renum = np.full(len(kinds) + 1, -1, dtype=np.int64)  # last entry: -1 -> -1
         renum[np.argsort(first, kind="stable")] = np.arange(len(kinds))
@@ -575,6 +624,11 @@ class Problem:
                 + [blk.keys for blk in values._pending])
             self.unused_keys = [Key(k) for k in have[~np.isin(have, var_keys)].tolist()]
         self._sorted = np.argsort(self.var_keys)
+
+    @functools.cached_property
+    def _sorted(self) -> np.ndarray:
+        """The variables in ascending key order (for :meth:`_vars_of`)."""
+        return np.argsort(self.var_keys)
 
     @functools.cached_property
     def _var_of_key(self) -> dict:
@@ -687,12 +741,18 @@ class Problem:
                 row = int(np.nonzero(dup)[0][0]) if np.any(dup) else None
             if row is not None:
                 raise FgoptError(f"{kernel.name} (factor {b._where(row)}) uses the same key twice")
-        dims, offsets, identity = _kernel_tables(kernel)
+        return self._batch(b, var_idx, kind_ids)
+
+    def _batch(self, b: FactorBatch, var_idx: np.ndarray, kind_ids: tuple) -> _Batch:
+        """The :class:`_Batch` of ``b`` over the checked variables ``var_idx``."""
+        dims, offsets, identity = _kernel_tables(b.kernel)
         unit = b.sqrt_information is None
         R = identity if unit else np.ascontiguousarray(b.sqrt_information)
-        return _Batch(kernel, b, var_idx, kind_ids,
+        weights = np.empty(var_idx.shape[0])
+        weights.fill(1.0)  # np.ones: 3x the time of these two calls on a few rows
+        return _Batch(b.kernel, b, var_idx, kind_ids,
                       list(np.ascontiguousarray(self.var_row[var_idx].T)), R, unit, dims,
-                      offsets, weights=np.ones(len(b)), sqrt_info0=R, unit0=unit)
+                      offsets, weights=weights, sqrt_info0=R, unit0=unit)
 
     def _make_slow(self, f: Factor) -> _SlowFactor:
         var_idx = np.array([self._var_of_key[k] for k in f.keys], dtype=np.int64)
@@ -799,7 +859,7 @@ class Problem:
         self._holds_candidate = False
 
     # ----------------------------------------------------------------- iteration API
-    @property
+    @functools.cached_property
     def size(self) -> int:
         """Total tangent dimension N."""
         return int(self.var_dim.sum())

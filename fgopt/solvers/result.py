@@ -78,21 +78,45 @@ class _RecordTable:
         return out
 
 
+class _HistoryRows:
+    """A compiled LM loop's history rows (see :func:`compiled_history`), made into
+    :class:`IterationRecord` s when first read: building the records costs ~6 us for 5
+    iterations, a tenth of a small problem's whole solve, and most callers never read them."""
+
+    __slots__ = ("rows",)
+
+    def __init__(self, rows: list[list[float]]):
+        self.rows = rows
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def accepted_costs(self) -> list[float]:
+        return [h[0] for h in self.rows if h[6] > 0.5]
+
+    def records(self) -> list[IterationRecord]:
+        new, names, nan = object.__new__, _RecordTable.FIELDS, math.nan
+        out = []
+        for i, h in enumerate(self.rows, 1):  # frozen dataclass: __init__ costs ~1.5 us a record
+            r = new(IterationRecord)
+            r.__dict__.update(zip(names, (i, h[0], h[1], h[2], h[3], h[4], h[5], h[6] > 0.5, nan)))
+            out.append(r)
+        return out
+
+
+_COMPILED_STATUS = {0: Status.CONVERGED, 1: Status.MAX_ITERATIONS, 2: Status.FAILED}
+
+
 def compiled_history(hist: np.ndarray, its: int, status: int, message: str,
-                     cost: float) -> tuple[list[IterationRecord], Status, str]:
+                     cost: float) -> tuple[_HistoryRows, Status, str]:
     """Iteration records, status and message of a compiled LM loop (the dense template of
     :mod:`fgopt.solvers.fixed._codegen`): ``hist[:its]`` rows are (cost, candidate cost,
     relative decrease, lambda, step norm, gradient norm, accepted, predicted decrease), a
     ``status`` of 0 / 1 / 2 is converged / max iterations / failed, and a converged run whose
-    trailing steps were all rejected becomes :func:`stall_status`'s STALLED. Records carry no
+    trailing steps were all rejected becomes :func:`stall_status`'s STALLED. The records (pass
+    them to :class:`Result` as ``iteration_records``) are made when first read and carry no
     time (NaN: the loop runs compiled)."""
     rows = hist[:its].tolist()
-    new, names, nan = object.__new__, _RecordTable.FIELDS, math.nan
-    records = []
-    for i, h in enumerate(rows, 1):  # frozen dataclass: __init__ costs ~1.5 us a record
-        r = new(IterationRecord)
-        r.__dict__.update(zip(names, (i, h[0], h[1], h[2], h[3], h[4], h[5], h[6] > 0.5, nan)))
-        records.append(r)
     since, gain = None, 0.0  # the trailing run of rejected steps, as Run tracks it
     for i in range(its - 1, -1, -1):
         h = rows[i]
@@ -101,9 +125,8 @@ def compiled_history(hist: np.ndarray, its: int, status: int, message: str,
         since = i + 1
         g = h[7] if math.isfinite(h[1]) else math.inf
         gain = max(gain, g if g == g else math.inf)
-    st = {0: Status.CONVERGED, 1: Status.MAX_ITERATIONS, 2: Status.FAILED}[int(status)]
-    st, message = stall_status(st, message, float(cost), since, gain)
-    return records, st, message
+    st, message = stall_status(_COMPILED_STATUS[int(status)], message, float(cost), since, gain)
+    return _HistoryRows(rows), st, message
 
 
 #: A rejected step whose model predicted a decrease above this fraction of the cost was one the
@@ -126,6 +149,22 @@ def stall_status(status: Status, message: str, cost: float, rejected_since: int 
     return status, message
 
 
+class _Records:
+    """``Result.iteration_records``: a list, or :class:`_HistoryRows` turned into one when first
+    read (a data descriptor, so the dataclass' ``__init__`` and ``==`` go through it)."""
+
+    def __get__(self, obj: "Result | None", owner: type | None = None):
+        if obj is None:
+            return ()  # the dataclass field's default: no records
+        v = obj.__dict__["_records"]
+        if type(v) is _HistoryRows:
+            v = obj.__dict__["_records"] = v.records()
+        return v
+
+    def __set__(self, obj: "Result", value) -> None:
+        obj.__dict__["_records"] = value if isinstance(value, (list, _HistoryRows)) else list(value)
+
+
 @dataclass
 class Result:
     """What an optimizer returns. ``values`` are built on first access from the final state."""
@@ -137,7 +176,7 @@ class Result:
     initial_cost: float
     final_cost: float
     cost_history: list[float]
-    iteration_records: list[IterationRecord] = field(default_factory=list)
+    iteration_records: list[IterationRecord] = _Records()  # type: ignore[assignment]
     timing: dict[str, float] = field(default_factory=dict)
     method: str = ""
     linear_solver: str = ""
@@ -174,7 +213,9 @@ class Result:
         else:
             state["_values"] = self.values
         state["problem"] = state["state"] = None
-        records = self.iteration_records
+        records = state.pop("_records")
+        records = state["iteration_records"] = (
+            records.records() if type(records) is _HistoryRows else records)
         if records and all(type(r) is IterationRecord for r in records):
             try:
                 state["iteration_records"] = _RecordTable(records)
@@ -183,10 +224,11 @@ class Result:
         return state
 
     def __setstate__(self, state: dict) -> None:
-        records = state.get("iteration_records")
-        if isinstance(records, _RecordTable):
-            state = {**state, "iteration_records": records.records()}
+        state = dict(state)
+        records = state.pop("iteration_records", [])
         self.__dict__.update(state)
+        self.iteration_records = (records.records() if isinstance(records, _RecordTable)
+                                  else records)
 
     @property
     def success(self) -> bool:

@@ -218,13 +218,13 @@ class FixedProblem:
             raise NonFiniteError("fixed formulation: " + self._locate_nonfinite(x0))
         records, st, message = compiled_history(hist, its, status,
                                                 _message(int(msg), float(val), p), cost)
-        costs = [float(init)] + [r.cost for r in records if r.accepted]
+        costs = [float(init)] + records.accepted_costs()
         timing = {"setup": t1 - t0, "lm": t2 - t1, "total": time.perf_counter() - t0}
         clamps, num_clamped = fixed_clamp_hits(self, x)
         warn_clamps(clamps, num_clamped)
         if p.verbose:
             print(IterationRecord.HEADER)
-            for r in records:
+            for r in records.records():
                 print(r.row())
         return Result(None, status=st, message=message,
                       iterations=len(records), initial_cost=float(init), final_cost=float(cost),

@@ -140,17 +140,13 @@ def _plan(problem: Any) -> _Plan:
 
 
 def _inputs(problem: Any, plan: _Plan) -> tuple:
-    """The driver's ``aux``: the problem's batches as one slot per kernel, and the layout."""
-    from ._common import layout_of  # numba-decorated: imported with the first small solve
-
+    """The driver's ``problem`` argument (see :mod:`._driver`): the variables' kinds, rows and
+    dims, the kinds' storage dims and group ids, and one ``(var_idx, consts, R)`` per kernel."""
     kinds = problem.kinds
     per_kind = _KIND_TABLES.get(tuple(map(id, kinds)))
     if per_kind is None:
         per_kind = _KIND_TABLES[tuple(map(id, kinds))] = (
             kinds, np.array([k.storage_dim for k in kinds], dtype=np.int64), _group_ids(kinds))
-    sizes = np.array([s.size for s in problem._initial_storages], dtype=np.int64)
-    var_soff, var_toff, layout = layout_of(problem.var_kind, problem.var_row, problem.var_dim,
-                                           per_kind[1], per_kind[2], sizes)
     per_slot: list[list] = [[] for _ in plan.names]
     for b in problem.batches:
         per_slot[plan.slot_of[id(b.kernel)]].append(b)
@@ -158,16 +154,17 @@ def _inputs(problem: Any, plan: _Plan) -> tuple:
     for bs in per_slot:
         if len(bs) == 1:
             b = bs[0]
-            var_idx, consts = b.var_idx, b.source.constants
-            R = b.sqrt_info if not b.unit else _NO_R[b.kernel.residual_dim]
-        else:  # one kernel in several batches (a reader's and factors added one by one)
-            var_idx = np.concatenate([b.var_idx for b in bs])
-            consts = np.concatenate([b.source.constants for b in bs])
-            r = bs[0].kernel.residual_dim
-            R = (_NO_R[r] if all(b.unit for b in bs) else np.concatenate(
-                [np.broadcast_to(b.sqrt_info, (len(b.source), r, r)) for b in bs]))
-        slots.append((var_soff[var_idx], var_toff[var_idx], consts, R))
-    return tuple(slots), layout
+            slots.append((b.var_idx, b.source.constants,
+                          b.sqrt_info if not b.unit else _NO_R[b.kernel.residual_dim]))
+            continue
+        # one kernel in several batches (a reader's and factors added one by one)
+        r = bs[0].kernel.residual_dim
+        slots.append((np.concatenate([b.var_idx for b in bs]),
+                      np.concatenate([b.source.constants for b in bs]),
+                      _NO_R[r] if all(b.unit for b in bs) else np.concatenate(
+                          [np.broadcast_to(b.sqrt_info, (len(b.source), r, r)) for b in bs])))
+    return (problem.var_kind, problem.var_row, problem.var_dim, per_kind[1], per_kind[2],
+            tuple(slots))
 
 
 #: Per tuple of kinds (by id; the kinds are kept so the ids stay theirs): storage dims and Lie
@@ -220,7 +217,7 @@ def optimize_small(problem: Any, params: Any, t0: float, graph: Any = None,
             plan.warming = True  # once per process and set of kernels
             _warmup.warm_in_background(graph, initial, problem, small=True)
         return None
-    aux = _inputs(problem, plan)
+    inputs = _inputs(problem, plan)
     identity, by_factor = auto_policy(
         problem_class_for(problem.kinds, False, lambda: problem.ensure_structure().pattern), p)
     rel_tol = p.relative_tolerance if p.relative_tolerance is not None else (
@@ -231,14 +228,11 @@ def optimize_small(problem: Any, params: Any, t0: float, graph: Any = None,
                     p.max_diagonal, p.min_relative_decrease, float(identity), float(by_factor),
                     p.lambda_factor])
     storages = problem._initial_storages
+    # (_lm copies x0 before it writes)
     x0 = np.concatenate([s.reshape(-1) for s in storages]) if len(storages) > 1 else \
-        storages[0].reshape(-1).copy()
-    n = problem.size
-    hist = np.empty((max(p.max_iterations, 1), 8))
-    H = np.empty((n, n))
-    g = np.empty(n)
+        storages[0].reshape(-1)
     t1 = time.perf_counter()
-    x, status, msg, val, its, cost, init = plan.module._lm(x0, aux, prm, hist, H, g)
+    x, status, msg, val, its, cost, init, hist = plan.module._solve(x0, inputs, prm)
     t2 = time.perf_counter()
     plan.mark_compiled()
     if status == -1:
@@ -253,7 +247,7 @@ def optimize_small(problem: Any, params: Any, t0: float, graph: Any = None,
     timing = {"setup": t1 - t0, "lm": t2 - t1, "total": total}
     result = Result(None, status=st, message=message, iterations=len(records),
                     initial_cost=float(init), final_cost=float(cost),
-                    cost_history=[float(init)] + [r.cost for r in records if r.accepted],
+                    cost_history=[float(init)] + records.accepted_costs(),
                     iteration_records=records, timing=timing, method="lm",
                     linear_solver="dense cholesky (small-problem driver)", problem=problem,
                     state=state, unused_keys=tuple(problem.unused_keys), clamps=tuple(clamps),

@@ -46,14 +46,17 @@ def retract(x, delta, out, tmp, layout):
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
-def layout_of(var_kind, var_row, var_dim, kind_sdim, kind_gid, kind_size):
+def layout_of(var_kind, var_row, var_dim, kind_sdim, kind_gid):
     """Variables' storage and tangent offsets and the ``(V, 5)`` layout of :func:`retract`, for
-    the kinds' storage arrays (``kind_size`` numbers each) laid end to end, each variable at its
-    kind's row ``var_row``, tangents in variable order."""
+    the kinds' storage arrays laid end to end (kind ``t``'s holds its variables' rows, so its
+    size is their number times ``kind_sdim[t]``), each variable at its kind's row ``var_row``,
+    tangents in variable order."""
     V, K = var_kind.shape[0], kind_sdim.shape[0]
-    base = np.zeros(K, dtype=np.int64)
-    for t in range(1, K):
-        base[t] = base[t - 1] + kind_size[t - 1]
+    base = np.zeros(K + 1, dtype=np.int64)
+    for v in range(V):
+        base[var_kind[v] + 1] += kind_sdim[var_kind[v]]
+    for t in range(1, K + 1):
+        base[t] += base[t - 1]
     soff = np.empty(V, dtype=np.int64)
     toff = np.empty(V, dtype=np.int64)
     layout = np.empty((V, 5), dtype=np.int64)

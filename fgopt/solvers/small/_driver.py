@@ -8,10 +8,15 @@ numba function, :class:`~fgopt.factors.kernel.CompiledCall`), then whitened and 
 dense H by an ``_acc<slot>`` function generated with the kernel's sizes as literals (or, for a
 ``hessian`` call such as a smart factor's Schur complement, the kernel adds its own ``J^T J``).
 
-``aux`` is ``(slots, layout)``: one ``(soff, toff, consts, R)`` tuple per kernel, in the driver's
-kernel order (storage / tangent offsets of each argument, constants, square-root information
-``(0 | 1 | n, r, r)``; the argument dims are literals of the generated code), and the variables'
-``(V, 5)`` layout of :func:`fgopt.solvers.small._common.retract`.
+The entry point is ``_solve(x0, problem, prm)``: ``problem`` is ``(var_kind, var_row, var_dim,
+kind_sdim, kind_gid, slots)`` as :class:`~fgopt.problem.Problem` numbers its variables and kinds
+(storage dims and Lie group ids per kind), with one ``(var_idx, consts, R)`` tuple per kernel in
+the driver's kernel order (each factor's variables, constants, square-root information
+``(0 | 1 | n, r, r)``; the argument dims are literals of the generated code). ``_solve`` lays the
+variables out (:func:`fgopt.solvers.small._common.layout_of`) and runs ``_lm`` on ``aux``:
+``(slots, layout)`` with per kernel ``(soff, toff, consts, R)``, each argument's storage /
+tangent offsets, and the ``(V, 5)`` layout of :func:`fgopt.solvers.small._common.retract` --
+in the compiled call, not as Python work per solve.
 
 Modules live in fgopt's kernel cache (:mod:`fgopt.symbolic.cache`), keyed by the kernels' calls
 and shapes, this template and fgopt's version; numba caches their machine code.
@@ -25,9 +30,9 @@ from typing import Any
 from ..fixed._codegen import LM_TEMPLATE
 
 #: Bumped when the emitted source changes meaning (part of the cache key).
-SMALL_CODEGEN_VERSION = "4"
+SMALL_CODEGEN_VERSION = "5"
 #: What a loaded module must define (else it is regenerated).
-REQUIRED = ("_lin", "_retract", "_lm", "KERNELS")
+REQUIRED = ("_lin", "_retract", "_lm", "_solve", "KERNELS")
 
 
 def signature(kernel: Any) -> tuple:
@@ -151,7 +156,7 @@ def module_source(signatures: tuple, names: tuple) -> str:
         "import numba",
         "import numpy as np",
         "",
-        "from fgopt.solvers.small._common import clear, gather, retract, stacked",
+        "from fgopt.solvers.small._common import clear, gather, layout_of, retract, stacked",
         "",
         *imports,
         f"KERNELS = {names!r}",
@@ -173,4 +178,28 @@ def module_source(signatures: tuple, names: tuple) -> str:
         "    retract(x, delta, out, tmp, aux[1])",
         "",
     ]
-    return "\n".join(head) + LM_TEMPLATE.replace("{n}", "H.shape[0]")
+    slots = ", ".join(f"(soff[s{j}[0]], toff[s{j}[0]], s{j}[1], s{j}[2])"
+                      for j in range(len(signatures)))
+    unpack = ", ".join(f"s{j}" for j in range(len(signatures)))
+    solve = [
+        "",
+        "",
+        '@numba.njit(cache=True, error_model="numpy", nogil=True)',
+        "def _solve(x0, problem, prm):",
+        '    """_lm on a problem given as variables and per-kernel factors (see the module',
+        '    docstring of fgopt.solvers.small._driver); returns _lm\'s tuple and the history."""',
+        "    var_kind, var_row, var_dim, kind_sdim, kind_gid, slots = problem",
+        f"    {unpack}{',' if len(signatures) == 1 else ''} = slots",
+        "    soff, toff, layout = layout_of(var_kind, var_row, var_dim, kind_sdim, kind_gid)",
+        f"    aux = (({slots}{',' if len(signatures) == 1 else ''}), layout)",
+        "    n = 0",
+        "    for v in range(var_dim.shape[0]):",
+        "        n += var_dim[v]",
+        "    hist = np.empty((max(int(prm[0]), 1), 8))",
+        "    H = np.empty((n, n))",
+        "    g = np.empty(n)",
+        "    x, status, msg, val, its, cost, init = _lm(x0, aux, prm, hist, H, g)",
+        "    return x, status, msg, val, its, cost, init, hist",
+        "",
+    ]
+    return "\n".join(head) + LM_TEMPLATE.replace("{n}", "H.shape[0]") + "\n".join(solve)
