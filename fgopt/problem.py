@@ -163,13 +163,29 @@ class State:
     objects: dict[int, Any]
 
 
+class _ArgumentRows:
+    """``_Batch.rows``: per argument, the ``(n,)`` rows of its variables in their kind's
+    storage (``var_row[var_idx[:, j]]``), made on first read: the small-problem driver, which
+    takes most solves of small graphs, never reads them (~1.5 us a batch)."""
+
+    def __get__(self, b: "_Batch | None", owner: type | None = None):
+        if b is None:
+            return None  # the dataclass field's default: made from var_row when read
+        rows = b.__dict__.get("_rows")
+        if rows is None:
+            rows = b.__dict__["_rows"] = list(np.ascontiguousarray(b.var_row[b.var_idx].T))
+        return rows
+
+    def __set__(self, b: "_Batch", rows: list | None) -> None:
+        b.__dict__["_rows"] = rows
+
+
 @dataclass(eq=False)
 class _Batch:
     kernel: Any
     source: FactorBatch
     var_idx: np.ndarray          # (n, k) variable indices
     kind_ids: tuple[int, ...]    # kind of each argument
-    rows: list[np.ndarray]       # per argument: (n,) rows into that kind's storage
     sqrt_info: np.ndarray        # (n, r, r) or (1, r, r) identity when unit
     unit: bool
     arg_dims: np.ndarray
@@ -182,6 +198,8 @@ class _Batch:
     plan: list | None = field(default=None)  # NumPy assembly: scatter plan per slice
     fixed: dict = field(default_factory=dict)  # unit flag -> specialized scatter (or None)
     rows2d: np.ndarray | None = field(default=None)  # (n, k) rows, for kernels' scatter_hessian
+    var_row: np.ndarray | None = field(default=None, repr=False)  # the problem's (for rows)
+    rows: list[np.ndarray] = _ArgumentRows()  # type: ignore[assignment]  # see _ArgumentRows
 
     def gather(self, state: State, lo: int = 0, hi: int | None = None) -> tuple:
         """Storage rows of the arguments of instances ``lo:hi`` (default: all)."""
@@ -438,6 +456,14 @@ class Problem:
             self._kind_vars = [np.array(vs, dtype=np.int64) for vs in by_kind]
         self._initial_storages = [self._small_storage(kind, items)
                                   for kind, items in zip(kinds, members)]
+        if (len(blocks) == 1 and len(kinds) == 1 and not value_of
+                and blocks[0][0].keys.shape[0] == len(var_kind)):
+            # every variable a row of the one bulk block: where :meth:`values` finds each of
+            # the block's rows in the storage (its _vars_of and key sort cost ~4 us)
+            order = [0] * len(var_kind)
+            for v, x in enumerate(members[0]):
+                order[x.row] = v  # var_row[v] == v: one kind
+            self.__dict__["_bulk_order"] = order
         self._slow_vars = _NO_VARIABLES
         self._slow_values = []
         self._extra = values
@@ -470,13 +496,20 @@ class Problem:
         repeated keys in one Python pass over its few rows (NumPy's searchsorted and checks cost
         ~6 us whatever the size). None when a check fails: :meth:`_make_batch` then says which."""
         kind_ids = tuple(self._kind_id.get(id(kind), -2) for kind in b.kernel.arg_kinds)
-        want, k = list(kind_ids), len(kind_ids)
-        idx = []
-        for row in b.keys.tolist():
-            vs = [var_of[q] for q in row]
-            if [var_kind[v] for v in vs] != want or (k > 1 and len(set(vs)) < k):
+        k = len(kind_ids)
+        idx = [[var_of[q] for q in row] for row in b.keys.tolist()]
+        if len(self.kinds) == 1:  # every variable of kind 0
+            if any(kind_ids):
                 return None
-            idx.append(vs)
+        else:
+            want = list(kind_ids)
+            if any([var_kind[v] for v in vs] != want for vs in idx):
+                return None
+        if k == 2:
+            if any(u == v for u, v in idx):
+                return None
+        elif k > 2 and any(len(set(vs)) < k for vs in idx):
+            return None
         return self._batch(b, np.array(idx, dtype=np.int64).reshape(len(idx), k), kind_ids)
 
     @classmethod
@@ -750,9 +783,8 @@ class Problem:
         R = identity if unit else np.ascontiguousarray(b.sqrt_information)
         weights = np.empty(var_idx.shape[0])
         weights.fill(1.0)  # np.ones: 3x the time of these two calls on a few rows
-        return _Batch(b.kernel, b, var_idx, kind_ids,
-                      list(np.ascontiguousarray(self.var_row[var_idx].T)), R, unit, dims,
-                      offsets, weights=weights, sqrt_info0=R, unit0=unit)
+        return _Batch(b.kernel, b, var_idx, kind_ids, R, unit, dims, offsets, weights=weights,
+                      sqrt_info0=R, unit0=unit, var_row=self.var_row)
 
     def _make_slow(self, f: Factor) -> _SlowFactor:
         var_idx = np.array([self._var_of_key[k] for k in f.keys], dtype=np.int64)
@@ -1129,7 +1161,10 @@ class Problem:
             # result as one such block in its key order (objects made when read, see
             # Variables.at), as GTSAM's optimize returns C++ values wrapped when read
             blk = extra._pending[0]
-            rows = state.storages[0][self.var_row[self._vars_of(blk.keys)]]  # a copy: owned
+            order = self.__dict__.get("_bulk_order")  # (_collect_small)
+            if order is None or len(order) != blk.keys.shape[0]:
+                order = self.var_row[self._vars_of(blk.keys)]
+            rows = state.storages[0][order]  # a copy: owned
             rows.flags.writeable = False
             out._pending.append(_Rows(blk.keys, self.kinds[0], rows))
             return out

@@ -61,7 +61,7 @@ def qualifies(problem: Any, params: Any) -> bool:
             return False
         if call.hessian and not (b.unit and len({k.storage_dim for k in b.kernel.arg_kinds}) == 1):
             return False  # the kernel's own J^T J assumes both (CompiledCall)
-    return all(group_id(k) is not None or is_vector_kind(k) for k in problem.kinds)
+    return _kind_tables(problem.kinds)[3]
 
 
 #: Compile a kernel set's driver in this process when fgopt's cache does not hold it yet (a few
@@ -131,22 +131,22 @@ _PLANS: dict[tuple, _Plan] = {}
 
 
 def _plan(problem: Any) -> _Plan:
-    kernels = list({id(b.kernel): b.kernel for b in problem.batches}.values())
-    ids = tuple(sorted(id(k) for k in kernels))  # any order of batches: one plan
-    plan = _PLANS.get(ids)
+    seen = tuple([id(b.kernel) for b in problem.batches])  # (the batches' order: a shortcut)
+    plan = _PLANS.get(seen)
     if plan is None:
-        plan = _PLANS[ids] = _Plan(kernels)
+        kernels = list({id(b.kernel): b.kernel for b in problem.batches}.values())
+        ids = tuple(sorted(id(k) for k in kernels))  # any order of batches: one plan
+        plan = _PLANS.get(ids)
+        if plan is None:
+            plan = _PLANS[ids] = _Plan(kernels)
+        _PLANS[seen] = plan
     return plan
 
 
 def _inputs(problem: Any, plan: _Plan) -> tuple:
     """The driver's ``problem`` argument (see :mod:`._driver`): the variables' kinds, rows and
     dims, the kinds' storage dims and group ids, and one ``(var_idx, consts, R)`` per kernel."""
-    kinds = problem.kinds
-    per_kind = _KIND_TABLES.get(tuple(map(id, kinds)))
-    if per_kind is None:
-        per_kind = _KIND_TABLES[tuple(map(id, kinds))] = (
-            kinds, np.array([k.storage_dim for k in kinds], dtype=np.int64), _group_ids(kinds))
+    per_kind = _kind_tables(problem.kinds)
     per_slot: list[list] = [[] for _ in plan.names]
     for b in problem.batches:
         per_slot[plan.slot_of[id(b.kernel)]].append(b)
@@ -167,13 +167,22 @@ def _inputs(problem: Any, plan: _Plan) -> tuple:
             tuple(slots))
 
 
-#: Per tuple of kinds (by id; the kinds are kept so the ids stay theirs): storage dims and Lie
-#: group ids, the per-kind half of :func:`_inputs`.
+#: Per tuple of kinds (by id): the kinds (kept, so the ids stay theirs), their storage dims and
+#: Lie group ids (the per-kind half of :func:`_inputs`), and whether the driver can retract
+#: them all (Lie groups and vectors).
 _KIND_TABLES: dict[tuple, tuple] = {}
 
 
-def _group_ids(kinds: list) -> np.ndarray:
-    return np.array([-1 if group_id(k) is None else group_id(k) for k in kinds], dtype=np.int64)
+def _kind_tables(kinds: list) -> tuple:
+    ids = tuple(map(id, kinds))
+    t = _KIND_TABLES.get(ids)
+    if t is None:
+        gids = [group_id(k) for k in kinds]
+        t = _KIND_TABLES[ids] = (
+            list(kinds), np.array([k.storage_dim for k in kinds], dtype=np.int64),
+            np.array([-1 if g is None else g for g in gids], dtype=np.int64),
+            all(g is not None or is_vector_kind(k) for g, k in zip(gids, kinds)))
+    return t
 
 
 class _NoR(dict):
@@ -186,6 +195,10 @@ class _NoR(dict):
 
 _NO_R = _NoR()
 
+
+#: The driver's parameter array per (LMParams by id, identity damping, lambda by factor): the
+#: params are frozen; the entry keeps them, so the id stays theirs.
+_PRMS: dict[tuple, tuple] = {}
 
 _MESSAGES = {
     1: lambda v, p, rel: f"gradient norm {v:.3g} <= {p.gradient_tolerance:g}",
@@ -223,10 +236,15 @@ def optimize_small(problem: Any, params: Any, t0: float, graph: Any = None,
     rel_tol = p.relative_tolerance if p.relative_tolerance is not None else (
         1e-5 if identity else 1e-6)
     lam0 = p.initial_lambda if p.initial_lambda is not None else (1e-5 if identity else 1e-4)
-    prm = np.array([p.max_iterations, rel_tol, p.absolute_tolerance, p.gradient_tolerance,
-                    p.step_tolerance, lam0, p.min_lambda, p.max_lambda, p.min_diagonal,
-                    p.max_diagonal, p.min_relative_decrease, float(identity), float(by_factor),
-                    p.lambda_factor])
+    prm = _PRMS.get((id(p), identity, by_factor))
+    if prm is None or prm[0] is not p:
+        if len(_PRMS) > 64:
+            _PRMS.clear()
+        prm = _PRMS[(id(p), identity, by_factor)] = (p, np.array(
+            [p.max_iterations, rel_tol, p.absolute_tolerance, p.gradient_tolerance,
+             p.step_tolerance, lam0, p.min_lambda, p.max_lambda, p.min_diagonal, p.max_diagonal,
+             p.min_relative_decrease, float(identity), float(by_factor), p.lambda_factor]))
+    prm = prm[1]
     storages = problem._initial_storages
     # (_lm copies x0 before it writes)
     x0 = np.concatenate([s.reshape(-1) for s in storages]) if len(storages) > 1 else \

@@ -14,9 +14,10 @@ kind_sdim, kind_gid, slots)`` as :class:`~fgopt.problem.Problem` numbers its var
 the driver's kernel order (each factor's variables, constants, square-root information
 ``(0 | 1 | n, r, r)``; the argument dims are literals of the generated code). ``_solve`` lays the
 variables out (:func:`fgopt.solvers.small._common.layout_of`) and runs ``_lm`` on ``aux``:
-``(slots, layout)`` with per kernel ``(soff, toff, consts, R)``, each argument's storage /
-tangent offsets, and the ``(V, 5)`` layout of :func:`fgopt.solvers.small._common.retract` --
-in the compiled call, not as Python work per solve.
+``(slots, layout)`` with per kernel ``(soff, toff, consts, R, work)``, each argument's storage /
+tangent offsets and the kernel's work arrays (its arguments' rows, residuals and Jacobians: made
+once per solve, not per linearization), and the ``(V, 5)`` layout of
+:func:`fgopt.solvers.small._common.retract` -- in the compiled call, not as Python work per solve.
 
 Modules live in fgopt's kernel cache (:mod:`fgopt.symbolic.cache`), keyed by the kernels' calls
 and shapes, this template and fgopt's version; numba caches their machine code.
@@ -30,7 +31,7 @@ from typing import Any
 from ..fixed._codegen import LM_TEMPLATE
 
 #: Bumped when the emitted source changes meaning (part of the cache key).
-SMALL_CODEGEN_VERSION = "5"
+SMALL_CODEGEN_VERSION = "6"
 #: What a loaded module must define (else it is regenerated).
 REQUIRED = ("_lin", "_retract", "_lm", "_solve", "KERNELS")
 
@@ -117,25 +118,31 @@ def accumulate_source(slot: int, r: int, tdims: tuple) -> str:
 
 def module_source(signatures: tuple, names: tuple) -> str:
     """The driver module for kernels with these :func:`signature` s (in slot order)."""
-    imports, body, accs = [], [], []
+    imports, body, accs, work = [], [], [], []
     for j, ((mod, fn, prefix, suffix, fills, hessian), sdims, r, D, tdims) in enumerate(
             signatures):
         imports.append(f"_k{j} = sys.modules[{mod!r}].{fn}")
         body.append(f"    # slot {j}: {names[j]}")
-        body.append(f"    soff, toff, consts, R = slots[{j}]")
+        body.append(f"    soff, toff, consts, R, work = slots[{j}]")
         if hessian:  # the kernel adds its own J^T J (unit noise: R unused)
+            work.append("()")
             body.append(f"    P, rows = stacked(x, soff, {sdims[0]})")
             body.append(f"    cost = _k{j}({prefix}P, rows, consts{suffix}, toff, H, g, cost)")
             continue
-        body.append("    n = soff.shape[0]")
-        args = []
-        for a, s in enumerate(sdims):
-            body.append(f"    a{a} = np.empty((n, {s}))")
-            body.append(f"    gather(x, soff, {a}, a{a})")
-            args.append(f"a{a}")
+        # the arguments' storage rows (and the kernel's outputs when it fills them): made once
+        # per solve by _solve, not per linearization
+        args = [f"a{a}" for a in range(len(sdims))]
+        bufs = [f"np.empty((n{j}, {s}))" for s in sdims]
         if fills:
-            body.append(f"    res = np.empty((n, {r}))")
-            body.append(f"    jac = np.empty((n, {r}, {D}))")
+            args_out = args + ["res", "jac"]
+            bufs += [f"np.empty((n{j}, {r}))", f"np.empty((n{j}, {r}, {D}))"]
+        else:
+            args_out = args
+        work.append(f"({', '.join(bufs)},)")
+        body.append(f"    {', '.join(args_out)}, = work")
+        for a in range(len(sdims)):
+            body.append(f"    gather(x, soff, {a}, a{a})")
+        if fills:
             body.append(f"    _k{j}({prefix}{', '.join(args)}, consts, res, jac)")
         else:
             body.append(f"    res, jac = _k{j}({prefix}{', '.join(args)}, consts{suffix})")
@@ -178,7 +185,7 @@ def module_source(signatures: tuple, names: tuple) -> str:
         "    retract(x, delta, out, tmp, aux[1])",
         "",
     ]
-    slots = ", ".join(f"(soff[s{j}[0]], toff[s{j}[0]], s{j}[1], s{j}[2])"
+    slots = ", ".join(f"(soff[s{j}[0]], toff[s{j}[0]], s{j}[1], s{j}[2], {work[j]})"
                       for j in range(len(signatures)))
     unpack = ", ".join(f"s{j}" for j in range(len(signatures)))
     solve = [
@@ -191,6 +198,7 @@ def module_source(signatures: tuple, names: tuple) -> str:
         "    var_kind, var_row, var_dim, kind_sdim, kind_gid, slots = problem",
         f"    {unpack}{',' if len(signatures) == 1 else ''} = slots",
         "    soff, toff, layout = layout_of(var_kind, var_row, var_dim, kind_sdim, kind_gid)",
+        *[f"    n{j} = s{j}[0].shape[0]" for j in range(len(signatures))],
         f"    aux = (({slots}{',' if len(signatures) == 1 else ''}), layout)",
         "    n = 0",
         "    for v in range(var_dim.shape[0]):",
