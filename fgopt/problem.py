@@ -394,50 +394,37 @@ class Problem:
                     v = var_of[k] = len(var_of)
                 key_var.append(v)
         if batches:  # ... then the batches' other keys in ascending order
-            more = {k for b in batches for k in b.keys.reshape(-1).tolist()}.difference(var_of)
-            for k in sorted(more):
-                var_of[k] = len(var_of)
+            more = {k for b in batches for k in b.keys.reshape(-1).tolist()}
+            if var_of:
+                for k in sorted(more.difference(var_of)):
+                    var_of[k] = len(var_of)
+            else:
+                var_of = dict(zip(sorted(more), range(len(more))))
         value_of = values._dict
         blocks = [(blk, blk.row_index()) for blk in pending]
         if any(index is None for _, index in blocks):
             return False
-        kinds: list[BatchKind] = []
-        kind_id: dict[int, int] = {}
-        kind_of_type: dict = {}
-        var_kind, var_row = [], []
-        members: list[list] = []  # per kind: value objects, or _BulkRow of bulk values
-        for v, k in enumerate(var_of):
-            x = value_of.get(k)
-            if x is not None:
-                tkey = (np.ndarray, x.shape) if type(x) is np.ndarray else type(x)
-                kind = kind_of_type.get(tkey)
-                if kind is None:
-                    try:
-                        kind = kind_of_type[tkey] = ops_for(x).batch_kind(x)
-                    except FgoptError:
-                        return False
-                item = x
-            else:
-                for blk, index in blocks:
-                    row = index.get(k)
-                    if row is not None:
-                        break
-                else:
-                    return False
-                item = _BulkRow(blk, row)
-                kind = kind_of_type.get(id(blk))
-                if kind is None:
-                    kind = kind_of_type[id(blk)] = _kind_of_rows(blk)
-            if kind is None:
+        if not value_of and len(blocks) == 1:  # a file's poses: one bulk block, one kind
+            blk, index = blocks[0]
+            rows = [index.get(k) for k in var_of]
+            kind = _kind_of_rows(blk)
+            if kind is None or None in rows:
                 return False
-            kid = kind_id.get(id(kind))
-            if kid is None:
-                kid = kind_id[id(kind)] = len(kinds)
-                kinds.append(kind)
-                members.append([])
-            var_kind.append(kid)
-            var_row.append(len(members[kid]))
-            members[kid].append(item)
+            kinds, kind_id = [kind], {id(kind): 0}
+            var_kind, var_row = [0] * len(rows), list(range(len(rows)))
+            storages = [blk.rows[rows]]  # a new array: the block stays as it is
+            if blk.keys.shape[0] == len(rows):
+                # where values() finds each of the block's rows (its _vars_of costs ~4 us)
+                order = [0] * len(rows)
+                for v, r in enumerate(rows):
+                    order[r] = v
+                self.__dict__["_bulk_order"] = order
+        else:
+            found = self._small_variables(var_of, value_of, blocks)
+            if found is None:
+                return False
+            kinds, kind_id, var_kind, var_row, members = found
+            storages = [self._small_storage(kind, items) for kind, items in zip(kinds, members)]
         self.kinds = kinds
         self._kind_id = kind_id
         self.var_keys = np.array(list(var_of), dtype=np.int64)
@@ -454,16 +441,7 @@ class Problem:
             for v, t in enumerate(var_kind):
                 by_kind[t].append(v)
             self._kind_vars = [np.array(vs, dtype=np.int64) for vs in by_kind]
-        self._initial_storages = [self._small_storage(kind, items)
-                                  for kind, items in zip(kinds, members)]
-        if (len(blocks) == 1 and len(kinds) == 1 and not value_of
-                and blocks[0][0].keys.shape[0] == len(var_kind)):
-            # every variable a row of the one bulk block: where :meth:`values` finds each of
-            # the block's rows in the storage (its _vars_of and key sort cost ~4 us)
-            order = [0] * len(var_kind)
-            for v, x in enumerate(members[0]):
-                order[x.row] = v  # var_row[v] == v: one kind
-            self.__dict__["_bulk_order"] = order
+        self._initial_storages = storages
         self._slow_vars = _NO_VARIABLES
         self._slow_values = []
         self._extra = values
@@ -491,6 +469,51 @@ class Problem:
                                 or self._make_batch(b, check_repeats=True))
         return True
 
+    @staticmethod
+    def _small_variables(var_of: dict, value_of: dict, blocks: list) -> tuple | None:
+        """The variables of :meth:`_collect_small` (keys ``var_of``, values in ``value_of`` or
+        the bulk ``blocks``): kinds numbered in order of first appearance, each variable's kind
+        and row in its kind, and per kind its values (objects, or :class:`_BulkRow` s); None
+        for anything the general collection must see."""
+        kinds: list[BatchKind] = []
+        kind_id: dict[int, int] = {}
+        kind_of_type: dict = {}
+        var_kind, var_row = [], []
+        members: list[list] = []
+        for k in var_of:
+            x = value_of.get(k)
+            if x is not None:
+                tkey = (np.ndarray, x.shape) if type(x) is np.ndarray else type(x)
+                kind = kind_of_type.get(tkey)
+                if kind is None:
+                    try:
+                        kind = kind_of_type[tkey] = ops_for(x).batch_kind(x)
+                    except FgoptError:
+                        return None
+                item = x
+            else:
+                for blk, index in blocks:
+                    row = index.get(k)
+                    if row is not None:
+                        break
+                else:
+                    return None
+                item = _BulkRow(blk, row)
+                kind = kind_of_type.get(id(blk))
+                if kind is None:
+                    kind = kind_of_type[id(blk)] = _kind_of_rows(blk)
+            if kind is None:
+                return None
+            kid = kind_id.get(id(kind))
+            if kid is None:
+                kid = kind_id[id(kind)] = len(kinds)
+                kinds.append(kind)
+                members.append([])
+            var_kind.append(kid)
+            var_row.append(len(members[kid]))
+            members[kid].append(item)
+        return kinds, kind_id, var_kind, var_row, members
+
     def _small_batch(self, b: FactorBatch, var_of: dict, var_kind: list) -> _Batch | None:
         """:meth:`_make_batch` of a graph's batch in :meth:`_collect_small`: variables, kinds and
         repeated keys in one Python pass over its few rows (NumPy's searchsorted and checks cost
@@ -516,12 +539,8 @@ class Problem:
     def _small_storage(cls, kind: BatchKind, items: list) -> np.ndarray:
         """``(n, storage_dim)`` storage of one kind's variables in :meth:`_collect_small`:
         value objects, or :class:`_BulkRow` s taken as their block's rows."""
-        first = items[0]
-        if type(first) is not _BulkRow:
-            if not any(type(x) is _BulkRow for x in items):
-                return cls._storage_of(kind, items)
-        elif all(type(x) is _BulkRow and x.block is first.block for x in items):
-            return first.block.rows[[x.row for x in items]]  # a new array: the block stays
+        if not any(type(x) is _BulkRow for x in items):
+            return cls._storage_of(kind, items)
         S = np.empty((len(items), kind.storage_dim))
         for r, x in enumerate(items):
             S[r] = x.block.rows[x.row] if type(x) is _BulkRow else cls._storage_of(kind, [x])[0]
