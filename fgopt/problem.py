@@ -163,21 +163,28 @@ class State:
     objects: dict[int, Any]
 
 
-class _ArgumentRows:
-    """``_Batch.rows``: per argument, the ``(n,)`` rows of its variables in their kind's
-    storage (``var_row[var_idx[:, j]]``), made on first read: the small-problem driver, which
-    takes most solves of small graphs, never reads them (~1.5 us a batch)."""
+class _MadeOnRead:
+    """A ``_Batch`` field made by ``make(batch)`` when first read (a data descriptor: the
+    dataclass' ``__init__`` stores what it is given, ``None`` meaning "make it"). For the
+    arrays only the general path reads: the small-problem driver, which takes most solves of
+    small graphs, never does (~1 us a batch each)."""
+
+    def __init__(self, make: Any):
+        self.make = make
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.slot = "_" + name
 
     def __get__(self, b: "_Batch | None", owner: type | None = None):
         if b is None:
-            return None  # the dataclass field's default: made from var_row when read
-        rows = b.__dict__.get("_rows")
-        if rows is None:
-            rows = b.__dict__["_rows"] = list(np.ascontiguousarray(b.var_row[b.var_idx].T))
-        return rows
+            return None  # the dataclass field's default
+        v = b.__dict__.get(self.slot)
+        if v is None:
+            v = b.__dict__[self.slot] = self.make(b)
+        return v
 
-    def __set__(self, b: "_Batch", rows: list | None) -> None:
-        b.__dict__["_rows"] = rows
+    def __set__(self, b: "_Batch", value: Any) -> None:
+        b.__dict__[self.slot] = value
 
 
 @dataclass(eq=False)
@@ -192,14 +199,18 @@ class _Batch:
     arg_local_off: np.ndarray
     toff: np.ndarray = field(default=None)  # (n, k) tangent offsets
     pos: np.ndarray = field(default=None)   # (n, k, k) scatter map (structure.scatter_positions)
-    weights: np.ndarray = field(default=None)
     sqrt_info0: np.ndarray = field(default=None)  # the factors' own noise (before GNC weights)
     unit0: bool = True
     plan: list | None = field(default=None)  # NumPy assembly: scatter plan per slice
     fixed: dict = field(default_factory=dict)  # unit flag -> specialized scatter (or None)
     rows2d: np.ndarray | None = field(default=None)  # (n, k) rows, for kernels' scatter_hessian
     var_row: np.ndarray | None = field(default=None, repr=False)  # the problem's (for rows)
-    rows: list[np.ndarray] = _ArgumentRows()  # type: ignore[assignment]  # see _ArgumentRows
+    #: per argument, the (n,) rows of its variables in their kind's storage
+    rows: list[np.ndarray] = _MadeOnRead(  # type: ignore[assignment]
+        lambda b: list(np.ascontiguousarray(b.var_row[b.var_idx].T)))
+    #: per factor, its weight (GNC); ones
+    weights: np.ndarray = _MadeOnRead(  # type: ignore[assignment]
+        lambda b: np.ones(b.var_idx.shape[0]))
 
     def gather(self, state: State, lo: int = 0, hi: int | None = None) -> tuple:
         """Storage rows of the arguments of instances ``lo:hi`` (default: all)."""
@@ -312,7 +323,7 @@ class Problem:
         eliminated variables come first in H and no fill-reducing order is computed
         (:func:`fgopt.structure.schur_order`); otherwise ``ordering`` orders H. ``backend``:
         see :meth:`choose_backend`."""
-        if not graph.factors and all(len(b) == 0 for b in graph.batches):
+        if not graph.factors and not any(b.keys.shape[0] for b in graph.batches):
             raise EmptyProblemError("the factor graph is empty: add factors before optimizing")
         if backend not in BACKENDS:
             raise FgoptError(f"unknown backend {backend!r}: choose 'auto', 'numba' or 'numpy'")
@@ -411,7 +422,7 @@ class Problem:
             if kind is None or None in rows:
                 return False
             kinds, kind_id = [kind], {id(kind): 0}
-            var_kind, var_row = [0] * len(rows), list(range(len(rows)))
+            var_kind, var_row = [0] * len(rows), None  # (one kind: rows made below)
             storages = [blk.rows[rows]]  # a new array: the block stays as it is
             if blk.keys.shape[0] == len(rows):
                 # where values() finds each of the block's rows (its _vars_of costs ~4 us)
@@ -428,15 +439,20 @@ class Problem:
         self.kinds = kinds
         self._kind_id = kind_id
         self.var_keys = np.array(list(var_of), dtype=np.int64)
-        self.var_kind = np.array(var_kind, dtype=np.int64)
-        self.var_row = np.array(var_row, dtype=np.int64)
         dims = [kind.dim for kind in kinds]
-        var_dims = [dims[t] for t in var_kind]
-        self.var_dim = np.array(var_dims, dtype=np.int64)
-        self.__dict__["size"] = sum(var_dims)  # the cached property, known here
-        if len(kinds) == 1:
-            self._kind_vars = [np.arange(len(var_kind), dtype=np.int64)]
+        if len(kinds) == 1:  # one kind: every variable's row is its number
+            V = len(var_kind)
+            self.var_kind = np.zeros(V, dtype=np.int64)
+            self.var_row = np.arange(V, dtype=np.int64)
+            self.var_dim = np.full(V, dims[0], dtype=np.int64)
+            self.__dict__["size"] = V * dims[0]  # the cached property, known here
+            self._kind_vars = [self.var_row]
         else:
+            self.var_kind = np.array(var_kind, dtype=np.int64)
+            self.var_row = np.array(var_row, dtype=np.int64)
+            var_dims = [dims[t] for t in var_kind]
+            self.var_dim = np.array(var_dims, dtype=np.int64)
+            self.__dict__["size"] = sum(var_dims)
             by_kind: list[list[int]] = [[] for _ in kinds]
             for v, t in enumerate(var_kind):
                 by_kind[t].append(v)
@@ -518,7 +534,8 @@ class Problem:
         """:meth:`_make_batch` of a graph's batch in :meth:`_collect_small`: variables, kinds and
         repeated keys in one Python pass over its few rows (NumPy's searchsorted and checks cost
         ~6 us whatever the size). None when a check fails: :meth:`_make_batch` then says which."""
-        kind_ids = tuple(self._kind_id.get(id(kind), -2) for kind in b.kernel.arg_kinds)
+        kind_id = self._kind_id
+        kind_ids = tuple([kind_id.get(id(kind), -2) for kind in b.kernel.arg_kinds])
         k = len(kind_ids)
         idx = [[var_of[q] for q in row] for row in b.keys.tolist()]
         if len(self.kinds) == 1:  # every variable of kind 0
@@ -533,7 +550,8 @@ class Problem:
                 return None
         elif k > 2 and any(len(set(vs)) < k for vs in idx):
             return None
-        return self._batch(b, np.array(idx, dtype=np.int64).reshape(len(idx), k), kind_ids)
+        var_idx = np.array(idx, dtype=np.int64)
+        return self._batch(b, var_idx if idx else var_idx.reshape(0, k), kind_ids)
 
     @classmethod
     def _small_storage(cls, kind: BatchKind, items: list) -> np.ndarray:
@@ -800,10 +818,16 @@ class Problem:
         dims, offsets, identity = _kernel_tables(b.kernel)
         unit = b.sqrt_information is None
         R = identity if unit else np.ascontiguousarray(b.sqrt_information)
-        weights = np.empty(var_idx.shape[0])
-        weights.fill(1.0)  # np.ones: 3x the time of these two calls on a few rows
-        return _Batch(b.kernel, b, var_idx, kind_ids, R, unit, dims, offsets, weights=weights,
-                      sqrt_info0=R, unit0=unit, var_row=self.var_row)
+        # what _Batch(b.kernel, b, var_idx, kind_ids, R, unit, dims, offsets, sqrt_info0=R,
+        # unit0=unit, var_row=self.var_row) makes, without its 17-argument __init__ (~1 us of
+        # a small problem's ~6 us per batch); rows and weights: made on first read
+        batch = object.__new__(_Batch)
+        batch.__dict__.update(
+            kernel=b.kernel, source=b, var_idx=var_idx, kind_ids=kind_ids, sqrt_info=R,
+            unit=unit, arg_dims=dims, arg_local_off=offsets, toff=None, pos=None,
+            sqrt_info0=R, unit0=unit, plan=None, fixed={}, rows2d=None, var_row=self.var_row,
+            _rows=None, _weights=None)
+        return batch
 
     def _make_slow(self, f: Factor) -> _SlowFactor:
         var_idx = np.array([self._var_of_key[k] for k in f.keys], dtype=np.int64)

@@ -145,3 +145,26 @@ def test_bad_input_raises_the_general_paths_errors(data_file, monkeypatch):
     b.keys[1, 1] = b.keys[1, 0]
     (t, msg), other = errors(graph, init, monkeypatch)
     assert "same key twice" in msg and other == (t, msg)
+
+
+def test_batches_made_without_init_hold_every_field(data_file):
+    """``Problem._batch`` fills a ``_Batch``'s attributes directly (no dataclass ``__init__``):
+    the same attributes and values as the constructor gives, and the fields made on first read
+    (argument rows, weights) as the general path makes them."""
+    import dataclasses
+
+    graph, init = fgopt.io.read(str(data_file("small/toyExample.g2o")), add_prior=True)
+    b = P.Problem(graph, init, build_structure=False).batches[0]
+    ref = P._Batch(b.kernel, b.source, b.var_idx, b.kind_ids, b.sqrt_info, b.unit, b.arg_dims,
+                   b.arg_local_off, sqrt_info0=b.sqrt_info0, unit0=b.unit0, var_row=b.var_row)
+    assert sorted(ref.__dict__) == sorted(b.__dict__)
+    for f in dataclasses.fields(P._Batch):
+        x, y = getattr(ref, f.name), getattr(b, f.name)
+        if isinstance(x, list):
+            assert len(x) == len(y) and all(np.array_equal(u, v) for u, v in zip(x, y)), f.name
+        elif isinstance(x, np.ndarray):
+            np.testing.assert_array_equal(x, y, err_msg=f.name)
+        else:
+            assert x == y or x is y, f.name
+    np.testing.assert_array_equal(b.weights, np.ones(len(b.source)))
+    np.testing.assert_array_equal(b.rows[1], b.var_row[b.var_idx[:, 1]])

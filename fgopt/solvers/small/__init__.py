@@ -168,8 +168,9 @@ def _inputs(problem: Any, plan: _Plan) -> tuple:
 
 
 #: Per tuple of kinds (by id): the kinds (kept, so the ids stay theirs), their storage dims and
-#: Lie group ids (the per-kind half of :func:`_inputs`), and whether the driver can retract
-#: them all (Lie groups and vectors).
+#: Lie group ids (the per-kind half of :func:`_inputs`), whether the driver can retract them all
+#: (Lie groups and vectors), and LM's problem class when the kinds alone decide it (else None:
+#: Lie groups mixed with vectors, see :func:`~fgopt.solvers.lm.problem_class_for`).
 _KIND_TABLES: dict[tuple, tuple] = {}
 
 
@@ -181,7 +182,13 @@ def _kind_tables(kinds: list) -> tuple:
         t = _KIND_TABLES[ids] = (
             list(kinds), np.array([k.storage_dim for k in kinds], dtype=np.int64),
             np.array([-1 if g is None else g for g in gids], dtype=np.int64),
-            all(g is not None or is_vector_kind(k) for g, k in zip(gids, kinds)))
+            all(g is not None or is_vector_kind(k) for g, k in zip(gids, kinds)),
+            None)
+        vectors = [is_vector_kind(k) for k in kinds]
+        if all(vectors) or not any(vectors):
+            from ..lm import problem_class_for
+
+            t = _KIND_TABLES[ids] = t[:4] + (problem_class_for(kinds, False, None),)
     return t
 
 
@@ -231,8 +238,9 @@ def optimize_small(problem: Any, params: Any, t0: float, graph: Any = None,
             _warmup.warm_in_background(graph, initial, problem, small=True)
         return None
     inputs = _inputs(problem, plan)
-    identity, by_factor = auto_policy(
-        problem_class_for(problem.kinds, False, lambda: problem.ensure_structure().pattern), p)
+    cls = _kind_tables(problem.kinds)[4] or problem_class_for(
+        problem.kinds, False, lambda: problem.ensure_structure().pattern)
+    identity, by_factor = auto_policy(cls, p)
     rel_tol = p.relative_tolerance if p.relative_tolerance is not None else (
         1e-5 if identity else 1e-6)
     lam0 = p.initial_lambda if p.initial_lambda is not None else (1e-5 if identity else 1e-4)
@@ -258,7 +266,8 @@ def optimize_small(problem: Any, params: Any, t0: float, graph: Any = None,
     STATS["solves"] += 1
     records, st, message = compiled_history(hist, its, status, _MESSAGES[int(msg)](
         float(val), p, rel_tol), cost)
-    state = State(_split(x, storages), {})
+    state = State([x.reshape(storages[0].shape)] if len(storages) == 1 else _split(x, storages),
+                  {})
     clamps, num_clamped = clamp_hits(problem, state)
     warn_clamps(clamps, num_clamped)
     total = time.perf_counter() - t0
