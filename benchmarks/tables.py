@@ -73,6 +73,9 @@ BENCHES: dict[str, Bench] = {
                    "scale.json", 20),
     "gnc": Bench("benchmarks.gnc", ("--no-plain",),
                  ("--out", "{dir}/gnc.md", "--json", "{dir}/gnc.json"), "gnc.json", 15),
+    "small-graphs": Bench("benchmarks.small_graphs", (),
+                          ("--out", "{dir}/small-graphs.md", "--json",
+                           "{dir}/small-graphs.json"), "small-graphs.json", 12),
 }
 
 TABLES: dict[str, Table] = {
@@ -84,6 +87,7 @@ TABLES: dict[str, Table] = {
     "incremental": Table("incremental", render_misc.incremental),
     "scale": Table("scale", render_misc.scale),
     "gnc": Table("gnc", render_misc.gnc),
+    "small-graphs": Table("small-graphs", render_misc.small_graphs),
 }
 
 

@@ -297,7 +297,8 @@ int main(int argc, char** argv) {
   std::sort(cpu_samples.begin(), cpu_samples.end());
   double cpu_med = m % 2 ? cpu_samples[m / 2] : 0.5 * (cpu_samples[m / 2 - 1] + cpu_samples[m / 2]);
   printf("{\"load_s\": %.9g, \"load_cpu_s\": %.9g, \"solve_s\": %.9g, \"solve_cpu_s\": %.9g, "
-         "\"samples\": [", load_s, load_cpu_s, med, cpu_med);
+         "\"solve_cpu_min_s\": %.9g, \"samples\": [", load_s, load_cpu_s, med, cpu_med,
+         cpu_samples[0]);
   for (size_t k = 0; k < samples.size(); ++k) printf("%s%.9g", k ? ", " : "", samples[k]);
   printf("], \"iterations\": %d, \"initial_cost\": %.17g, \"final_cost\": %.17g, "
          "\"termination\": \"%s\", \"linear_solver_s\": %.9g, \"preprocessor_s\": %.9g, "

@@ -156,3 +156,21 @@ def test_run_and_skip_end_to_end(tmp_path, monkeypatch):
     assert "**Not rerun** by the last run at" in skipped and "| 42 |" in skipped
     assert pipeline.main(["--render-only", *args]) == 0
     assert readme.read_text() == skipped
+
+
+def test_small_graphs_marks_and_lists_every_loss():
+    """The small-graphs table gives fgopt / peer ratios (the README's convention), bolds each
+    above 1 (the peer faster), and its generated line lists exactly those graphs per peer."""
+    def rec(name, f, c, g, path="dense cholesky (small-problem driver)"):
+        return {"file": name, "fgopt": {"cpu_s": f, "poses": 5, "path": path},
+                "ceres_cpp": {"cpu_s": c}, "gtsam": {"cpu_s": g},
+                "fgopt_fixed": {"error": "> 50 poses"}}
+    doc = {"meta": {}, "results": {"records": [
+        rec("a.g2o", 1e-4, 2e-5, 2e-4), rec("b.g2o", 2e-3, 4e-3, 1e-3, path="cholmod"),
+        {**rec("c.g2o", 1e-4, 1e-4, 1e-4), "ceres_cpp": {"error": "cannot read"}}]}}
+    out = tables.TABLES["small-graphs"].render(doc)
+    assert "| a.g2o | 5 | 0.1 | 0.02 **×5.00** | 0.2 ×0.50 | dense driver | > 50 poses |" in out
+    assert "| b.g2o | 5 | 2 | 4 ×0.50 | 1 **×2.00** | sparse | > 50 poses |" in out
+    assert "| c.g2o | 5 | 0.1 | cannot read | 0.1 ×1.00 |" in out
+    assert "slower than C++ Ceres on 1 of 3 graphs: a.g2o (×5.00)" in out
+    assert "slower than GTSAM on 1 of 3 graphs: b.g2o (×2.00)" in out
