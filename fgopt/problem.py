@@ -805,6 +805,9 @@ class Problem:
             if small:
                 k = var_idx.shape[1]
                 row = next((i for i, r in enumerate(var_idx.tolist()) if len(set(r)) < k), None)
+            elif var_idx.shape[1] == 2:  # (a pose graph's between factors: no sort)
+                dup = np.flatnonzero(var_idx[:, 0] == var_idx[:, 1])
+                row = int(dup[0]) if dup.shape[0] else None
             else:
                 srt = np.sort(var_idx, axis=1)
                 dup = np.any(srt[:, 1:] == srt[:, :-1], axis=1)

@@ -168,3 +168,15 @@ def test_batches_made_without_init_hold_every_field(data_file):
             assert x == y or x is y, f.name
     np.testing.assert_array_equal(b.weights, np.ones(len(b.source)))
     np.testing.assert_array_equal(b.rows[1], b.var_row[b.var_idx[:, 1]])
+
+
+def test_repeated_key_in_a_large_batch_names_its_row(data_file):
+    """A batch above the Python-checked size (vectorized checks) with one factor on the same key
+    twice: the error names that factor's file line, as for small batches."""
+    graph, init = fgopt.io.read(str(data_file("pose2d/intel.g2o")), add_prior=True)
+    b = graph.batches[0]
+    assert len(b) > P._PYTHON_CHECK_ROWS
+    b.keys[700, 1] = b.keys[700, 0]
+    with pytest.raises(FgoptError, match="same key twice") as err:
+        P.Problem(graph, init, build_structure=False)
+    assert b._where(700) in str(err.value)

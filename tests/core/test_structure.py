@@ -100,6 +100,25 @@ def test_pattern_kernel_equals_vectorized_pattern(seed):
         assert np.array_equal(g, w), name
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_block_graph_kernel_equals_coo_conversion(seed):
+    """The numba variable graph (the fill-reducing ordering's input once numba is in use) has
+    the COO -> CSC conversion's pattern and values: sorted rows, repeated and self pairs summed,
+    isolated variables with only their diagonal."""
+    from fgopt.structure import _block_graph, _block_graph_np
+
+    rng = np.random.default_rng(seed)
+    V = int(rng.integers(1, 80))
+    m = int(rng.integers(0, 4 * V))
+    pi = rng.integers(0, V, m).astype(np.int64)
+    pj = rng.integers(0, V, m).astype(np.int64)
+    pj[: m // 5] = pi[: m // 5]
+    pi, pj = np.concatenate([pi, pi[: m // 3]]), np.concatenate([pj, pj[: m // 3]])
+    for name, g, w in zip(("data", "indices", "indptr"), _block_graph(V, pi, pj),
+                          _block_graph_np(V, pi, pj)):
+        assert np.array_equal(g, w), name
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_densely_banded_counts_distinct_coupled_pairs(seed):
     """The banded-order test keeps the given order exactly when every pair is within BANDED
