@@ -19,6 +19,11 @@ for _v in THREAD_VARS:
 # Warm-process figures: small batches on the compiled kernels from the first timed call (a
 # process reaches this after 0.5 s of NumPy-twin work; see fgopt/_jit.py).
 os.environ.setdefault("FGOPT_NUMPY_BUDGET", "0")
+# ... and the small-problem driver (fgopt.solvers.small) compiled by the warm-up solve when its
+# set of kernels is new on this machine, not in a background process while the timed solves
+# take the general path (robot localization's "5 it" at 4ab30dc: 1.94 ms on the general path,
+# its driver compiled during that run; 1.13 ms for the same 5 iterations on it, next run)
+os.environ.setdefault("FGOPT_SMALL_COMPILE", "1")
 
 import argparse  # noqa: E402
 import json  # noqa: E402
