@@ -75,7 +75,7 @@ BENCHES: dict[str, Bench] = {
                  ("--out", "{dir}/gnc.md", "--json", "{dir}/gnc.json"), "gnc.json", 15),
     "small-graphs": Bench("benchmarks.small_graphs", (),
                           ("--out", "{dir}/small-graphs.md", "--json",
-                           "{dir}/small-graphs.json"), "small-graphs.json", 12),
+                           "{dir}/small-graphs.json"), "small-graphs.json", 5),
 }
 
 TABLES: dict[str, Table] = {
