@@ -315,6 +315,10 @@ def replaced_values(initial: Variables, groups: Any, unused: Any = None,
 class Problem:
     """A graph compiled against initial values; see the module docstring."""
 
+    #: Per row of the initial values' one bulk block, the variable holding it, when
+    #: :meth:`_collect_small` saw the values as that block alone (else None): :meth:`values`.
+    _bulk_order: list[int] | None = None
+
     def __init__(self, graph: Any, values: Variables, ordering: str | None = "amd",
                  build_structure: bool = True, threads: int = 1, backend: str = "auto",
                  linear_solver: Any = None):
@@ -417,19 +421,19 @@ class Problem:
             return False
         if not value_of and len(blocks) == 1:  # a file's poses: one bulk block, one kind
             blk, index = blocks[0]
-            rows = [index.get(k) for k in var_of]
+            block_rows = [index.get(k) for k in var_of]
             kind = _kind_of_rows(blk)
-            if kind is None or None in rows:
+            if kind is None or None in block_rows:
                 return False
             kinds, kind_id = [kind], {id(kind): 0}
-            var_kind, var_row = [0] * len(rows), None  # (one kind: rows made below)
-            storages = [blk.rows[rows]]  # a new array: the block stays as it is
-            if blk.keys.shape[0] == len(rows):
+            var_kind, var_row = [0] * len(block_rows), None  # (one kind: rows made below)
+            storages = [blk.rows[block_rows]]  # a new array: the block stays as it is
+            if blk.keys.shape[0] == len(block_rows):
                 # where values() finds each of the block's rows (its _vars_of costs ~4 us)
-                order = [0] * len(rows)
-                for v, r in enumerate(rows):
+                order = [0] * len(block_rows)
+                for v, r in enumerate(block_rows):
                     order[r] = v
-                self.__dict__["_bulk_order"] = order
+                self._bulk_order = order
         else:
             found = self._small_variables(var_of, value_of, blocks)
             if found is None:
@@ -693,7 +697,6 @@ class Problem:
                 [np.fromiter(values._dict.keys(), dtype=np.int64, count=len(values._dict))]
                 + [blk.keys for blk in values._pending])
             self.unused_keys = [Key(k) for k in have[~np.isin(have, var_keys)].tolist()]
-        self._sorted = np.argsort(self.var_keys)
 
     @functools.cached_property
     def _sorted(self) -> np.ndarray:
@@ -1207,7 +1210,7 @@ class Problem:
             # result as one such block in its key order (objects made when read, see
             # Variables.at), as GTSAM's optimize returns C++ values wrapped when read
             blk = extra._pending[0]
-            order = self.__dict__.get("_bulk_order")  # (_collect_small)
+            order = self._bulk_order
             if order is None or len(order) != blk.keys.shape[0]:
                 order = self.var_row[self._vars_of(blk.keys)]
             rows = state.storages[0][order]  # a copy: owned
