@@ -287,14 +287,9 @@ def main() -> None:
     paths = [p for p in paths if p.is_file()]
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                             text=True, cwd=Path(__file__).parent).stdout.strip()
-    lines = [f"# 5 LM iterations on pose graphs, CPU ms (commit {commit}, {dt.date.today()})",
-             "", "`python -m benchmarks.small_graphs`: fgopt includes set-up (problem, ordering, "
-             "symbolic analysis) and the result's values (a file's poses: one block of storage "
-             "rows, objects made when read, as GTSAM's C++ Values); ×N = peer / fgopt (> 1: fgopt "
-             f"faster). Load average at the start {os.getloadavg()[0]:.1f}.", "",
-             "| graph | poses | fgopt | C++ Ceres | GTSAM | fgopt set-up share | fgopt fixed "
-             "(×Ceres, ×GTSAM) |",
-             "|---|---|---|---|---|---|---|"]
+    load0 = os.getloadavg()[0]
+    from .render_misc import small_graphs as render
+
     notes = []
     records = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -308,31 +303,17 @@ def main() -> None:
                   flush=True)
         for path, rec in zip(files, records):  # then the fixed formulation (see fixed_cpu)
             rec["fgopt_fixed"] = fixed_cpu(path, args.repeats, args.budget)
+    # the README's table (render_misc.small_graphs: ratios fgopt / peer), then per graph the
+    # fixed formulation's cost and where its generated module came from
     for rec in records:
-        f, c, g, fx = rec["fgopt"], rec["ceres_cpp"], rec["gtsam"], rec["fgopt_fixed"]
-
-        def cell(r):
-            if "error" in r:
-                return r["error"]
-            return f"{r['cpu_s'] * 1e3:.3g} ×{r['cpu_s'] / f['cpu_s']:.2f}"
-
-        t = f["timing"]  # wall-clock split of the fastest solve
-        share = t.get("setup", 0.0) / t["total"] if t.get("total") else 0.0
-        fixed = fx.get("error", "")
-        if not fixed:
-            ratios = ", ".join(f"×{r['cpu_s'] / fx['cpu_s']:.2f}" if "error" not in r
-                               else "-" for r in (c, g))
-            fixed = f"{fx['cpu_s'] * 1e3:.3g} ({ratios})"
-            notes.append(f"{rec['file']}, fixed formulation: cost {fx['cost']:.10g} (dynamic "
-                         f"{f['cost']:.10g}); the first solve of this run took "
+        fx = rec["fgopt_fixed"]
+        if "error" not in fx:
+            notes.append(f"{rec['file']}, fixed formulation: cost {fx['cost']:.10g} (default "
+                         f"path {rec['fgopt']['cost']:.10g}); the first solve of this run took "
                          f"{fx['first_s']:.2f} s, its generated module from: {fx['module']}")
-        lines.append(f"| {rec['file']} | {f['poses']} | {f['cpu_s'] * 1e3:.3g} | {cell(c)} | "
-                     f"{cell(g)} | {share:.0%} | {fixed} |")
-    lines += ["", "fgopt fixed: `formulation=\"fixed\"` (one generated function linearizes the "
-              "whole graph; dense LM), the same 5 iterations and inclusions (collecting the graph "
-              "and the result's values every solve); its generated module is made once per graph "
-              "structure (SymPy + numba, cached on disk) and not included.", ""]
-    lines += [f"- {n}" for n in notes]
+    lines = [f"# 5 LM iterations on pose graphs, CPU ms (commit {commit}, {dt.date.today()}, "
+             f"load average at the start {load0:.1f})", "",
+             render({"results": {"records": records}}), ""] + [f"- {n}" for n in notes]
     md = "\n".join(lines) + "\n"
     if args.out:
         Path(args.out).write_text(md)
