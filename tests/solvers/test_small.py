@@ -152,6 +152,90 @@ def test_what_the_driver_does_not_take_goes_the_general_way():
     assert solve(big_graph, big_init).linear_solver != DRIVER
 
 
+def driver_module():
+    graph, init = mixed_graph(0, n=2)
+    problem = fgopt.Problem(graph, init, backend="numba", build_structure=False)
+    plan = small._plan(problem)
+    assert plan.ready()
+    return plan.module
+
+
+def envelope_matrix(rng, n):
+    """A random SPD matrix with a random envelope (row i's first nonzero column) and it."""
+    first = np.array([max(0, i - int(rng.integers(0, n))) if rng.random() < 0.7 else i
+                      for i in range(n)])
+    A = np.zeros((n, n))
+    for i in range(n):
+        A[i, first[i]:i] = rng.normal(size=i - first[i])
+    A = A + A.T
+    A += np.diag(np.abs(A).sum(axis=1) + 0.5)  # diagonally dominant: positive definite
+    return A, first
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_envelope_cholesky_solves_like_numpy(seed):
+    """The driver's Cholesky reads only each row's envelope and solves A y = b as NumPy does,
+    for random envelopes, a dense one (every row from column 0) and a diagonal one."""
+    m = driver_module()
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 70))
+    A, first = envelope_matrix(rng, n)
+    b = rng.normal(size=n)
+    for env in (first, np.zeros(n, dtype=np.int64)):
+        L, y = np.full((n, n), np.nan), np.empty(n)  # NaN: an entry read outside the envelope
+        np.fill_diagonal(L, 0.0)
+        assert m._cholesky_solve(A, b, L, y, env.astype(np.int64))
+        np.testing.assert_allclose(y, np.linalg.solve(A, b), rtol=1e-10, atol=1e-12)
+    D = np.diag(rng.uniform(1, 2, size=n))
+    y = np.empty(n)
+    assert m._cholesky_solve(D, b, np.zeros((n, n)), y, np.arange(n, dtype=np.int64))
+    np.testing.assert_allclose(y, b / np.diag(D))
+    A[n // 2, n // 2] = -1.0  # not positive definite
+    assert not m._cholesky_solve(A, b, np.zeros((n, n)), y, first.astype(np.int64))
+
+
+def test_envelope_work_counts_each_rows_reach():
+    """A chain's rows reach one variable back; a factor from the last variable to the first
+    widens the last one's rows to the whole H (dense: sum of w^2 / 2 over widths 1..N)."""
+    graph, init = FactorGraph(), Variables()
+    for i in range(4):
+        init.add(key("v", i), np.zeros(3))
+    graph.add(PriorFactor(key("v", 0), np.zeros(3)))
+    for i in range(3):
+        graph.add(BetweenFactor(key("v", i), key("v", i + 1), np.ones(3)))
+    problem = fgopt.Problem(graph, init, backend="numba", build_structure=False)
+    chain = 0.5 * (1 + 4 + 9 + 3 * (16 + 25 + 36))
+    assert small.envelope_work(problem) == chain
+    graph.add(BetweenFactor(key("v", 3), key("v", 0), np.ones(3)))
+    problem = fgopt.Problem(graph, init, backend="numba", build_structure=False)
+    assert small.envelope_work(problem) == chain - 0.5 * (16 + 25 + 36) + 0.5 * (100 + 121 + 144)
+
+
+def test_larger_problem_with_a_narrow_envelope_takes_the_driver():
+    """Past SMALL_DENSE_SIZE a chain (narrow envelope) still takes the driver, with the general
+    path's iterations; a loop closure from the last pose to the first widens the envelope past
+    SMALL_MAX_WORK, and the problem goes the general way."""
+    graph, init = mixed_graph(1, n=10)  # 120 unknowns
+    assert fgopt.Problem(graph, init, backend="numba", build_structure=False).size > \
+        small.SMALL_DENSE_SIZE
+    assert_same(solve(graph, init), solve(graph, init, general=True))
+    graph, init = mixed_graph(1, n=20)  # 240 unknowns
+    assert solve(graph, init).linear_solver == DRIVER
+    graph.add(BetweenFactor(key("x", 19), key("x", 0), SE3()))
+    problem = fgopt.Problem(graph, init, backend="numba", build_structure=False)
+    assert small.envelope_work(problem) + 3 * problem.size ** 2 > small.SMALL_MAX_WORK
+    assert solve(graph, init).linear_solver != DRIVER
+
+
+def test_pose3example_grid_takes_the_driver(data_file):
+    """GTSAM's 27-pose grid (162 unknowns): the driver, with the general path's iterations."""
+    graph, init = fgopt.io.read(str(data_file("small/pose3example-grid.txt")), add_prior=True)
+    off = dict(max_iterations=5, relative_tolerance=0.0, absolute_tolerance=0.0,
+               gradient_tolerance=0.0, step_tolerance=0.0)
+    assert_same(solve(graph, init, **off), solve(graph, init, general=True, **off))
+    assert_same(solve(graph, init), solve(graph, init, general=True))
+
+
 def test_nonfinite_start_raises_the_general_paths_error():
     """The driver reports a non-finite start; the general path then raises its error."""
     graph, init = mixed_graph(0, n=3)

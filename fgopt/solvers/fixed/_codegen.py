@@ -29,7 +29,7 @@ from typing import Any
 from ...symbolic.cse import Program, optimize, prune, total_ops
 
 #: Bumped when the emitted source changes meaning (part of the cache key).
-FIXED_CODEGEN_VERSION = "6"
+FIXED_CODEGEN_VERSION = "7"  # 7: envelope Cholesky (_envelope)
 
 
 @dataclass(frozen=True)
@@ -216,41 +216,60 @@ def _precompute(_c, _w, _aux):
 @numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
 def _retract(_x, _d, _out, _tmp, _aux):
 {retract}
+
+
+@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
+def _envelope(_aux, n):
+    """H's envelope: each row's first structurally nonzero column (_FIRST, from the symbolic H)."""
+    first = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        first[i] = _FIRST[i]
+    return first
 '''
 
-#: The dense LM of a generated module, around its ``_lin(x, aux, H, g) -> cost`` and
-#: ``_retract(x, delta, out, tmp, aux)``; ``{n}`` is the tangent dimension's expression. Shared
+#: The dense LM of a generated module, around its ``_lin(x, aux, H, g) -> cost``,
+#: ``_retract(x, delta, out, tmp, aux)`` and ``_envelope(aux, n)`` (per row of H the first
+#: column that can be nonzero: the Cholesky skips what lies before it); ``{n}`` is the tangent
+#: dimension's expression. Shared
 #: by the fixed formulation and :mod:`fgopt.solvers.small` (one driver per set of kernels).
 LM_TEMPLATE = '''
 # reassociation lets LLVM vectorize the dot products (33 unknowns: 4.1 -> 2.9 us, 72: 34 -> 14
 # us); the order of a sum's terms is all it changes, the same on every call
 @numba.njit(cache=True, fastmath={"reassoc", "contract"}, error_model="numpy", nogil=True)
-def _cholesky_solve(A, b, L, y):
-    """Solve A y = b for symmetric A by Cholesky (lower L); False if A is not positive definite."""
+def _cholesky_solve(A, b, L, y, first):
+    """Solve A y = b for symmetric A by Cholesky (lower L); False if A is not positive definite.
+
+    first[i]: the first column of row i's envelope (A[i, k] = 0 for every k < first[i], so
+    first[i] <= i). L has A's envelope, so only entries inside it are computed and read: a
+    chain-like pose graph's rows reach a few variables back (pose2example's 33 unknowns: a
+    quarter of the dense work)."""
     n = A.shape[0]
     for j in range(n):
+        fj = first[j]
         s = A[j, j]
-        for k in range(j):
+        for k in range(fj, j):
             s -= L[j, k] * L[j, k]
         if not (s > 0.0) or not math.isfinite(s):
             return False
         d = math.sqrt(s)
         L[j, j] = d
         for i in range(j + 1, n):
+            fi = first[i]
+            if fi > j:
+                continue  # outside the envelope: L[i, j] = 0, never read
             s = A[i, j]
-            for k in range(j):
+            for k in range(max(fi, fj), j):
                 s -= L[i, k] * L[j, k]
             L[i, j] = s / d
     for i in range(n):
         s = b[i]
-        for k in range(i):
+        for k in range(first[i], i):
             s -= L[i, k] * y[k]
         y[i] = s / L[i, i]
-    for i in range(n - 1, -1, -1):
-        s = y[i]
-        for k in range(i + 1, n):
-            s -= L[k, i] * y[k]
-        y[i] = s / L[i, i]
+    for i in range(n - 1, -1, -1):  # L^T y = y by columns of L^T: row i of L, its envelope
+        y[i] = y[i] / L[i, i]
+        for k in range(first[i], i):
+            y[k] -= L[i, k] * y[i]
     return True
 
 
@@ -273,12 +292,13 @@ def _all_finite(a):
 
 
 @numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
-def _all_finite2(a):
+def _all_finite_env(a, env):
+    """Whether symmetric a's lower envelope (all it can hold) is finite."""
+    ok = True
     for i in range(a.shape[0]):
-        for j in range(a.shape[1]):
-            if not math.isfinite(a[i, j]):
-                return False
-    return True
+        for j in range(env[i], i + 1):
+            ok = ok and math.isfinite(a[i, j])
+    return ok
 
 
 @numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
@@ -288,10 +308,12 @@ def _copy(src, dst):
 
 
 @numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
-def _copy2(src, dst):
+def _copy_env(src, dst, env):
+    """dst = src on symmetric src's envelope, both triangles (outside it both stay zero)."""
     for i in range(src.shape[0]):
-        for j in range(src.shape[1]):
+        for j in range(env[i], i + 1):
             dst[i, j] = src[i, j]
+            dst[j, i] = src[j, i]
 
 
 @numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
@@ -316,7 +338,8 @@ def _lm(x0, aux, prm, hist, H, g):
     step_tolerance, initial_lambda, min_lambda, max_lambda, min_diagonal, max_diagonal,
     min_relative_decrease, identity damping (1/0), lambda by factor (1/0), lambda_factor.
     hist (max_iterations, 8): cost, candidate cost, relative decrease,
-    lambda, |step|, |grad|, accepted, predicted decrease. H, g (out): the linearization at the returned x.
+    lambda, |step|, |grad|, accepted, predicted decrease. H, g (out): the linearization at the
+    returned x (H zero on entry: only its envelope is written).
     Returns (x, status, message, value, iterations, cost, initial cost); status 0 converged,
     1 max iterations, 2 failed, -1 non-finite at the initial values.
     """
@@ -326,6 +349,7 @@ def _lm(x0, aux, prm, hist, H, g):
     min_diag, max_diag, min_dec = prm[8], prm[9], prm[10]
     identity, by_factor, lam_factor = prm[11] > 0.5, prm[12] > 0.5, prm[13]
     n = {n}
+    env = _envelope(aux, n)  # per row of H its first column that can be nonzero
     x = x0.copy()
     xc = x0.copy()
     Hc = np.zeros((n, n))
@@ -347,9 +371,9 @@ def _lm(x0, aux, prm, hist, H, g):
         new_cost = _lin(xc, aux, Hc, gc)
         if first:
             first = False
-            if not (math.isfinite(new_cost) and _all_finite(gc) and _all_finite2(Hc)):
+            if not (math.isfinite(new_cost) and _all_finite(gc) and _all_finite_env(Hc, env)):
                 return x, -1, 0, 0.0, 0, new_cost, new_cost
-            _copy2(Hc, H)
+            _copy_env(Hc, H, env)
             _copy(gc, g)
             cost = new_cost
             init = new_cost
@@ -359,7 +383,7 @@ def _lm(x0, aux, prm, hist, H, g):
         else:
             row = it - 1
             old = cost
-            if not (math.isfinite(new_cost) and _all_finite(gc) and _all_finite2(Hc)):
+            if not (math.isfinite(new_cost) and _all_finite(gc) and _all_finite_env(Hc, env)):
                 new_cost = np.nan
             rho = (old - new_cost) / predicted if predicted > 0 else -np.inf
             accepted = math.isfinite(new_cost) and rho > min_dec
@@ -368,7 +392,7 @@ def _lm(x0, aux, prm, hist, H, g):
                 rel = np.nan
             if accepted:
                 _copy(xc, x)
-                _copy2(Hc, H)
+                _copy_env(Hc, H, env)
                 _copy(gc, g)
                 cost = new_cost
                 if by_factor:
@@ -406,11 +430,11 @@ def _lm(x0, aux, prm, hist, H, g):
                 return x, 1, 7, 0.0, max_it, cost, init
             for i in range(n):
                 Dg[i] = 1.0 if identity else min(max(H[i, i], min_diag), max_diag)
-                for j in range(n):
+                for j in range(env[i], i + 1):  # the lower envelope: all the Cholesky reads
                     Hd[i, j] = H[i, j]
                 Hd[i, i] += lam * Dg[i]
                 rhs[i] = -g[i]
-            ok = _cholesky_solve(Hd, rhs, L, delta)
+            ok = _cholesky_solve(Hd, rhs, L, delta, env)
             if ok:
                 ok = _all_finite(delta)
             if ok:
@@ -495,10 +519,13 @@ def module_source(variables: list, prog: Program, const_syms: set, header: dict)
               for v, var in enumerate(variables) for k in range(var.storage_dim)}
     lin_in.update({s: (1, k) for k, s in enumerate(hoisted)})
     stores, k = [], 0
+    first = list(range(N))  # H's envelope: per row, its first structurally nonzero column
     for a in range(N):
         for b in range(a + 1):
             e = prog.outputs["H"][k]
             k += 1
+            if e != 0:
+                first[a] = min(first[a], b)
             stores.append((2, a * N + b, e))
             if a != b:
                 stores.append((2, b * N + a, e))
@@ -546,6 +573,7 @@ def module_source(variables: list, prog: Program, const_syms: set, header: dict)
         f"N = {N}",
         f"S = {S}",
         f"NUM_AUX = {len(hoisted)}",
+        f"_FIRST = np.array({first!r}, dtype=np.int64)",
         f"META = {meta!r}",
         "",
         _table_source("_PRE_CODE", pre_code),

@@ -4,7 +4,8 @@ On a problem of a few dozen variables the general path's fixed costs dominate: d
 NumPy calls of 1-5 us to set up the sparse structure and ordering, the solver's analysis, and
 per iteration the Python around kernels that take a few microseconds (a 2-pose graph took
 0.69 ms where GTSAM takes 0.075). :func:`optimize_small` skips all of it for problems of
-tangent dimension at most :data:`SMALL_MAX_SIZE` whose kernels have a
+tangent dimension at most :data:`SMALL_DENSE_SIZE` (or up to :data:`SMALL_MAX_SIZE` when H's
+envelope keeps the work within :data:`SMALL_MAX_WORK`) whose kernels have a
 :class:`~fgopt.factors.kernel.CompiledCall`: one generated driver per *set of kernels* (not per
 structure, unlike :mod:`fgopt.solvers.fixed`) takes the problem's layout as arrays, linearizes
 every batch with the kernels' own numba functions into a dense H (smart factors add their Schur
@@ -39,9 +40,20 @@ from ..diagnostics import clamp_hits, warn_clamps
 from ..result import Result, compiled_history
 from . import _driver
 
-#: Largest tangent dimension solved densely: dense Cholesky costs N^3 / 6 per iteration, the
-#: general path's sparse one far less on a sparse graph (measured: see benchmarks/small_graphs).
-SMALL_MAX_SIZE = 60
+#: Largest tangent dimension the driver takes (its dense H, a damped copy and a Cholesky factor
+#: are ``N x N`` each) ...
+SMALL_MAX_SIZE = 400
+#: ... if its Cholesky's work (:func:`envelope_work`) plus ``3 N^2`` (the per-iteration passes
+#: over H's rows) is within this: the envelope Cholesky skips what lies before each row's first
+#: nonzero, but from some size on the general path's sparse factorization wins. Set from 5 LM
+#: iterations on the first 70-130 poses of ``manhattan_2d(400)`` and pose3example-grid, driver
+#: vs general path in one process: 70 poses (N 210, work 83k + 132k) 0.52x the general path's
+#: time, pose3example-grid (162, 122k + 79k) 0.67x, 80 poses (240, 168k + 173k) 0.75x,
+#: 100 poses (300, 100k + 270k) 0.8-1.3x, 90 poses (270, 178k + 219k) 1.4x, 130 poses
+#: (390, 836k + 456k) 1.35x. Problems up to :data:`SMALL_DENSE_SIZE` are taken without
+#: computing it (their dense work is below).
+SMALL_MAX_WORK = 350_000
+SMALL_DENSE_SIZE = 60
 
 #: Counters (tests): drivers ``generated`` (source written and compiled) or ``loaded``.
 STATS = {"generated": 0, "loaded": 0, "solves": 0}
@@ -61,7 +73,25 @@ def qualifies(problem: Any, params: Any) -> bool:
             return False
         if call.hessian and not (b.unit and len({k.storage_dim for k in b.kernel.arg_kinds}) == 1):
             return False  # the kernel's own J^T J assumes both (CompiledCall)
-    return _kind_tables(problem.kinds)[3]
+    return _kind_tables(problem.kinds)[3] and (
+        problem.size <= SMALL_DENSE_SIZE
+        or envelope_work(problem) + 3.0 * problem.size ** 2 <= SMALL_MAX_WORK)
+
+
+def envelope_work(problem: Any) -> float:
+    """Multiply-adds of the driver's envelope Cholesky on ``problem``'s H: ``sum_i w_i^2 / 2``
+    with ``w_i`` the width of row ``i`` from its first column a factor can fill (tangents in
+    variable order, as the driver lays them out; a dense H gives ``N^3 / 6``)."""
+    dims = problem.var_dim
+    toff = np.zeros(len(dims) + 1, dtype=np.int64)
+    np.cumsum(dims, out=toff[1:])
+    first = toff[:-1].copy()  # per variable: the first tangent row its rows reach back to
+    for b in problem.batches:
+        reach = toff[b.var_idx].min(axis=1)
+        for c in range(b.var_idx.shape[1]):
+            np.minimum.at(first, b.var_idx[:, c], reach)
+    width = np.arange(1, toff[-1] + 1) - np.repeat(first, dims)
+    return 0.5 * float(width @ width)
 
 
 #: Compile a kernel set's driver in this process when fgopt's cache does not hold it yet (a few

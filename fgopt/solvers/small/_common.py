@@ -75,11 +75,38 @@ def layout_of(var_kind, var_row, var_dim, kind_sdim, kind_gid):
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
-def clear(H, g):
+def envelope_of(toff, var_dim, n):
+    """Each tangent row's own variable's first row: H's envelope before any factor widens it
+    (:func:`widen_envelope`)."""
+    first = np.empty(n, dtype=np.int64)
+    for v in range(toff.shape[0]):
+        for t in range(toff[v], toff[v] + var_dim[v]):
+            first[t] = toff[v]
+    return first
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def widen_envelope(first, toffs, dims):
+    """A factor couples its arguments: each one's rows of H reach back to the first row of the
+    factor's earliest argument. ``toffs, dims (n, k)``: the arguments' tangent offsets and dims."""
+    for i in range(toffs.shape[0]):
+        m = toffs[i, 0]
+        for p in range(1, toffs.shape[1]):
+            m = min(m, toffs[i, p])
+        for p in range(toffs.shape[1]):
+            for t in range(toffs[i, p], toffs[i, p] + dims[i, p]):
+                if m < first[t]:
+                    first[t] = m
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def clear(H, g, env):
+    """``g = 0`` and ``H = 0`` on its envelope (both triangles: the rest is never written)."""
     for i in range(H.shape[0]):
         g[i] = 0.0
-        for j in range(H.shape[1]):
+        for j in range(env[i], i + 1):
             H[i, j] = 0.0
+            H[j, i] = 0.0
 
 
 @njit(cache=True, error_model="numpy", nogil=True)

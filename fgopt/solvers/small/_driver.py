@@ -16,8 +16,10 @@ the driver's kernel order (each factor's variables, constants, square-root infor
 variables out (:func:`fgopt.solvers.small._common.layout_of`) and runs ``_lm`` on ``aux``:
 ``(slots, layout)`` with per kernel ``(soff, toff, consts, R, work)``, each argument's storage /
 tangent offsets and the kernel's work arrays (its arguments' rows, residuals and Jacobians: made
-once per solve, not per linearization), and the ``(V, 5)`` layout of
-:func:`fgopt.solvers.small._common.retract` -- in the compiled call, not as Python work per solve.
+once per solve, not per linearization), the ``(V, 5)`` layout of
+:func:`fgopt.solvers.small._common.retract` and H's envelope (per row, the first column a factor
+can fill: the dense Cholesky skips what lies before it) -- in the compiled call, not as Python
+work per solve.
 
 Modules live in fgopt's kernel cache (:mod:`fgopt.symbolic.cache`), keyed by the kernels' calls
 and shapes, this template and fgopt's version; numba caches their machine code.
@@ -31,7 +33,7 @@ from typing import Any
 from ..fixed._codegen import LM_TEMPLATE
 
 #: Bumped when the emitted source changes meaning (part of the cache key).
-SMALL_CODEGEN_VERSION = "6"
+SMALL_CODEGEN_VERSION = "7"
 #: What a loaded module must define (else it is regenerated).
 REQUIRED = ("_lin", "_retract", "_lm", "_solve", "KERNELS")
 
@@ -163,7 +165,8 @@ def module_source(signatures: tuple, names: tuple) -> str:
         "import numba",
         "import numpy as np",
         "",
-        "from fgopt.solvers.small._common import clear, gather, layout_of, retract, stacked",
+        "from fgopt.solvers.small._common import (clear, envelope_of, gather, layout_of, retract,",
+        "                                         stacked, widen_envelope)",
         "",
         *imports,
         f"KERNELS = {names!r}",
@@ -174,7 +177,7 @@ def module_source(signatures: tuple, names: tuple) -> str:
         "def _lin(x, aux, H, g):",
         '    """Dense H (both triangles), g and the cost at storage x."""',
         "    slots = aux[0]",
-        "    clear(H, g)",
+        "    clear(H, g, aux[2])",
         "    cost = 0.0",
         *body,
         "    return cost",
@@ -183,6 +186,11 @@ def module_source(signatures: tuple, names: tuple) -> str:
         '@numba.njit(cache=True, error_model="numpy", nogil=True)',
         "def _retract(x, delta, out, tmp, aux):",
         "    retract(x, delta, out, tmp, aux[1])",
+        "",
+        "",
+        '@numba.njit(cache=True, error_model="numpy", nogil=True)',
+        "def _envelope(aux, n):",
+        "    return aux[2]",
         "",
     ]
     slots = ", ".join(f"(soff[s{j}[0]], toff[s{j}[0]], s{j}[1], s{j}[2], {work[j]})"
@@ -199,12 +207,15 @@ def module_source(signatures: tuple, names: tuple) -> str:
         f"    {unpack}{',' if len(signatures) == 1 else ''} = slots",
         "    soff, toff, layout = layout_of(var_kind, var_row, var_dim, kind_sdim, kind_gid)",
         *[f"    n{j} = s{j}[0].shape[0]" for j in range(len(signatures))],
-        f"    aux = (({slots}{',' if len(signatures) == 1 else ''}), layout)",
         "    n = 0",
         "    for v in range(var_dim.shape[0]):",
         "        n += var_dim[v]",
+        "    first = envelope_of(toff, var_dim, n)",
+        *[f"    widen_envelope(first, toff[s{j}[0]], var_dim[s{j}[0]])"
+          for j in range(len(signatures))],
+        f"    aux = (({slots}{',' if len(signatures) == 1 else ''}), layout, first)",
         "    hist = np.empty((max(int(prm[0]), 1), 8))",
-        "    H = np.empty((n, n))",
+        "    H = np.zeros((n, n))  # (zero outside the envelope)",
         "    g = np.empty(n)",
         "    x, status, msg, val, its, cost, init = _lm(x0, aux, prm, hist, H, g)",
         "    return x, status, msg, val, its, cost, init, hist",
