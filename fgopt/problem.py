@@ -448,7 +448,8 @@ class Problem:
             V = len(var_kind)
             self.var_kind = np.zeros(V, dtype=np.int64)
             self.var_row = np.arange(V, dtype=np.int64)
-            self.var_dim = np.full(V, dims[0], dtype=np.int64)
+            self.var_dim = np.empty(V, dtype=np.int64)  # (np.full: ~0.5 us more)
+            self.var_dim.fill(dims[0])
             self.__dict__["size"] = V * dims[0]  # the cached property, known here
             self._kind_vars = [self.var_row]
         else:

@@ -249,6 +249,9 @@ _MESSAGES = {
 }
 
 
+_lm_module: Any = None  # fgopt.solvers.lm, once optimize_small has run
+
+
 def optimize_small(problem: Any, params: Any, t0: float, graph: Any = None,
                    initial: Any = None) -> Result | None:
     """LM on ``problem`` (a :class:`~fgopt.problem.Problem`, structure not needed) in one call of
@@ -256,8 +259,10 @@ def optimize_small(problem: Any, params: Any, t0: float, graph: Any = None,
     compiles it from ``graph`` and ``initial``), or the initial linearization is not finite
     (the general path then names the factor). ``t0``: when the solve started
     (``perf_counter``)."""
-    from ..lm import auto_policy, problem_class_for
-
+    global _lm_module
+    if _lm_module is None:  # (lm imports this module; an import here costs ~1 us a solve)
+        from .. import lm as _lm_module
+    auto_policy, problem_class_for = _lm_module.auto_policy, _lm_module.problem_class_for
     p = params
     plan = _plan(problem)
     if not plan.ready():
