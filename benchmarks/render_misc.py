@@ -311,7 +311,9 @@ def small_graphs(doc: dict) -> str:
                        + (f": {', '.join(files)}" if files else ""))
     lines += ["", "CPU ms, the minimum over the solves (see the caption); ×N = fgopt / peer "
               "(**above 1: fgopt slower**, bold). fgopt's path: the dense "
-              "small-problem driver (tangent dimension up to 60) or the sparse general path. "
+              "small-problem driver (tangent dimension up to 60, or up to 400 where H's envelope "
+              "keeps its Cholesky cheap: `fgopt.solvers.small.SMALL_MAX_WORK`) or the sparse "
+              "general path. "
               "The fixed formulation (`formulation=\"fixed\"`, a user's choice for small "
               "problems of fixed structure: one generated function linearizes the whole graph, "
               "graphs of at most 50 poses) is timed with the same inclusions; its generated "
