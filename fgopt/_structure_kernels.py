@@ -1,5 +1,6 @@
 """numba kernels of :mod:`fgopt.structure`: the block layout of H's lower CSC, the whole pattern
-in one call (used once numba is in use), row indices, the symmetric product and the scatter map.
+in one call (used once numba is in use), row indices, the symmetric product and the scatter map;
+and the small collection's numbering of a file's factors (:func:`block_var_idx`).
 
 Their vectorized NumPy forms (NumPy backend, and small work while the twin budget lasts) stay in
 :mod:`fgopt.structure`, which picks between the two.
@@ -23,6 +24,35 @@ def lower_bound(a, lo, hi, v):
         else:
             hi = mid
     return lo
+
+
+@njit(cache=True)
+def block_var_idx(block_keys, keys, used):
+    """Each of ``keys (n, k)``'s row in ``block_keys``, marking the rows in ``used``:
+    ``(var_idx (n, k), fresh)``, ``fresh`` the number of rows newly marked, or -1 when
+    ``block_keys`` is not strictly ascending, a key is absent or a factor repeats a key (the
+    caller's general path then says which)."""
+    n, k = keys.shape
+    N = block_keys.shape[0]
+    out = np.empty((n, k), dtype=np.int64)
+    for r in range(1, N):
+        if block_keys[r] <= block_keys[r - 1]:
+            return out, -1
+    fresh = 0
+    for i in range(n):
+        for p in range(k):
+            q = keys[i, p]
+            r = lower_bound(block_keys, 0, N, q)
+            if r == N or block_keys[r] != q:
+                return out, -1
+            for t in range(p):
+                if out[i, t] == r:
+                    return out, -1
+            out[i, p] = r
+            if not used[r]:
+                used[r] = True
+                fresh += 1
+    return out, fresh
 
 
 @njit(cache=True)

@@ -42,6 +42,7 @@ from .structure import (DENSE_MAX_SIZE, HessianPattern, ba_shaped_kind, build_pa
                         scatter_positions, unique_int)
 from ._jit import charge_numpy, numpy_budget_left
 from ._scatter_fixed import specialize as specialized_scatter
+from ._structure_kernels import block_var_idx
 from ._threads import PARALLEL_MIN_BATCH, linearize_batch_threaded
 from .variables import _MAX_LAZY_BLOCKS, Variables, _Rows, _runs
 
@@ -398,6 +399,9 @@ class Problem:
             size += b.keys.shape[0]
         if size > SMALL_COLLECT_MAX:
             return False
+        if (not factors and not values._dict and len(pending) == 1 and batches
+                and _jit.is_numba_loaded() and self._collect_file(batches, pending[0], values)):
+            return True
         var_of: dict = {}  # key -> variable: the factors' keys in order of first use, ...
         key_var: list[int] = []
         for f in factors:
@@ -440,19 +444,13 @@ class Problem:
                 return False
             kinds, kind_id, var_kind, var_row, members = found
             storages = [self._small_storage(kind, items) for kind, items in zip(kinds, members)]
-        self.kinds = kinds
-        self._kind_id = kind_id
         self.var_keys = np.array(list(var_of), dtype=np.int64)
-        dims = [kind.dim for kind in kinds]
-        if len(kinds) == 1:  # one kind: every variable's row is its number
-            V = len(var_kind)
-            self.var_kind = np.zeros(V, dtype=np.int64)
-            self.var_row = np.arange(V, dtype=np.int64)
-            self.var_dim = np.empty(V, dtype=np.int64)  # (np.full: ~0.5 us more)
-            self.var_dim.fill(dims[0])
-            self.__dict__["size"] = V * dims[0]  # the cached property, known here
-            self._kind_vars = [self.var_row]
+        if len(kinds) == 1:
+            self._one_kind(kinds[0])
         else:
+            self.kinds = kinds
+            self._kind_id = kind_id
+            dims = [kind.dim for kind in kinds]
             self.var_kind = np.array(var_kind, dtype=np.int64)
             self.var_row = np.array(var_row, dtype=np.int64)
             var_dims = [dims[t] for t in var_kind]
@@ -467,6 +465,7 @@ class Problem:
         self._slow_values = []
         self._extra = values
         self.unused_keys = []
+        self._slow = []
         if num_values > len(var_of):
             have = chain(value_of, *(blk.keys.tolist() for blk, _ in blocks))
             self.unused_keys = [Key(k) for k in have if k not in var_of]
@@ -479,7 +478,6 @@ class Problem:
         groups: dict[int, list[int]] = {}
         for i, f in enumerate(factors):
             groups.setdefault(id(f.kernel), []).append(i)
-        self._slow = []
         self.batches = []
         for rows in groups.values():
             for rs, fs in self._by_loss(np.array(rows, dtype=np.int64),
@@ -488,6 +486,55 @@ class Problem:
         for b in batches:
             self.batches.append(self._small_batch(b, var_of, var_kind)
                                 or self._make_batch(b, check_repeats=True))
+        return True
+
+    def _one_kind(self, kind: BatchKind) -> None:
+        """The variables' tables when all are of one kind: every variable's row is its number."""
+        self.kinds = [kind]
+        self._kind_id = {id(kind): 0}
+        V = self.var_keys.shape[0]
+        self.var_kind = np.zeros(V, dtype=np.int64)
+        self.var_row = np.arange(V, dtype=np.int64)
+        self.var_dim = np.empty(V, dtype=np.int64)  # (np.full: ~0.5 us more)
+        self.var_dim.fill(kind.dim)
+        self.__dict__["size"] = V * kind.dim  # the cached property, known here
+        self._kind_vars = [self.var_row]
+
+    def _collect_file(self, batches: list, blk: Any, values: Variables) -> bool:
+        """:meth:`_collect_small` of what a file reader makes: batches only, and values that are
+        one bulk block with strictly ascending keys (checked in the compiled call), every one of
+        them used. The variables are
+        then the block's rows in order (the numbering of the sorted batch keys), each batch's
+        variables found by one compiled call (:func:`~fgopt._structure_kernels.block_var_idx`)
+        instead of a Python pass over its keys. False (nothing set) for anything else."""
+        kind = _kind_of_rows(blk)
+        if kind is None:
+            return False
+        used = np.zeros(blk.keys.shape[0], dtype=np.bool_)
+        found, seen = [], 0
+        for b in batches:
+            var_idx, fresh = block_var_idx(blk.keys, b.keys, used)
+            if fresh < 0:  # a missing or repeated key: the Python pass finds and names it
+                return False
+            found.append(var_idx)
+            seen += fresh
+        if seen != used.shape[0]:  # unused values: numbered without them
+            return False
+        self.var_keys = blk.keys.copy()
+        self._one_kind(kind)
+        self._initial_storages = [blk.rows.copy()]  # (the block stays as it is)
+        self._bulk_order = list(range(seen))
+        self._slow_vars = _NO_VARIABLES
+        self._slow_values = []
+        self._extra = values
+        self.unused_keys = []
+        self._slow = []
+        self.batches = []
+        for b, var_idx in zip(batches, found):
+            kind_ids = tuple([0 if a is kind else self._kind_id.get(id(a), -2)
+                              for a in b.kernel.arg_kinds])
+            self.batches.append(self._make_batch(b, check_repeats=True) if any(kind_ids)
+                                else self._batch(b, var_idx, kind_ids))
         return True
 
     @staticmethod

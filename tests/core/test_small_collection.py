@@ -180,3 +180,55 @@ def test_repeated_key_in_a_large_batch_names_its_row(data_file):
     with pytest.raises(FgoptError, match="same key twice") as err:
         P.Problem(graph, init, build_structure=False)
     assert b._where(700) in str(err.value)
+
+
+@pytest.fixture
+def numba_in_use(monkeypatch):
+    """The process has loaded numba (the condition of the file path, ``_collect_file``); counts
+    the solves that path took."""
+    monkeypatch.setattr(P._jit, "is_numba_loaded", lambda: True)
+    taken = []
+    original = P.Problem._collect_file
+    monkeypatch.setattr(P.Problem, "_collect_file",
+                        lambda self, *a: (taken.append(original(self, *a)), taken[-1])[1])
+    return taken
+
+
+def block_of(values):
+    blk = values._pending[0]
+    return blk.keys, blk.kind, blk.rows
+
+
+@pytest.mark.parametrize("name", ["small/pose2example.txt", "small/pose3example-offdiagonal.txt",
+                                  "small/Klaus3.g2o", "small/tinyGrid3D.g2o"])
+def test_a_files_graph_numbered_in_one_compiled_call(data_file, name, numba_in_use, monkeypatch):
+    """A reader's batches over one ascending bulk block: the file path collects it (block rows
+    as variables, each batch's variables from one compiled call) as the general path does."""
+    a, b = both(*fgopt.io.read(str(data_file(name)), add_prior=True), monkeypatch)
+    assert numba_in_use == [True]
+    assert_same_problem(a, b)
+    np.testing.assert_array_equal(a._bulk_order, np.arange(len(a.var_keys)))
+
+
+def test_file_path_leaves_what_it_cannot_number_to_the_python_pass(data_file, numba_in_use,
+                                                                   monkeypatch):
+    """Keys not ascending, a value no factor uses, a missing key and a repeated key: the file
+    path declines (nothing set), and the Python pass gives the general path's problem or error."""
+    graph, init = fgopt.io.read(str(data_file("small/pose2example.txt")), add_prior=True)
+    keys, kind, rows = block_of(init)
+    descending = Variables().add_rows(keys[::-1], kind, rows[::-1])
+    a, b = both(graph, descending, monkeypatch)
+    assert_same_problem(a, b)
+    extra = Variables().add_rows(np.append(keys, keys[-1] + 7), kind, np.vstack([rows, rows[:1]]))
+    a, b = both(graph, extra, monkeypatch)
+    assert_same_problem(a, b)
+    assert [int(k) for k in a.unused_keys] == [int(keys[-1] + 7)]
+    assert numba_in_use == [False, False]
+
+    missing = Variables().add_rows(keys[1:], kind, rows[1:])
+    (t, msg), other = errors(graph, missing, monkeypatch)
+    assert t is KeyNotFoundError and other == (t, msg)
+    graph.batches[0].keys[1, 1] = graph.batches[0].keys[1, 0]
+    (t, msg), other = errors(graph, init, monkeypatch)
+    assert "same key twice" in msg and other == (t, msg)
+    assert numba_in_use[2:] == [False, False]

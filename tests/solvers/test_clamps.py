@@ -43,11 +43,21 @@ def graph(start_q):
 
 
 def _run(kind, g, v):
+    if kind == "lm driver":  # the small-problem driver (numba; compiled here if new)
+        from fgopt.solvers import LevenbergMarquardt, LMParams, small
+
+        small.COMPILE_IN_FOREGROUND, before = True, small.COMPILE_IN_FOREGROUND
+        try:
+            r = LevenbergMarquardt(LMParams(backend="numba")).optimize(g, v)
+        finally:
+            small.COMPILE_IN_FOREGROUND = before
+        assert r.linear_solver == "dense cholesky (small-problem driver)"
+        return r
     kw = {"formulation": "fixed"} if kind == "fixed" else {"method": kind}
     return fgopt.optimize(g, v, **kw)
 
 
-@pytest.mark.parametrize("kind", ["lm", "gn", "dogleg", "gnc", "fixed"])
+@pytest.mark.parametrize("kind", ["lm", "lm driver", "gn", "dogleg", "gnc", "fixed"])
 def test_start_outside_sqrt_domain_is_reported(kind):
     """|q - p|^2 - 1 = -0.75 < 0 at the start: gradient zero, "converged" at once; the result
     lists the factor, the sqrt's file:line and the argument, the repr says so, and a

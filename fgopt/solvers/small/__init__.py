@@ -114,6 +114,8 @@ class _Plan:
         self.names = tuple(kernels[j].name for j in order)
         self.key = _driver.module_key(self.signatures)
         self.name = f"small_{len(sigs)}k"
+        #: Whether some kernel clamps a function's argument (else no clamp check after a solve)
+        self.clamps = any(k.clamp_arguments is not None and len(k.clamps) for k in kernels)
         self.module: Any = None
         self.compiled = False  # machine code known to be in numba's cache (the marker exists)
         self.warming = False
@@ -303,7 +305,7 @@ def optimize_small(problem: Any, params: Any, t0: float, graph: Any = None,
         float(val), p, rel_tol), cost)
     state = State([x.reshape(storages[0].shape)] if len(storages) == 1 else _split(x, storages),
                   {})
-    clamps, num_clamped = clamp_hits(problem, state)
+    clamps, num_clamped = clamp_hits(problem, state) if plan.clamps else ((), 0)
     warn_clamps(clamps, num_clamped)
     total = time.perf_counter() - t0
     timing = {"setup": t1 - t0, "lm": t2 - t1, "total": total}
