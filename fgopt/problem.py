@@ -503,10 +503,10 @@ class Problem:
     def _collect_file(self, batches: list, blk: Any, values: Variables) -> bool:
         """:meth:`_collect_small` of what a file reader makes: batches only, and values that are
         one bulk block with strictly ascending keys (checked in the compiled call), every one of
-        them used. The variables are
-        then the block's rows in order (the numbering of the sorted batch keys), each batch's
-        variables found by one compiled call (:func:`~fgopt._structure_kernels.block_var_idx`)
-        instead of a Python pass over its keys. False (nothing set) for anything else."""
+        them used. The variables are then the block's rows in order (the numbering of the sorted
+        batch keys), each batch's variables found by one compiled call
+        (:func:`~fgopt._structure_kernels.block_var_idx`) instead of a Python pass over its keys.
+        False (nothing set) for anything else."""
         kind = _kind_of_rows(blk)
         if kind is None:
             return False

@@ -38,7 +38,7 @@ from ...manifolds.lie import group_id
 from ...problem import State
 from ..diagnostics import clamp_hits, warn_clamps
 from ..result import Result, compiled_history
-from . import _driver
+from . import _common, _driver
 
 #: Largest tangent dimension the driver takes (its dense H, a damped copy and a Cholesky factor
 #: are ``N x N`` each) ...
@@ -47,10 +47,10 @@ SMALL_MAX_SIZE = 400
 #: over H's rows) is within this: the envelope Cholesky skips what lies before each row's first
 #: nonzero, but from some size on the general path's sparse factorization wins. Set from 5 LM
 #: iterations on the first 70-130 poses of ``manhattan_2d(400)`` and pose3example-grid, driver
-#: vs general path in one process: 70 poses (N 210, work 83k + 132k) 0.52x the general path's
-#: time, pose3example-grid (162, 122k + 79k) 0.67x, 80 poses (240, 168k + 173k) 0.75x,
-#: 100 poses (300, 100k + 270k) 0.8-1.3x, 90 poses (270, 178k + 219k) 1.4x, 130 poses
-#: (390, 836k + 456k) 1.35x. Problems up to :data:`SMALL_DENSE_SIZE` are taken without
+#: vs general path in one process (ad-hoc runs): 70 poses (N 210, work 83k + 132k) 0.52-0.56x
+#: the general path's time, pose3example-grid (162, 122k + 79k) 0.67-0.73x, 80 poses (240,
+#: 168k + 173k) 0.75x, 100 poses (300, 100k + 270k) 0.8-1.3x, 90 poses (270, 178k + 219k)
+#: 1.4x, 130 poses (390, 836k + 456k) 1.35-1.56x. Problems up to :data:`SMALL_DENSE_SIZE` are taken without
 #: computing it (their dense work is below).
 SMALL_MAX_WORK = 350_000
 SMALL_DENSE_SIZE = 60
@@ -80,17 +80,16 @@ def qualifies(problem: Any, params: Any) -> bool:
 
 def envelope_work(problem: Any) -> float:
     """Multiply-adds of the driver's envelope Cholesky on ``problem``'s H: ``sum_i w_i^2 / 2``
-    with ``w_i`` the width of row ``i`` from its first column a factor can fill (tangents in
-    variable order, as the driver lays them out; a dense H gives ``N^3 / 6``)."""
+    with ``w_i`` the width of row ``i`` from its first column a factor can fill (the driver's
+    own envelope, :func:`._common.envelope_of` / :func:`._common.widen_envelope`, with tangents
+    in variable order as it lays them out; a dense H gives ``N^3 / 6``)."""
     dims = problem.var_dim
     toff = np.zeros(len(dims) + 1, dtype=np.int64)
     np.cumsum(dims, out=toff[1:])
-    first = toff[:-1].copy()  # per variable: the first tangent row its rows reach back to
+    first = _common.envelope_of(toff[:-1], dims, int(toff[-1]))
     for b in problem.batches:
-        reach = toff[b.var_idx].min(axis=1)
-        for c in range(b.var_idx.shape[1]):
-            np.minimum.at(first, b.var_idx[:, c], reach)
-    width = np.arange(1, toff[-1] + 1) - np.repeat(first, dims)
+        _common.widen_envelope(first, toff[b.var_idx], dims[b.var_idx])
+    width = np.arange(1, toff[-1] + 1) - first
     return 0.5 * float(width @ width)
 
 
