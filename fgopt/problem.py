@@ -461,11 +461,7 @@ class Problem:
                 by_kind[t].append(v)
             self._kind_vars = [np.array(vs, dtype=np.int64) for vs in by_kind]
         self._initial_storages = storages
-        self._slow_vars = _NO_VARIABLES
-        self._slow_values = []
-        self._extra = values
-        self.unused_keys = []
-        self._slow = []
+        self._no_slow_parts(values)
         if num_values > len(var_of):
             have = chain(value_of, *(blk.keys.tolist() for blk, _ in blocks))
             self.unused_keys = [Key(k) for k in have if k not in var_of]
@@ -487,6 +483,15 @@ class Problem:
             self.batches.append(self._small_batch(b, var_of, var_kind)
                                 or self._make_batch(b, check_repeats=True))
         return True
+
+    def _no_slow_parts(self, values: Variables) -> None:
+        """What :meth:`_collect_small` sets when every factor and value has a kernel / kind (no
+        Python-path variables or factors, no unused keys yet)."""
+        self._slow_vars = _NO_VARIABLES
+        self._slow_values = []
+        self._extra = values
+        self.unused_keys = []
+        self._slow = []
 
     def _one_kind(self, kind: BatchKind) -> None:
         """The variables' tables when all are of one kind: every variable's row is its number."""
@@ -524,11 +529,7 @@ class Problem:
         self._one_kind(kind)
         self._initial_storages = [blk.rows.copy()]  # (the block stays as it is)
         self._bulk_order = list(range(seen))
-        self._slow_vars = _NO_VARIABLES
-        self._slow_values = []
-        self._extra = values
-        self.unused_keys = []
-        self._slow = []
+        self._no_slow_parts(values)
         self.batches = []
         for b, var_idx in zip(batches, found):
             kind_ids = tuple([0 if a is kind else self._kind_id.get(id(a), -2)
