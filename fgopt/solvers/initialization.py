@@ -38,7 +38,7 @@ import time
 from typing import Any, Callable
 
 from ..errors import FgoptError
-from .result import Result, Status
+from .result import Deferred, Result, Status
 
 INITIALIZATIONS = ("auto", "given", "chordal")
 #: Upper-tail probability of the chi-square test of step 2.
@@ -68,7 +68,13 @@ def cost_bound(problem: Any) -> tuple[float, int] | None:
         if s.loss_code != 0:
             return None
         m += s.factor.dim
-    dof = m - problem.size
+    return bound_of(m, problem.size)
+
+
+def bound_of(residuals: int, unknowns: int) -> tuple[float, int] | None:
+    """:func:`cost_bound` of ``residuals`` residual dimensions (no robust loss) over
+    ``unknowns`` tangent dimensions."""
+    dof = residuals - unknowns
     if dof < 10:
         return None
     return 0.5 * chi2_upper(dof), dof
@@ -78,9 +84,13 @@ def implausible(result: Result) -> str | None:
     """Why ``result`` may be a wrong local minimum (``None``: nothing suspicious)."""
     if result.status is Status.FAILED:
         return f"the solve from the given values failed ({result.message})"
-    if result.problem is None:
+    deferred = result.__dict__.get("_problem")
+    if type(deferred) is Deferred and deferred.dims is not None:
+        bound = bound_of(*deferred.dims)  # (a fast path's problem, not compiled for this)
+    elif result.problem is None:
         return None
-    bound = cost_bound(result.problem)
+    else:
+        bound = cost_bound(result.problem)
     if bound is None:
         return None
     limit, dof = bound

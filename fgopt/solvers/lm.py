@@ -86,6 +86,10 @@ class LevenbergMarquardt:
 
     def optimize(self, graph: Any, initial: Variables, callback: Callback | None = None) -> Result:
         t0 = time.perf_counter()
+        if callback is None and self.linear_solver is None and isinstance(initial, Variables):
+            result = small.optimize_file(graph, initial, self.params, t0)
+            if result is not None:  # a file's small graph: no Problem compiled first
+                return result
         choice = self.linear_solver if self.linear_solver is not None else self.params.linear_solver
         problem = compile_problem(graph, initial, self.params, choice, build_structure=False)
         if callback is None and self.linear_solver is None and small.qualifies(problem,

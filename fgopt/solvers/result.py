@@ -165,6 +165,34 @@ class _Records:
         obj.__dict__["_records"] = value if isinstance(value, (list, _HistoryRows)) else list(value)
 
 
+class Deferred:
+    """A problem made by ``make()`` when first read (see :class:`_MadeOnRead`); ``dims``: its
+    ``(residual dimensions, tangent dimensions)`` when known without making it (the chi-square
+    test of :mod:`fgopt.solvers.initialization` needs only those)."""
+
+    __slots__ = ("make", "dims")
+
+    def __init__(self, make, dims: tuple[int, int] | None = None):
+        self.make, self.dims = make, dims
+
+
+class _MadeOnRead:
+    """``Result.problem``: the compiled problem, or a :class:`Deferred` one made when first read
+    (a fast path that solved without compiling one: most callers never read it). A data
+    descriptor, so the dataclass' ``__init__``, ``==`` and ``repr`` go through it."""
+
+    def __get__(self, obj: "Result | None", owner: type | None = None):
+        if obj is None:
+            return None  # the dataclass field's default
+        v = obj.__dict__["_problem"]
+        if type(v) is Deferred:
+            v = obj.__dict__["_problem"] = v.make()
+        return v
+
+    def __set__(self, obj: "Result", value) -> None:
+        obj.__dict__["_problem"] = value
+
+
 @dataclass
 class Result:
     """What an optimizer returns. ``values`` are built on first access from the final state."""
@@ -180,7 +208,7 @@ class Result:
     timing: dict[str, float] = field(default_factory=dict)
     method: str = ""
     linear_solver: str = ""
-    problem: object = field(default=None, repr=False)
+    problem: object = _MadeOnRead()  # type: ignore[assignment]
     """The compiled problem (for marginals)."""
     state: object = field(default=None, repr=False)
     """The final :class:`fgopt.problem.State` (storage arrays)."""
@@ -212,6 +240,7 @@ class Result:
             state["_values"] = self.problem.values_as_rows(self.state)
         else:
             state["_values"] = self.values
+        state.pop("_problem")
         state["problem"] = state["state"] = None
         records = state.pop("_records")
         records = state["iteration_records"] = (
@@ -226,7 +255,9 @@ class Result:
     def __setstate__(self, state: dict) -> None:
         state = dict(state)
         records = state.pop("iteration_records", [])
+        problem = state.pop("problem", None)
         self.__dict__.update(state)
+        self.problem = problem
         self.iteration_records = (records.records() if isinstance(records, _RecordTable)
                                   else records)
 

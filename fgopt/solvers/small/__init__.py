@@ -25,6 +25,7 @@ general path (:data:`COMPILE_IN_FOREGROUND`), then loaded from fgopt's cache.
 
 from __future__ import annotations
 
+import functools
 import os
 import time
 from pathlib import Path
@@ -33,11 +34,13 @@ from typing import Any
 import numpy as np
 
 from ..._jit import numpy_budget_left
+from ..._structure_kernels import block_var_idx
 from ...manifolds.base import is_vector_kind
 from ...manifolds.lie import group_id
-from ...problem import State
+from ...problem import SMALL_COLLECT_MAX, State, _kind_of_rows
+from ...variables import Variables, _Rows
 from ..diagnostics import clamp_hits, warn_clamps
-from ..result import Result, compiled_history
+from ..result import Deferred, Result, compiled_history
 from . import _common, _driver
 
 #: Largest tangent dimension the driver takes (its dense H, a damped copy and a Cholesky factor
@@ -111,6 +114,7 @@ class _Plan:
         self.slot_of = {id(kernels[j]): s for s, j in enumerate(order)}
         self.signatures = tuple(sigs[j] for j in order)
         self.names = tuple(kernels[j].name for j in order)
+        self.residual_dims = tuple(kernels[j].residual_dim for j in order)
         self.key = _driver.module_key(self.signatures)
         self.name = f"small_{len(sigs)}k"
         #: Whether some kernel clamps a function's argument (else no clamp check after a solve)
@@ -180,22 +184,23 @@ def _inputs(problem: Any, plan: _Plan) -> tuple:
     per_kind = _kind_tables(problem.kinds)
     per_slot: list[list] = [[] for _ in plan.names]
     for b in problem.batches:
-        per_slot[plan.slot_of[id(b.kernel)]].append(b)
-    slots = []
-    for bs in per_slot:
-        if len(bs) == 1:
-            b = bs[0]
-            slots.append((b.var_idx, b.source.constants,
-                          b.sqrt_info if not b.unit else _NO_R[b.kernel.residual_dim]))
-            continue
-        # one kernel in several batches (a reader's and factors added one by one)
-        r = bs[0].kernel.residual_dim
-        slots.append((np.concatenate([b.var_idx for b in bs]),
-                      np.concatenate([b.source.constants for b in bs]),
-                      _NO_R[r] if all(b.unit for b in bs) else np.concatenate(
-                          [np.broadcast_to(b.sqrt_info, (len(b.source), r, r)) for b in bs])))
+        per_slot[plan.slot_of[id(b.kernel)]].append(
+            (b.var_idx, b.source.constants, None if b.unit else b.sqrt_info))
     return (problem.var_kind, problem.var_row, problem.var_dim, per_kind[1], per_kind[2],
-            tuple(slots))
+            tuple([_slot(bs, plan.residual_dims[s]) for s, bs in enumerate(per_slot)]))
+
+
+def _slot(parts: list, r: int) -> tuple:
+    """One kernel's ``(var_idx, consts, R)`` from its batches' ``(var_idx, consts, R or None)``
+    (None: unit noise)."""
+    if len(parts) == 1:
+        var_idx, consts, R = parts[0]
+        return var_idx, consts, _NO_R[r] if R is None else R
+    # one kernel in several batches (a reader's and factors added one by one)
+    return (np.concatenate([v for v, _, _ in parts]), np.concatenate([c for _, c, _ in parts]),
+            _NO_R[r] if all(R is None for _, _, R in parts) else np.concatenate(
+                [np.broadcast_to(_NO_EYE[r] if R is None else R, (v.shape[0], r, r))
+                 for v, _, R in parts]))
 
 
 #: Per tuple of kinds (by id): the kinds (kept, so the ids stay theirs), their storage dims and
@@ -234,6 +239,17 @@ class _NoR(dict):
 _NO_R = _NoR()
 
 
+class _Eye(dict):
+    """``(1, r, r)`` identities: a unit-noise batch's square-root information among others."""
+
+    def __missing__(self, r: int) -> np.ndarray:
+        self[r] = np.eye(r)[None]
+        return self[r]
+
+
+_NO_EYE = _Eye()
+
+
 #: The driver's parameter array per (LMParams by id, identity damping, lambda by factor): the
 #: params are frozen; the entry keeps them, so the id stays theirs.
 _PRMS: dict[tuple, tuple] = {}
@@ -263,8 +279,6 @@ def optimize_small(problem: Any, params: Any, t0: float, graph: Any = None,
     global _lm_module
     if _lm_module is None:  # (lm imports this module; an import here costs ~1 us a solve)
         from .. import lm as _lm_module
-    auto_policy, problem_class_for = _lm_module.auto_policy, _lm_module.problem_class_for
-    p = params
     plan = _plan(problem)
     if not plan.ready():
         if not plan.warming and graph is not None:
@@ -274,25 +288,164 @@ def optimize_small(problem: Any, params: Any, t0: float, graph: Any = None,
             _warmup.warm_in_background(graph, initial, problem, small=True)
         return None
     inputs = _inputs(problem, plan)
-    cls = _kind_tables(problem.kinds)[4] or problem_class_for(
+    cls = _kind_tables(problem.kinds)[4] or _lm_module.problem_class_for(
         problem.kinds, False, lambda: problem.ensure_structure().pattern)
-    identity, by_factor = auto_policy(cls, p)
-    rel_tol = p.relative_tolerance if p.relative_tolerance is not None else (
-        1e-5 if identity else 1e-6)
-    lam0 = p.initial_lambda if p.initial_lambda is not None else (1e-5 if identity else 1e-4)
-    prm = _PRMS.get((id(p), identity, by_factor))
-    if prm is None or prm[0] is not p:
-        if len(_PRMS) > 64:
-            _PRMS.clear()
-        prm = _PRMS[(id(p), identity, by_factor)] = (p, np.array(
-            [p.max_iterations, rel_tol, p.absolute_tolerance, p.gradient_tolerance,
-             p.step_tolerance, lam0, p.min_lambda, p.max_lambda, p.min_diagonal, p.max_diagonal,
-             p.min_relative_decrease, float(identity), float(by_factor), p.lambda_factor]))
-    prm = prm[1]
     storages = problem._initial_storages
     # (_lm copies x0 before it writes)
     x0 = np.concatenate([s.reshape(-1) for s in storages]) if len(storages) > 1 else \
         storages[0].reshape(-1)
+    out = _run_driver(plan, x0, inputs, cls, params, t0)
+    if out is None:
+        return None
+    x, result = out
+    state = State([x.reshape(storages[0].shape)] if len(storages) == 1 else _split(x, storages),
+                  {})
+    clamps, num_clamped = clamp_hits(problem, state) if plan.clamps else ((), 0)
+    warn_clamps(clamps, num_clamped)
+    result.problem, result.state = problem, state
+    result.unused_keys, result.clamps, result.num_clamped = (
+        tuple(problem.unused_keys), tuple(clamps), num_clamped)
+    result.timing["total"] = time.perf_counter() - t0
+    return result
+
+
+def optimize_file(graph: Any, initial: Any, params: Any, t0: float) -> Result | None:
+    """:func:`optimize_small` of what a file reader makes, without compiling a
+    :class:`~fgopt.problem.Problem` first: a graph of batches only and values that are one bulk
+    block of one kind with strictly ascending keys, every one of them used, and a tangent
+    dimension of at most :data:`SMALL_DENSE_SIZE`. The variables are the block's rows in order
+    (what ``Problem`` numbers them), each batch's found by one compiled call; the result's
+    ``problem`` is compiled when first read (from the graph's batches and the values as they
+    were). ``None`` for anything else (the caller compiles the problem and takes the usual
+    path, which also names any error): a Python factor, robust loss, another kind, a missing,
+    repeated or unused key, a driver not compiled yet, a non-finite start.
+
+    Same iterations and result as :func:`optimize_small` on the compiled problem; it saves that
+    compilation's ~15 us on a few-pose graph (a third of its Python)."""
+    global _lm_module
+    batches = graph.batches
+    if (graph.factors or initial._dict or len(initial._pending) != 1 or not batches
+            or params.verbose or params.linear_solver != "auto" or params.threads != 1
+            or not (params.backend == "numba"
+                    or (params.backend == "auto" and not numpy_budget_left()))):
+        return None
+    blk = initial._pending[0]
+    kind = _kind_of_rows(blk)
+    V = blk.keys.shape[0]
+    if (kind is None or kind.wrap is None or V * kind.dim > SMALL_DENSE_SIZE
+            or V * kind.dim > SMALL_MAX_SIZE):
+        return None
+    tables = _kind_tables([kind])
+    if not tables[3] or tables[4] is None:
+        return None
+    plan = _plan(graph)
+    if plan.clamps or not plan.ready():
+        return None  # (clamp reports and warming up: the usual path's)
+    size = V
+    for b in batches:
+        size += b.keys.shape[0]
+    if size > SMALL_COLLECT_MAX:
+        return None  # (a Problem would number the variables by its general collection)
+    used = np.zeros(V, dtype=np.bool_)
+    per_slot: list[list] = [[] for _ in plan.names]
+    seen = residuals = 0
+    for b in batches:
+        k = b.kernel
+        call = k.compiled_call
+        if call is None or b.loss_code != 0 or b.keys.shape[0] == 0:
+            return None
+        for a in k.arg_kinds:
+            if a is not kind:
+                return None
+        if call.hessian and b.sqrt_information is not None:
+            return None  # the kernel's own J^T J assumes unit noise (CompiledCall)
+        var_idx, fresh = block_var_idx(blk.keys, b.keys, used)
+        if fresh < 0:
+            return None
+        seen += fresh
+        residuals += b.keys.shape[0] * k.residual_dim
+        per_slot[plan.slot_of[id(k)]].append((var_idx, b.constants, None
+                                               if b.sqrt_information is None
+                                               else np.ascontiguousarray(b.sqrt_information)))
+    if seen != V:
+        return None
+    if _lm_module is None:
+        from .. import lm as _lm_module
+    rows = blk.rows.copy()  # (the driver's x0; what a Problem holds as its initial storage)
+    out = _run_driver(plan, rows.reshape(-1), (*_one_kind_tables(V, kind.dim), tables[1],
+                      tables[2], tuple([_slot(bs, plan.residual_dims[s])
+                                        for s, bs in enumerate(per_slot)])),
+                      tables[4], params, t0)
+    if out is None:
+        return None
+    x, result = out
+    x = x.reshape(rows.shape)
+    final = x.copy()  # the values' rows (read-only), apart from the state's
+    final.flags.writeable = False
+    values = Variables()
+    values._pending.append(_Rows(blk.keys, kind, final))
+    result._values, result.state = values, State([x], {})
+    snapshot = Variables()
+    snapshot._pending.append(blk)  # (bulk blocks are read-only: shared, as Variables.copy does)
+    result.problem = Deferred(functools.partial(
+        _compiled_problem, list(batches), snapshot, params), (residuals, V * kind.dim))
+    result.timing["total"] = time.perf_counter() - t0
+    return result
+
+
+def _compiled_problem(batches: list, initial: Any, params: Any) -> Any:
+    """The :class:`~fgopt.problem.Problem` ``LevenbergMarquardt.optimize`` would have compiled
+    (:func:`optimize_file`'s deferred ``Result.problem``)."""
+    from ...graph import FactorGraph
+    from .._run import compile_problem
+
+    graph = FactorGraph()
+    graph._batches = batches
+    return compile_problem(graph, initial, params, params.linear_solver, build_structure=False)
+
+
+#: ``(var_kind, var_row, var_dim)`` of ``V`` variables of one kind of tangent dimension ``d``
+#: (read-only for the driver: shared by every solve of that size)
+_ONE_KIND: dict[tuple, tuple] = {}
+
+
+def _one_kind_tables(V: int, d: int) -> tuple:
+    t = _ONE_KIND.get((V, d))
+    if t is None:
+        if len(_ONE_KIND) > 256:
+            _ONE_KIND.clear()
+        dims = np.empty(V, dtype=np.int64)
+        dims.fill(d)
+        t = _ONE_KIND[(V, d)] = (np.zeros(V, dtype=np.int64), np.arange(V, dtype=np.int64),
+                                 dims)
+    return t
+
+
+def _params_array(p: Any, identity: bool, by_factor: bool) -> tuple[np.ndarray, float]:
+    """The driver's ``prm`` array for LM params ``p`` (see ``LM_TEMPLATE``) and the relative
+    tolerance it holds (one array per params object and policy, kept)."""
+    rel_tol = p.relative_tolerance if p.relative_tolerance is not None else (
+        1e-5 if identity else 1e-6)
+    prm = _PRMS.get((id(p), identity, by_factor))
+    if prm is None or prm[0] is not p:
+        if len(_PRMS) > 64:
+            _PRMS.clear()
+        lam0 = p.initial_lambda if p.initial_lambda is not None else (
+            1e-5 if identity else 1e-4)
+        prm = _PRMS[(id(p), identity, by_factor)] = (p, np.array(
+            [p.max_iterations, rel_tol, p.absolute_tolerance, p.gradient_tolerance,
+             p.step_tolerance, lam0, p.min_lambda, p.max_lambda, p.min_diagonal, p.max_diagonal,
+             p.min_relative_decrease, float(identity), float(by_factor), p.lambda_factor]))
+    return prm[1], rel_tol
+
+
+def _run_driver(plan: _Plan, x0: np.ndarray, inputs: tuple, cls: str, p: Any,
+                t0: float) -> tuple[np.ndarray, Result] | None:
+    """One call of ``plan``'s driver: the final storage ``x`` and a :class:`Result` without its
+    problem, state, unused keys and clamps (the caller's); None when the initial linearization
+    is not finite."""
+    identity, by_factor = _lm_module.auto_policy(cls, p)
+    prm, rel_tol = _params_array(p, identity, by_factor)
     t1 = time.perf_counter()
     x, status, msg, val, its, cost, init, hist = plan.module._solve(x0, inputs, prm)
     t2 = time.perf_counter()
@@ -302,21 +455,13 @@ def optimize_small(problem: Any, params: Any, t0: float, graph: Any = None,
     STATS["solves"] += 1
     records, st, message = compiled_history(hist, its, status, _MESSAGES[int(msg)](
         float(val), p, rel_tol), cost)
-    state = State([x.reshape(storages[0].shape)] if len(storages) == 1 else _split(x, storages),
-                  {})
-    clamps, num_clamped = clamp_hits(problem, state) if plan.clamps else ((), 0)
-    warn_clamps(clamps, num_clamped)
-    total = time.perf_counter() - t0
-    timing = {"setup": t1 - t0, "lm": t2 - t1, "total": total}
     result = Result(None, status=st, message=message, iterations=len(records),
                     initial_cost=float(init), final_cost=float(cost),
                     cost_history=[float(init)] + records.accepted_costs(),
-                    iteration_records=records, timing=timing, method="lm",
-                    linear_solver="dense cholesky (small-problem driver)", problem=problem,
-                    state=state, unused_keys=tuple(problem.unused_keys), clamps=tuple(clamps),
-                    num_clamped=num_clamped)
+                    iteration_records=records, timing={"setup": t1 - t0, "lm": t2 - t1},
+                    method="lm", linear_solver="dense cholesky (small-problem driver)")
     result.info["backend"] = "numba"
-    return result
+    return x, result
 
 
 def _split(x: np.ndarray, storages: list) -> list[np.ndarray]:
