@@ -155,7 +155,7 @@ def test_what_the_driver_does_not_take_goes_the_general_way():
 def driver_module():
     graph, init = mixed_graph(0, n=2)
     problem = fgopt.Problem(graph, init, backend="numba", build_structure=False)
-    plan = small._plan(problem)
+    plan = small._plan(problem.batches)
     assert plan.ready()
     return plan.module
 
@@ -276,7 +276,7 @@ def test_a_cold_driver_is_compiled_in_the_background(monkeypatch, tmp_path):
                         lambda graph, initial, problem, small=False: started.append(small))
     graph, init = mixed_graph(3, n=2)
     problem = fgopt.Problem(graph, init, backend="numba", build_structure=False)
-    small._plan(problem).marker().unlink(missing_ok=True)
+    small._plan(problem.batches).marker().unlink(missing_ok=True)
     assert solve(graph, init).linear_solver != DRIVER
     assert solve(graph, init).linear_solver != DRIVER
     assert started == [True]
@@ -290,7 +290,7 @@ def test_a_cold_driver_is_compiled_in_the_background(monkeypatch, tmp_path):
 def test_driver_source_names_its_kernels():
     graph, init = mixed_graph(0, n=3)
     problem = fgopt.Problem(graph, init, backend="numba", build_structure=False)
-    plan = small._plan(problem)
+    plan = small._plan(problem.batches)
     assert plan.ready()
     names = plan.module.KERNELS
     assert sorted(names) == sorted({b.kernel.name for b in problem.batches})

@@ -40,7 +40,7 @@ from ...manifolds.lie import group_id
 from ...problem import SMALL_COLLECT_MAX, State, _kind_of_rows
 from ...variables import Variables, _Rows
 from ..diagnostics import clamp_hits, warn_clamps
-from ..result import Deferred, Result, compiled_history
+from ..result import Deferred, Result, compiled_result
 from . import _common, _driver
 
 #: Largest tangent dimension the driver takes (its dense H, a damped copy and a Cholesky factor
@@ -165,11 +165,12 @@ class _Plan:
 _PLANS: dict[tuple, _Plan] = {}
 
 
-def _plan(problem: Any) -> _Plan:
-    seen = tuple([id(b.kernel) for b in problem.batches])  # (the batches' order: a shortcut)
+def _plan(batches: list) -> _Plan:
+    """The plan of the kernels of ``batches`` (a problem's or a graph's)."""
+    seen = tuple([id(b.kernel) for b in batches])  # (the batches' order: a shortcut)
     plan = _PLANS.get(seen)
     if plan is None:
-        kernels = list({id(b.kernel): b.kernel for b in problem.batches}.values())
+        kernels = list({id(b.kernel): b.kernel for b in batches}.values())
         ids = tuple(sorted(id(k) for k in kernels))  # any order of batches: one plan
         plan = _PLANS.get(ids)
         if plan is None:
@@ -250,8 +251,8 @@ class _Eye(dict):
 _NO_EYE = _Eye()
 
 
-#: The driver's parameter array per (LMParams by id, identity damping, lambda by factor): the
-#: params are frozen; the entry keeps them, so the id stays theirs.
+#: The driver's parameter array per (LMParams by id, problem class): the params are frozen; the
+#: entry keeps them, so the id stays theirs.
 _PRMS: dict[tuple, tuple] = {}
 
 _MESSAGES = {
@@ -277,9 +278,9 @@ def optimize_small(problem: Any, params: Any, t0: float, graph: Any = None,
     (the general path then names the factor). ``t0``: when the solve started
     (``perf_counter``)."""
     global _lm_module
-    if _lm_module is None:  # (lm imports this module; an import here costs ~1 us a solve)
+    if _lm_module is None:
         from .. import lm as _lm_module
-    plan = _plan(problem)
+    plan = _plan(problem.batches)
     if not plan.ready():
         if not plan.warming and graph is not None:
             from .. import _warmup
@@ -320,87 +321,147 @@ def optimize_file(graph: Any, initial: Any, params: Any, t0: float) -> Result | 
     path, which also names any error): a Python factor, robust loss, another kind, a missing,
     repeated or unused key, a driver not compiled yet, a non-finite start.
 
-    Same iterations and result as :func:`optimize_small` on the compiled problem; it saves that
-    compilation's ~15 us on a few-pose graph (a third of its Python)."""
-    global _lm_module
-    batches = graph.batches
-    if (graph.factors or initial._dict or len(initial._pending) != 1 or not batches
-            or params.verbose or params.linear_solver != "auto" or params.threads != 1
-            or not (params.backend == "numba"
-                    or (params.backend == "auto" and not numpy_budget_left()))):
+    Same iterations and result as :func:`optimize_small` on the compiled problem, bit for bit;
+    it saves that compilation's ~15 us on a few-pose graph (a third of its Python)."""
+    batches, pending = graph.batches, initial._pending
+    if graph.factors or initial._dict or len(pending) != 1 or not batches:
         return None
-    blk = initial._pending[0]
-    kind = _kind_of_rows(blk)
+    ok = _PARAMS_OK.get(id(params))
+    if ok is None or ok[0] is not params:
+        ok = _params_ok(params)
+    if not (ok[1] or (ok[2] and not numpy_budget_left())):
+        return None  # (verbose, a linear solver chosen...; or still on NumPy twins)
+    blk = pending[0]
     V = blk.keys.shape[0]
-    if (kind is None or kind.wrap is None or V * kind.dim > SMALL_DENSE_SIZE
-            or V * kind.dim > SMALL_MAX_SIZE):
-        return None
-    tables = _kind_tables([kind])
-    if not tables[3] or tables[4] is None:
-        return None
-    plan = _plan(graph)
-    if plan.clamps or not plan.ready():
-        return None  # (clamp reports and warming up: the usual path's)
     size = V
+    ids = [id(blk.kind)]
     for b in batches:
         size += b.keys.shape[0]
+        ids.append(id(b.kernel))
     if size > SMALL_COLLECT_MAX:
         return None  # (a Problem would number the variables by its general collection)
+    lane = _LANES.get(tuple(ids))
+    if lane is None:
+        lane = _lane(blk, batches, tuple(ids))
+    if lane is False or V * lane.dim > SMALL_DENSE_SIZE or V * lane.dim > SMALL_MAX_SIZE:
+        return None
+    plan = lane.plan
+    if not plan.ready():
+        return None  # (warming the driver up: the usual path's)
     used = np.zeros(V, dtype=np.bool_)
     per_slot: list[list] = [[] for _ in plan.names]
     seen = residuals = 0
-    for b in batches:
-        k = b.kernel
-        call = k.compiled_call
-        if call is None or b.loss_code != 0 or b.keys.shape[0] == 0:
-            return None
-        for a in k.arg_kinds:
-            if a is not kind:
-                return None
-        if call.hessian and b.sqrt_information is not None:
-            return None  # the kernel's own J^T J assumes unit noise (CompiledCall)
-        var_idx, fresh = block_var_idx(blk.keys, b.keys, used)
+    keys = blk.keys
+    for b, (slot, r, hessian) in zip(batches, lane.per_batch):
+        R = b.sqrt_information
+        if b.loss_code != 0 or (hessian and R is not None) or b.keys.shape[0] == 0:
+            return None  # (a hessian call's own J^T J assumes unit noise: CompiledCall)
+        var_idx, fresh = block_var_idx(keys, b.keys, used)
         if fresh < 0:
             return None
         seen += fresh
-        residuals += b.keys.shape[0] * k.residual_dim
-        per_slot[plan.slot_of[id(k)]].append((var_idx, b.constants, None
-                                               if b.sqrt_information is None
-                                               else np.ascontiguousarray(b.sqrt_information)))
+        residuals += b.keys.shape[0] * r
+        per_slot[slot].append((var_idx, b.constants,
+                               None if R is None else np.ascontiguousarray(R)))
     if seen != V:
         return None
-    if _lm_module is None:
-        from .. import lm as _lm_module
+    tables = lane.tables
     rows = blk.rows.copy()  # (the driver's x0; what a Problem holds as its initial storage)
-    out = _run_driver(plan, rows.reshape(-1), (*_one_kind_tables(V, kind.dim), tables[1],
-                      tables[2], tuple([_slot(bs, plan.residual_dims[s])
-                                        for s, bs in enumerate(per_slot)])),
-                      tables[4], params, t0)
+    slots = []
+    for bs, r in zip(per_slot, plan.residual_dims):
+        if len(bs) == 1:  # (_slot's common case, inline)
+            var_idx, consts, R = bs[0]
+            slots.append((var_idx, consts, _NO_R[r] if R is None else R))
+        else:
+            slots.append(_slot(bs, r))
+    out = _run_driver(plan, rows.reshape(-1), (*_one_kind_tables(V, lane.dim), tables[1],
+                                               tables[2], tuple(slots)), tables[4], params, t0)
     if out is None:
         return None
     x, result = out
     x = x.reshape(rows.shape)
     final = x.copy()  # the values' rows (read-only), apart from the state's
     final.flags.writeable = False
-    values = Variables()
-    values._pending.append(_Rows(blk.keys, kind, final))
-    result._values, result.state = values, State([x], {})
-    snapshot = Variables()
-    snapshot._pending.append(blk)  # (bulk blocks are read-only: shared, as Variables.copy does)
-    result.problem = Deferred(functools.partial(
-        _compiled_problem, list(batches), snapshot, params), (residuals, V * kind.dim))
+    d = result.__dict__
+    d["_values"] = _one_block(keys, lane.kind, final)
+    d["state"] = State([x], {})
+    d["_problem"] = Deferred(functools.partial(_compiled_problem, list(batches), blk, params),
+                             (residuals, V * lane.dim))
     result.timing["total"] = time.perf_counter() - t0
     return result
 
 
-def _compiled_problem(batches: list, initial: Any, params: Any) -> Any:
+#: Per LM params object (by id; the params are frozen and kept in the entry): ``(params, the
+#: lane may run, it may once the process's twin budget is spent)``.
+_PARAMS_OK: dict[int, tuple] = {}
+
+
+def _params_ok(p: Any) -> tuple:
+    if len(_PARAMS_OK) > 64:
+        _PARAMS_OK.clear()
+    usual_only = p.verbose or p.linear_solver != "auto" or p.threads != 1
+    ok = _PARAMS_OK[id(p)] = (p, not usual_only and p.backend == "numba",
+                              not usual_only and p.backend == "auto")
+    return ok
+
+
+class _Lane:
+    """What :func:`optimize_file` knows of a value kind and a graph's kernels (in batch order):
+    the kind, its tables, the kernels' driver plan and per batch its slot, residual dimension
+    and whether the kernel adds its own ``J^T J``."""
+
+    __slots__ = ("keep", "kind", "dim", "tables", "plan", "per_batch")
+
+
+#: Per (value kind, kernels in batch order) by id: a :class:`_Lane`, or False where the lane
+#: never applies (kinds differ, a kernel without a compiled call...). The entries keep what the
+#: ids name.
+_LANES: dict[tuple, Any] = {}
+
+
+def _lane(blk: Any, batches: list, ids: tuple) -> Any:
+    if len(_LANES) > 256:
+        _LANES.clear()
+    kind = _kind_of_rows(blk)
+    lane: Any = False
+    if kind is not None and kind.wrap is not None:
+        tables = _kind_tables([kind])
+        kernels = [b.kernel for b in batches]
+        if (tables[3] and tables[4] is not None
+                and all(k.compiled_call is not None and all(a is kind for a in k.arg_kinds)
+                        for k in kernels)):
+            plan = _plan(batches)
+            if not plan.clamps:  # (clamp reports: the usual path's)
+                lane = _Lane()
+                lane.kind, lane.dim, lane.tables, lane.plan = kind, kind.dim, tables, plan
+                lane.per_batch = tuple((plan.slot_of[id(k)], k.residual_dim,
+                                        k.compiled_call.hessian) for k in kernels)
+    _LANES[ids] = lane
+    if lane is not False:
+        lane.keep = (blk.kind, [b.kernel for b in batches])
+    else:  # keep the objects the ids name
+        _LANES[ids + ("keep",)] = (blk.kind, [b.kernel for b in batches])
+    return lane
+
+
+def _one_block(keys: np.ndarray, kind: Any, rows: np.ndarray) -> Any:
+    """New ``Variables`` of one bulk block (as ``Problem.values`` returns a file's values)."""
+    out = Variables()
+    out._pending.append(_Rows(keys, kind, rows))
+    return out
+
+
+def _compiled_problem(batches: list, block: Any, params: Any) -> Any:
     """The :class:`~fgopt.problem.Problem` ``LevenbergMarquardt.optimize`` would have compiled
-    (:func:`optimize_file`'s deferred ``Result.problem``)."""
+    from a graph of ``batches`` and values of one bulk ``block`` (:func:`optimize_file`'s
+    deferred ``Result.problem``; bulk blocks are read-only, so this is the block as solved)."""
     from ...graph import FactorGraph
     from .._run import compile_problem
 
     graph = FactorGraph()
     graph._batches = batches
+    initial = Variables()
+    initial._pending.append(block)
     return compile_problem(graph, initial, params, params.linear_solver, build_structure=False)
 
 
@@ -421,21 +482,23 @@ def _one_kind_tables(V: int, d: int) -> tuple:
     return t
 
 
-def _params_array(p: Any, identity: bool, by_factor: bool) -> tuple[np.ndarray, float]:
-    """The driver's ``prm`` array for LM params ``p`` (see ``LM_TEMPLATE``) and the relative
-    tolerance it holds (one array per params object and policy, kept)."""
+def _params_array(p: Any, cls: str) -> tuple[np.ndarray, float]:
+    """The driver's ``prm`` array for LM params ``p`` on a problem of class ``cls`` (see
+    ``LM_TEMPLATE``; damping and lambda policy from :func:`~fgopt.solvers.lm.auto_policy`) and
+    the relative tolerance it holds: made once per params object and class, kept."""
+    prm = _PRMS.get((id(p), cls))
+    if prm is not None and prm[0] is p:
+        return prm[1], prm[2]
+    if len(_PRMS) > 64:
+        _PRMS.clear()
+    identity, by_factor = _lm_module.auto_policy(cls, p)
     rel_tol = p.relative_tolerance if p.relative_tolerance is not None else (
         1e-5 if identity else 1e-6)
-    prm = _PRMS.get((id(p), identity, by_factor))
-    if prm is None or prm[0] is not p:
-        if len(_PRMS) > 64:
-            _PRMS.clear()
-        lam0 = p.initial_lambda if p.initial_lambda is not None else (
-            1e-5 if identity else 1e-4)
-        prm = _PRMS[(id(p), identity, by_factor)] = (p, np.array(
-            [p.max_iterations, rel_tol, p.absolute_tolerance, p.gradient_tolerance,
-             p.step_tolerance, lam0, p.min_lambda, p.max_lambda, p.min_diagonal, p.max_diagonal,
-             p.min_relative_decrease, float(identity), float(by_factor), p.lambda_factor]))
+    lam0 = p.initial_lambda if p.initial_lambda is not None else (1e-5 if identity else 1e-4)
+    prm = _PRMS[(id(p), cls)] = (p, np.array(
+        [p.max_iterations, rel_tol, p.absolute_tolerance, p.gradient_tolerance,
+         p.step_tolerance, lam0, p.min_lambda, p.max_lambda, p.min_diagonal, p.max_diagonal,
+         p.min_relative_decrease, float(identity), float(by_factor), p.lambda_factor]), rel_tol)
     return prm[1], rel_tol
 
 
@@ -444,8 +507,10 @@ def _run_driver(plan: _Plan, x0: np.ndarray, inputs: tuple, cls: str, p: Any,
     """One call of ``plan``'s driver: the final storage ``x`` and a :class:`Result` without its
     problem, state, unused keys and clamps (the caller's); None when the initial linearization
     is not finite."""
-    identity, by_factor = _lm_module.auto_policy(cls, p)
-    prm, rel_tol = _params_array(p, identity, by_factor)
+    global _lm_module
+    if _lm_module is None:  # (lm imports this module; an import here costs ~1 us a solve)
+        from .. import lm as _lm_module
+    prm, rel_tol = _params_array(p, cls)
     t1 = time.perf_counter()
     x, status, msg, val, its, cost, init, hist = plan.module._solve(x0, inputs, prm)
     t2 = time.perf_counter()
@@ -453,13 +518,9 @@ def _run_driver(plan: _Plan, x0: np.ndarray, inputs: tuple, cls: str, p: Any,
     if status == -1:
         return None
     STATS["solves"] += 1
-    records, st, message = compiled_history(hist, its, status, _MESSAGES[int(msg)](
-        float(val), p, rel_tol), cost)
-    result = Result(None, status=st, message=message, iterations=len(records),
-                    initial_cost=float(init), final_cost=float(cost),
-                    cost_history=[float(init)] + records.accepted_costs(),
-                    iteration_records=records, timing={"setup": t1 - t0, "lm": t2 - t1},
-                    method="lm", linear_solver="dense cholesky (small-problem driver)")
+    result = compiled_result(hist, its, status, _MESSAGES[int(msg)](float(val), p, rel_tol), cost,
+                             init, {"setup": t1 - t0, "lm": t2 - t1}, "lm",
+                             "dense cholesky (small-problem driver)")
     result.info["backend"] = "numba"
     return x, result
 
