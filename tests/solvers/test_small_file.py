@@ -211,3 +211,22 @@ def test_the_chi_square_test_reads_no_problem(data_file, name):
     assert implausible(a) == implausible(b)
     assert (implausible(a) is None) == (cost_bound(b.problem) is None)
     assert type(a.__dict__["_problem"]) is Deferred
+
+
+def test_read_only_keys_take_the_lane_without_a_new_compilation(data_file):
+    """Read-only key arrays (values' and factors') are another argument type for numba: the
+    lane copies them, so the driver keeps its one compiled signature."""
+    graph, init = fgopt.io.read(str(data_file("small/Klaus3.g2o")), add_prior=True)
+    a = solve(graph, init)
+    solve_fn = small._plan(graph.batches).module._solve
+    before = len(solve_fn.signatures)
+    blk = init._pending[0]
+    blk.keys = blk.keys.copy()
+    blk.keys.flags.writeable = False
+    for b in graph.batches:
+        b.keys = b.keys.copy()
+        b.keys.flags.writeable = False
+    c = solve(graph, init)
+    assert type(c.__dict__["_problem"]) is Deferred
+    assert len(solve_fn.signatures) == before
+    assert_identical(c, a)

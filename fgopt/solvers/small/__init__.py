@@ -34,7 +34,6 @@ from typing import Any
 import numpy as np
 
 from ..._jit import numpy_budget_left
-from ..._structure_kernels import block_var_idx
 from ...manifolds.base import is_vector_kind
 from ...manifolds.lie import group_id
 from ...problem import SMALL_COLLECT_MAX, State, _kind_of_rows
@@ -180,20 +179,36 @@ def _plan(batches: list) -> _Plan:
 
 
 def _inputs(problem: Any, plan: _Plan) -> tuple:
-    """The driver's ``problem`` argument (see :mod:`._driver`): the variables' kinds, rows and
-    dims, the kinds' storage dims and group ids, and one ``(var_idx, consts, R)`` per kernel."""
+    """The driver's ``problem`` argument (see :mod:`._driver`): the variables' numbers, kinds,
+    rows and dims, the kinds' storage dims and group ids, and one ``(var_idx, consts, R)`` per
+    kernel."""
     per_kind = _kind_tables(problem.kinds)
     per_slot: list[list] = [[] for _ in plan.names]
     for b in problem.batches:
         per_slot[plan.slot_of[id(b.kernel)]].append(
             (b.var_idx, b.source.constants, None if b.unit else b.sqrt_info))
-    return (problem.var_kind, problem.var_row, problem.var_dim, per_kind[1], per_kind[2],
+    return (_numbers(problem.var_kind.shape[0]), problem.var_kind, problem.var_row,
+            problem.var_dim, per_kind[1], per_kind[2],
             tuple([_slot(bs, plan.residual_dims[s]) for s, bs in enumerate(per_slot)]))
 
 
+#: ``arange(V)`` per ``V``: the "keys" of a compiled problem's variables, numbered by themselves
+#: (its factors' variable indices go in as their keys; read-only for the driver)
+_NUMBERS: dict[int, np.ndarray] = {}
+
+
+def _numbers(V: int) -> np.ndarray:
+    a = _NUMBERS.get(V)
+    if a is None:
+        if len(_NUMBERS) > 256:
+            _NUMBERS.clear()
+        a = _NUMBERS[V] = np.arange(V, dtype=np.int64)
+    return a
+
+
 def _slot(parts: list, r: int) -> tuple:
-    """One kernel's ``(var_idx, consts, R)`` from its batches' ``(var_idx, consts, R or None)``
-    (None: unit noise)."""
+    """One kernel's ``(keys, consts, R)`` from its batches' ``(keys, consts, R or None)``
+    (None: unit noise; keys: variable indices or a file's keys, see :mod:`._driver`)."""
     if len(parts) == 1:
         var_idx, consts, R = parts[0]
         return var_idx, consts, _NO_R[r] if R is None else R
@@ -315,7 +330,7 @@ def optimize_file(graph: Any, initial: Any, params: Any, t0: float) -> Result | 
     :class:`~fgopt.problem.Problem` first: a graph of batches only and values that are one bulk
     block of one kind with strictly ascending keys, every one of them used, and a tangent
     dimension of at most :data:`SMALL_DENSE_SIZE`. The variables are the block's rows in order
-    (what ``Problem`` numbers them), each batch's found by one compiled call; the result's
+    (what ``Problem`` numbers them), each factor's found by the driver itself; the result's
     ``problem`` is compiled when first read (from the graph's batches and the values as they
     were). ``None`` for anything else (the caller compiles the problem and takes the usual
     path, which also names any error): a Python factor, robust loss, another kind, a missing,
@@ -348,23 +363,16 @@ def optimize_file(graph: Any, initial: Any, params: Any, t0: float) -> Result | 
     plan = lane.plan
     if not plan.ready():
         return None  # (warming the driver up: the usual path's)
-    used = np.zeros(V, dtype=np.bool_)
     per_slot: list[list] = [[] for _ in plan.names]
-    seen = residuals = 0
-    keys = blk.keys
+    residuals = 0
     for b, (slot, r, hessian) in zip(batches, lane.per_batch):
         R = b.sqrt_information
-        if b.loss_code != 0 or (hessian and R is not None) or b.keys.shape[0] == 0:
+        n = b.keys.shape[0]
+        if b.loss_code != 0 or (hessian and R is not None) or n == 0:
             return None  # (a hessian call's own J^T J assumes unit noise: CompiledCall)
-        var_idx, fresh = block_var_idx(keys, b.keys, used)
-        if fresh < 0:
-            return None
-        seen += fresh
-        residuals += b.keys.shape[0] * r
-        per_slot[slot].append((var_idx, b.constants,
+        residuals += n * r
+        per_slot[slot].append((_writeable(b.keys), b.constants,
                                None if R is None else np.ascontiguousarray(R)))
-    if seen != V:
-        return None
     tables = lane.tables
     rows = blk.rows.copy()  # (the driver's x0; what a Problem holds as its initial storage)
     slots = []
@@ -374,8 +382,10 @@ def optimize_file(graph: Any, initial: Any, params: Any, t0: float) -> Result | 
             slots.append((var_idx, consts, _NO_R[r] if R is None else R))
         else:
             slots.append(_slot(bs, r))
-    out = _run_driver(plan, rows.reshape(-1), (*_one_kind_tables(V, lane.dim), tables[1],
-                                               tables[2], tuple(slots)), tables[4], params, t0)
+    # (the driver numbers the variables: each factor's keys among the block's, status -2 for a
+    # missing, repeated or unused key, or keys not ascending)
+    out = _run_driver(plan, rows.reshape(-1), (_writeable(blk.keys), *_one_kind_tables(
+        V, lane.dim), tables[1], tables[2], tuple(slots)), tables[4], params, t0)
     if out is None:
         return None
     x, result = out
@@ -383,12 +393,18 @@ def optimize_file(graph: Any, initial: Any, params: Any, t0: float) -> Result | 
     final = x.copy()  # the values' rows (read-only), apart from the state's
     final.flags.writeable = False
     d = result.__dict__
-    d["_values"] = _one_block(keys, lane.kind, final)
+    d["_values"] = _one_block(blk.keys, lane.kind, final)
     d["state"] = State([x], {})
     d["_problem"] = Deferred(functools.partial(_compiled_problem, list(batches), blk, params),
                              (residuals, V * lane.dim))
     result.timing["total"] = time.perf_counter() - t0
     return result
+
+
+def _writeable(keys: np.ndarray) -> np.ndarray:
+    """``keys`` (int64, C-contiguous) as the driver was compiled for them: a read-only array
+    would be another argument type for numba (a new compilation of ``_solve``), so it is copied."""
+    return keys if keys.flags.writeable else keys.copy()
 
 
 #: Per LM params object (by id; the params are frozen and kept in the entry): ``(params, the
@@ -514,8 +530,9 @@ def _run_driver(plan: _Plan, x0: np.ndarray, inputs: tuple, cls: str, p: Any,
     t1 = time.perf_counter()
     x, status, msg, val, its, cost, init, hist = plan.module._solve(x0, inputs, prm)
     t2 = time.perf_counter()
-    plan.mark_compiled()
-    if status == -1:
+    if not plan.compiled:
+        plan.mark_compiled()
+    if status < 0:  # -1: not finite at the start; -2: keys that do not number the variables
         return None
     STATS["solves"] += 1
     result = compiled_result(hist, its, status, _MESSAGES[int(msg)](float(val), p, rel_tol), cost,

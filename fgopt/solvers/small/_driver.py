@@ -8,12 +8,16 @@ numba function, :class:`~fgopt.factors.kernel.CompiledCall`), then whitened and 
 dense H by an ``_acc<slot>`` function generated with the kernel's sizes as literals (or, for a
 ``hessian`` call such as a smart factor's Schur complement, the kernel adds its own ``J^T J``).
 
-The entry point is ``_solve(x0, problem, prm)``: ``problem`` is ``(var_kind, var_row, var_dim,
-kind_sdim, kind_gid, slots)`` as :class:`~fgopt.problem.Problem` numbers its variables and kinds
-(storage dims and Lie group ids per kind), with one ``(var_idx, consts, R)`` tuple per kernel in
-the driver's kernel order (each factor's variables, constants, square-root information
-``(0 | 1 | n, r, r)``; the argument dims are literals of the generated code). ``_solve`` lays the
-variables out (:func:`fgopt.solvers.small._common.layout_of`) and runs ``_lm`` on ``aux``:
+The entry point is ``_solve(x0, problem, prm)``: ``problem`` is ``(block_keys, var_kind,
+var_row, var_dim, kind_sdim, kind_gid, slots)``: the variables' keys (strictly ascending), kinds,
+rows and dims as :class:`~fgopt.problem.Problem` numbers them (storage dims and Lie group ids per
+kind), with one ``(keys, consts, R)`` tuple per kernel in the driver's kernel order (each factor's
+keys, constants, square-root information ``(0 | 1 | n, r, r)``; the argument dims are literals of
+the generated code). ``_solve`` finds each factor's variables among ``block_keys``
+(:func:`fgopt._structure_kernels.block_var_idx`: a missing or repeated key, keys not ascending or
+a variable no factor uses return status -2 before any work; a compiled Problem passes
+``block_keys = arange(V)`` and its factors' variable indices as keys), lays the variables out
+(:func:`fgopt.solvers.small._common.layout_of`) and runs ``_lm`` on ``aux``:
 ``(slots, layout)`` with per kernel ``(soff, toff, consts, R, work)``, each argument's storage /
 tangent offsets and the kernel's work arrays (its arguments' rows, residuals and Jacobians: made
 once per solve, not per linearization), the ``(V, 5)`` layout of
@@ -33,7 +37,7 @@ from typing import Any
 from ..fixed._codegen import LM_TEMPLATE
 
 #: Bumped when the emitted source changes meaning (part of the cache key).
-SMALL_CODEGEN_VERSION = "8"
+SMALL_CODEGEN_VERSION = "9"
 #: What a loaded module must define (else it is regenerated).
 REQUIRED = ("_lin", "_retract", "_lm", "_solve", "KERNELS")
 
@@ -166,6 +170,7 @@ def module_source(signatures: tuple, names: tuple) -> str:
         "import numba",
         "import numpy as np",
         "",
+        "from fgopt._structure_kernels import block_var_idx",
         "from fgopt.solvers.small._common import (clear, envelope_of, gather, layout_of, retract,",
         "                                         stacked, widen_envelope)",
         "",
@@ -194,25 +199,37 @@ def module_source(signatures: tuple, names: tuple) -> str:
         "    return aux[2]",
         "",
     ]
-    slots = ", ".join(f"(soff[s{j}[0]], toff[s{j}[0]], s{j}[1], s{j}[2], {work[j]})"
+    slots = ", ".join(f"(soff[v{j}], toff[v{j}], s{j}[1], s{j}[2], {work[j]})"
                       for j in range(len(signatures)))
     unpack = ", ".join(f"s{j}" for j in range(len(signatures)))
+    numbering = []
+    for j in range(len(signatures)):
+        numbering += [f"    v{j}, fresh = block_var_idx(block_keys, s{j}[0], used)",
+                      "    if fresh < 0:",
+                      "        return x0, -2, 0, 0.0, 0, 0.0, 0.0, np.empty((1, 8))",
+                      "    seen += fresh"]
     solve = [
         "",
         "",
         '@numba.njit(cache=True, error_model="numpy", nogil=True)',
         "def _solve(x0, problem, prm):",
         '    """_lm on a problem given as variables and per-kernel factors (see the module',
-        '    docstring of fgopt.solvers.small._driver); returns _lm\'s tuple and the history."""',
-        "    var_kind, var_row, var_dim, kind_sdim, kind_gid, slots = problem",
+        '    docstring of fgopt.solvers.small._driver); returns _lm\'s tuple and the history',
+        '    (status -2: the factors\' keys do not number the variables)."""',
+        "    block_keys, var_kind, var_row, var_dim, kind_sdim, kind_gid, slots = problem",
         f"    {unpack}{',' if len(signatures) == 1 else ''} = slots",
+        "    used = np.zeros(block_keys.shape[0], dtype=np.bool_)",
+        "    seen = 0",
+        *numbering,
+        "    if seen != block_keys.shape[0]:",
+        "        return x0, -2, 0, 0.0, 0, 0.0, 0.0, np.empty((1, 8))",
         "    soff, toff, layout = layout_of(var_kind, var_row, var_dim, kind_sdim, kind_gid)",
-        *[f"    n{j} = s{j}[0].shape[0]" for j in range(len(signatures))],
+        *[f"    n{j} = v{j}.shape[0]" for j in range(len(signatures))],
         "    n = 0",
         "    for v in range(var_dim.shape[0]):",
         "        n += var_dim[v]",
         "    first = envelope_of(toff, var_dim, n)",
-        *[f"    widen_envelope(first, toff[s{j}[0]], var_dim[s{j}[0]])"
+        *[f"    widen_envelope(first, toff[v{j}], var_dim[v{j}])"
           for j in range(len(signatures))],
         f"    aux = (({slots}{',' if len(signatures) == 1 else ''}), layout, first)",
         "    hist = np.empty((max(int(prm[0]), 1), 8))",
