@@ -77,11 +77,14 @@ def auto_policy(cls: str, p: LMParams) -> tuple[bool, bool]:
     return identity, by_factor
 
 
+_DEFAULT_PARAMS = LMParams()
+
+
 class LevenbergMarquardt:
     """``LevenbergMarquardt(LMParams(...)).optimize(graph, initial)`` -> :class:`Result`."""
 
     def __init__(self, params: LMParams | None = None, linear_solver: Any = None):
-        self.params = params or LMParams()
+        self.params = params or _DEFAULT_PARAMS  # (frozen: one shared default)
         self.linear_solver = linear_solver
 
     def optimize(self, graph: Any, initial: Variables, callback: Callback | None = None) -> Result:
