@@ -75,8 +75,9 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
             ``options`` (e.g. ``relative_tolerance=1e-8``) replace its fields.
         formulation: ``"dynamic"`` (batched kernels over a sparse H, any graph) or ``"fixed"``
             (LM only: one generated function linearizes the whole problem into a dense H, the
-            SymForce paper's fixed formulation; for small problems of symbolic/built-in factors,
-            where it is ~10x faster; see :mod:`fgopt.solvers.fixed`).
+            SymForce paper's fixed formulation, for small problems of symbolic/built-in
+            factors; see :mod:`fgopt.solvers.fixed`. The default's small-problem driver is
+            faster on the shared tiny files: README, "Small pose graphs").
         initialization: where to start (:mod:`fgopt.solvers.initialization`). ``"auto"``
             (default): from ``initial``; then, if the final cost is above what the noise models
             allow at an optimum (a chi-square test) and ``graph`` is a pose graph, also from
