@@ -25,7 +25,6 @@ general path (:data:`COMPILE_IN_FOREGROUND`), then loaded from fgopt's cache.
 
 from __future__ import annotations
 
-import functools
 import os
 import time
 from pathlib import Path
@@ -36,10 +35,9 @@ import numpy as np
 from ..._jit import numpy_budget_left
 from ...manifolds.base import is_vector_kind
 from ...manifolds.lie import group_id
-from ...problem import SMALL_COLLECT_MAX, State, _kind_of_rows
-from ...variables import Variables, _Rows
+from ...problem import State
 from ..diagnostics import clamp_hits, warn_clamps
-from ..result import Deferred, Result, compiled_result
+from ..result import Result, compiled_result
 from . import _common, _driver
 
 #: Largest tangent dimension the driver takes (its dense H, a damped copy and a Cholesky factor
@@ -325,179 +323,6 @@ def optimize_small(problem: Any, params: Any, t0: float, graph: Any = None,
     return result
 
 
-def optimize_file(graph: Any, initial: Any, params: Any, t0: float) -> Result | None:
-    """:func:`optimize_small` of what a file reader makes, without compiling a
-    :class:`~fgopt.problem.Problem` first: a graph of batches only and values that are one bulk
-    block of one kind with strictly ascending keys, every one of them used, and a tangent
-    dimension of at most :data:`SMALL_DENSE_SIZE`. The variables are the block's rows in order
-    (what ``Problem`` numbers them), each factor's found by the driver itself; the result's
-    ``problem`` is compiled when first read (from the graph's batches and the values as they
-    were). ``None`` for anything else (the caller compiles the problem and takes the usual
-    path, which also names any error): a Python factor, robust loss, another kind, a missing,
-    repeated or unused key, a driver not compiled yet, a non-finite start.
-
-    Same iterations and result as :func:`optimize_small` on the compiled problem, bit for bit;
-    it saves that compilation's ~15 us on a few-pose graph (a third of its Python)."""
-    batches, pending = graph.batches, initial._pending
-    if graph.factors or initial._dict or len(pending) != 1 or not batches:
-        return None
-    ok = _PARAMS_OK.get(id(params))
-    if ok is None or ok[0] is not params:
-        ok = _params_ok(params)
-    if not (ok[1] or (ok[2] and not numpy_budget_left())):
-        return None  # (verbose, a linear solver chosen...; or still on NumPy twins)
-    blk = pending[0]
-    V = blk.keys.shape[0]
-    size = V
-    ids = [id(blk.kind)]
-    for b in batches:
-        size += b.keys.shape[0]
-        ids.append(id(b.kernel))
-    if size > SMALL_COLLECT_MAX:
-        return None  # (a Problem would number the variables by its general collection)
-    lane = _LANES.get(tuple(ids))
-    if lane is None:
-        lane = _lane(blk, batches, tuple(ids))
-    if lane is False or V * lane.dim > SMALL_DENSE_SIZE or V * lane.dim > SMALL_MAX_SIZE:
-        return None
-    plan = lane.plan
-    if not plan.ready():
-        return None  # (warming the driver up: the usual path's)
-    per_slot: list[list] = [[] for _ in plan.names]
-    residuals = 0
-    for b, (slot, r, hessian) in zip(batches, lane.per_batch):
-        R = b.sqrt_information
-        n = b.keys.shape[0]
-        if b.loss_code != 0 or (hessian and R is not None) or n == 0:
-            return None  # (a hessian call's own J^T J assumes unit noise: CompiledCall)
-        residuals += n * r
-        per_slot[slot].append((_writeable(b.keys), b.constants,
-                               None if R is None else np.ascontiguousarray(R)))
-    tables = lane.tables
-    rows = blk.rows.copy()  # (the driver's x0; what a Problem holds as its initial storage)
-    slots = []
-    for bs, r in zip(per_slot, plan.residual_dims):
-        if len(bs) == 1:  # (_slot's common case, inline)
-            var_idx, consts, R = bs[0]
-            slots.append((var_idx, consts, _NO_R[r] if R is None else R))
-        else:
-            slots.append(_slot(bs, r))
-    # (the driver numbers the variables: each factor's keys among the block's, status -2 for a
-    # missing, repeated or unused key, or keys not ascending)
-    out = _run_driver(plan, rows.reshape(-1), (_writeable(blk.keys), *_one_kind_tables(
-        V, lane.dim), tables[1], tables[2], tuple(slots)), tables[4], params, t0)
-    if out is None:
-        return None
-    x, result = out
-    x = x.reshape(rows.shape)
-    final = x.copy()  # the values' rows (read-only), apart from the state's
-    final.flags.writeable = False
-    d = result.__dict__
-    d["_values"] = _one_block(blk.keys, lane.kind, final)
-    d["state"] = State([x], {})
-    d["_problem"] = Deferred(functools.partial(_compiled_problem, list(batches), blk, params),
-                             (residuals, V * lane.dim))
-    result.timing["total"] = time.perf_counter() - t0
-    return result
-
-
-def _writeable(keys: np.ndarray) -> np.ndarray:
-    """``keys`` (int64, C-contiguous) as the driver was compiled for them: a read-only array
-    would be another argument type for numba (a new compilation of ``_solve``), so it is copied."""
-    return keys if keys.flags.writeable else keys.copy()
-
-
-#: Per LM params object (by id; the params are frozen and kept in the entry): ``(params, the
-#: lane may run, it may once the process's twin budget is spent)``.
-_PARAMS_OK: dict[int, tuple] = {}
-
-
-def _params_ok(p: Any) -> tuple:
-    if len(_PARAMS_OK) > 64:
-        _PARAMS_OK.clear()
-    usual_only = p.verbose or p.linear_solver != "auto" or p.threads != 1
-    ok = _PARAMS_OK[id(p)] = (p, not usual_only and p.backend == "numba",
-                              not usual_only and p.backend == "auto")
-    return ok
-
-
-class _Lane:
-    """What :func:`optimize_file` knows of a value kind and a graph's kernels (in batch order):
-    the kind, its tables, the kernels' driver plan and per batch its slot, residual dimension
-    and whether the kernel adds its own ``J^T J``."""
-
-    __slots__ = ("keep", "kind", "dim", "tables", "plan", "per_batch")
-
-
-#: Per (value kind, kernels in batch order) by id: a :class:`_Lane`, or False where the lane
-#: never applies (kinds differ, a kernel without a compiled call...). The entries keep what the
-#: ids name.
-_LANES: dict[tuple, Any] = {}
-
-
-def _lane(blk: Any, batches: list, ids: tuple) -> Any:
-    if len(_LANES) > 256:
-        _LANES.clear()
-    kind = _kind_of_rows(blk)
-    lane: Any = False
-    if kind is not None and kind.wrap is not None:
-        tables = _kind_tables([kind])
-        kernels = [b.kernel for b in batches]
-        if (tables[3] and tables[4] is not None
-                and all(k.compiled_call is not None and all(a is kind for a in k.arg_kinds)
-                        for k in kernels)):
-            plan = _plan(batches)
-            if not plan.clamps:  # (clamp reports: the usual path's)
-                lane = _Lane()
-                lane.kind, lane.dim, lane.tables, lane.plan = kind, kind.dim, tables, plan
-                lane.per_batch = tuple((plan.slot_of[id(k)], k.residual_dim,
-                                        k.compiled_call.hessian) for k in kernels)
-    _LANES[ids] = lane
-    if lane is not False:
-        lane.keep = (blk.kind, [b.kernel for b in batches])
-    else:  # keep the objects the ids name
-        _LANES[ids + ("keep",)] = (blk.kind, [b.kernel for b in batches])
-    return lane
-
-
-def _one_block(keys: np.ndarray, kind: Any, rows: np.ndarray) -> Any:
-    """New ``Variables`` of one bulk block (as ``Problem.values`` returns a file's values)."""
-    out = Variables()
-    out._pending.append(_Rows(keys, kind, rows))
-    return out
-
-
-def _compiled_problem(batches: list, block: Any, params: Any) -> Any:
-    """The :class:`~fgopt.problem.Problem` ``LevenbergMarquardt.optimize`` would have compiled
-    from a graph of ``batches`` and values of one bulk ``block`` (:func:`optimize_file`'s
-    deferred ``Result.problem``; bulk blocks are read-only, so this is the block as solved)."""
-    from ...graph import FactorGraph
-    from .._run import compile_problem
-
-    graph = FactorGraph()
-    graph._batches = batches
-    initial = Variables()
-    initial._pending.append(block)
-    return compile_problem(graph, initial, params, params.linear_solver, build_structure=False)
-
-
-#: ``(var_kind, var_row, var_dim)`` of ``V`` variables of one kind of tangent dimension ``d``
-#: (read-only for the driver: shared by every solve of that size)
-_ONE_KIND: dict[tuple, tuple] = {}
-
-
-def _one_kind_tables(V: int, d: int) -> tuple:
-    t = _ONE_KIND.get((V, d))
-    if t is None:
-        if len(_ONE_KIND) > 256:
-            _ONE_KIND.clear()
-        dims = np.empty(V, dtype=np.int64)
-        dims.fill(d)
-        t = _ONE_KIND[(V, d)] = (np.zeros(V, dtype=np.int64), np.arange(V, dtype=np.int64),
-                                 dims)
-    return t
-
-
 def _params_array(p: Any, cls: str) -> tuple[np.ndarray, float]:
     """The driver's ``prm`` array for LM params ``p`` on a problem of class ``cls`` (see
     ``LM_TEMPLATE``; damping and lambda policy from :func:`~fgopt.solvers.lm.auto_policy`) and
@@ -549,3 +374,6 @@ def _split(x: np.ndarray, storages: list) -> list[np.ndarray]:
         out.append(x[o:o + s.size].reshape(s.shape))
         o += s.size
     return out
+
+
+from ._file import optimize_file as optimize_file  # (last: it reads the names above)
