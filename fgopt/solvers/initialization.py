@@ -38,7 +38,7 @@ import time
 from typing import Any, Callable
 
 from ..errors import FgoptError
-from .result import Deferred, Result, Status
+from .result import Result, Status, deferred_dims
 
 INITIALIZATIONS = ("auto", "given", "chordal")
 #: Upper-tail probability of the chi-square test of step 2.
@@ -84,9 +84,9 @@ def implausible(result: Result) -> str | None:
     """Why ``result`` may be a wrong local minimum (``None``: nothing suspicious)."""
     if result.status is Status.FAILED:
         return f"the solve from the given values failed ({result.message})"
-    deferred = result.__dict__.get("_problem")
-    if type(deferred) is Deferred and deferred.dims is not None:
-        bound = bound_of(*deferred.dims)  # (a fast path's problem, not compiled for this)
+    dims = deferred_dims(result)
+    if dims is not None:
+        bound = bound_of(*dims)  # (a fast path's problem, not compiled for this)
     elif result.problem is None:
         return None
     else:

@@ -193,6 +193,13 @@ class Deferred:
         self.make, self.dims = make, dims
 
 
+def deferred_dims(result: "Result") -> tuple[int, int] | None:
+    """``(residual dimensions, tangent dimensions)`` of ``result``'s problem when it is still
+    :class:`Deferred` with them known (reading ``result.problem`` would make it)."""
+    p = result.__dict__.get("_problem")
+    return p.dims if type(p) is Deferred else None
+
+
 class _MadeOnRead:
     """``Result.problem``: the compiled problem, or a :class:`Deferred` one made when first read
     (a fast path that solved without compiling one: most callers never read it). A data

@@ -20,7 +20,9 @@ run needs nothing only the general path gives (a callback, ``verbose``, a chosen
 ``linear_solver``, robust losses, Python factors or manifolds, the NumPy backend of a process
 that has not loaded numba). A driver is generated and compiled the first time its set of kernels
 is seen on a machine (14-16 s measured), in a background process while that solve takes the
-general path (:data:`COMPILE_IN_FOREGROUND`), then loaded from fgopt's cache.
+general path (:data:`COMPILE_IN_FOREGROUND`), then loaded from fgopt's cache. A file's tiny
+graph (a reader's batches over one bulk block of values) goes to its driver without a compiled
+:class:`~fgopt.problem.Problem` at all: :func:`optimize_file` (:mod:`._file`).
 """
 
 from __future__ import annotations

@@ -33,8 +33,9 @@ def optimize_file(graph: Any, initial: Any, params: Any, t0: float) -> Result | 
     path, which also names any error): a Python factor, robust loss, another kind, a missing,
     repeated or unused key, a driver not compiled yet, a non-finite start.
 
-    Same iterations and result as :func:`~fgopt.solvers.small.optimize_small` on the compiled problem, bit for bit;
-    it saves that compilation's ~15 us on a few-pose graph (a third of its Python)."""
+    Same iterations and result as :func:`~fgopt.solvers.small.optimize_small` on the compiled
+    problem, bit for bit; it saves that compilation's ~15 us on a few-pose graph (a third of its
+    Python)."""
     batches, pending = graph.batches, initial._pending
     if graph.factors or initial._dict or len(pending) != 1 or not batches:
         return None
@@ -55,9 +56,10 @@ def optimize_file(graph: Any, initial: Any, params: Any, t0: float) -> Result | 
     lane = _LANES.get(tuple(ids))
     if lane is None:
         lane = _lane(blk, batches, tuple(ids))
-    if lane is False or V * lane.dim > _pkg.SMALL_DENSE_SIZE or V * lane.dim > _pkg.SMALL_MAX_SIZE:
-        return None
     plan = lane.plan
+    if (plan is None or V * lane.dim > _pkg.SMALL_DENSE_SIZE
+            or V * lane.dim > _pkg.SMALL_MAX_SIZE):
+        return None
     if not plan.ready():
         return None  # (warming the driver up: the usual path's)
     per_slot: list[list] = [[] for _ in plan.names]
@@ -120,40 +122,41 @@ def _params_ok(p: Any) -> tuple:
 
 class _Lane:
     """What :func:`optimize_file` knows of a value kind and a graph's kernels (in batch order):
-    the kind, its tables, the kernels' driver plan and per batch its slot, residual dimension
-    and whether the kernel adds its own ``J^T J``."""
+    the kind, its tables, the kernels' driver plan (None: the lane never applies -- kinds differ,
+    a kernel without a compiled call or one that clamps...) and per batch its slot, residual
+    dimension and whether the kernel adds its own ``J^T J``; ``keep``: the objects the cache key's
+    ids name."""
 
     __slots__ = ("dim", "keep", "kind", "per_batch", "plan", "tables")
 
-
-#: Per (value kind, kernels in batch order) by id: a :class:`_Lane`, or False where the lane
-#: never applies (kinds differ, a kernel without a compiled call...). The entries keep what the
-#: ids name.
-_LANES: dict[tuple, Any] = {}
-
-
-def _lane(blk: Any, batches: list, ids: tuple) -> Any:
-    if len(_LANES) > 256:
-        _LANES.clear()
-    kind = _kind_of_rows(blk)
-    lane: Any = False
-    if kind is not None and kind.wrap is not None:
+    def __init__(self, blk: Any, batches: list):
+        self.keep = (blk.kind, [b.kernel for b in batches])
+        self.plan = None
+        kind = _kind_of_rows(blk)
+        if kind is None or kind.wrap is None:
+            return
         tables = _pkg._kind_tables([kind])
-        kernels = [b.kernel for b in batches]
-        if (tables[3] and tables[4] is not None
+        kernels = self.keep[1]
+        if not (tables[3] and tables[4] is not None
                 and all(k.compiled_call is not None and all(a is kind for a in k.arg_kinds)
                         for k in kernels)):
-            plan = _pkg._plan(batches)
-            if not plan.clamps:  # (clamp reports: the usual path's)
-                lane = _Lane()
-                lane.kind, lane.dim, lane.tables, lane.plan = kind, kind.dim, tables, plan
-                lane.per_batch = tuple((plan.slot_of[id(k)], k.residual_dim,
-                                        k.compiled_call.hessian) for k in kernels)
-    _LANES[ids] = lane
-    if lane is not False:
-        lane.keep = (blk.kind, [b.kernel for b in batches])
-    else:  # keep the objects the ids name
-        _LANES[ids + ("keep",)] = (blk.kind, [b.kernel for b in batches])
+            return
+        plan = _pkg._plan(batches)
+        if plan.clamps:  # (clamp reports: the usual path's)
+            return
+        self.kind, self.dim, self.tables, self.plan = kind, kind.dim, tables, plan
+        self.per_batch = tuple((plan.slot_of[id(k)], k.residual_dim, k.compiled_call.hessian)
+                               for k in kernels)
+
+
+#: Per (value kind, kernels in batch order) by id: a :class:`_Lane`.
+_LANES: dict[tuple, _Lane] = {}
+
+
+def _lane(blk: Any, batches: list, ids: tuple) -> _Lane:
+    if len(_LANES) > 256:
+        _LANES.clear()
+    lane = _LANES[ids] = _Lane(blk, batches)
     return lane
 
 
@@ -190,6 +193,5 @@ def _one_kind_tables(V: int, d: int) -> tuple:
             _ONE_KIND.clear()
         dims = np.empty(V, dtype=np.int64)
         dims.fill(d)
-        t = _ONE_KIND[(V, d)] = (np.zeros(V, dtype=np.int64), np.arange(V, dtype=np.int64),
-                                 dims)
+        t = _ONE_KIND[(V, d)] = (np.zeros(V, dtype=np.int64), _pkg._numbers(V), dims)
     return t
