@@ -117,6 +117,9 @@ def compiled_history(hist: np.ndarray, its: int, status: int, message: str,
     them to :class:`Result` as ``iteration_records``) are made when first read and carry no
     time (NaN: the loop runs compiled)."""
     rows = hist[:its].tolist()
+    st = _COMPILED_STATUS[int(status)]
+    if st is not Status.CONVERGED:  # (stall_status changes only a converged run)
+        return _HistoryRows(rows), st, message
     since, gain = None, 0.0  # the trailing run of rejected steps, as Run tracks it
     for i in range(its - 1, -1, -1):
         h = rows[i]
@@ -125,7 +128,7 @@ def compiled_history(hist: np.ndarray, its: int, status: int, message: str,
         since = i + 1
         g = h[7] if math.isfinite(h[1]) else math.inf
         gain = max(gain, g if g == g else math.inf)
-    st, message = stall_status(_COMPILED_STATUS[int(status)], message, float(cost), since, gain)
+    st, message = stall_status(st, message, float(cost), since, gain)
     return _HistoryRows(rows), st, message
 
 

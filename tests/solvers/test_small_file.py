@@ -85,6 +85,25 @@ def test_a_file_takes_the_lane_and_matches_the_compiled_problem(data_file, name)
             q.size, q.var_keys.tolist(), [x.kernel.name for x in q.batches])
 
 
+def test_one_kernel_in_several_batches_takes_the_lane_as_one_slot(data_file):
+    """A graph whose between factors are split over two batches (one with unit noise, one
+    with its own), in an order that interleaves the kernels, gives the compiled problem's
+    result bit for bit (the lane merges each kernel's batches into its one driver slot)."""
+    graph, init = fgopt.io.read(str(data_file("small/pose2example.txt")), add_prior=True)
+    between, prior = graph.batches
+    split = fgopt.FactorGraph()
+    half = len(between) // 2
+    split.add_batch(between.kernel, between.keys[:half], between.constants[:half])
+    split.add_batch(prior.kernel, prior.keys, prior.constants, prior.sqrt_information)
+    split.add_batch(between.kernel, between.keys[half:], between.constants[half:],
+                    None if between.sqrt_information is None else between.sqrt_information[half:])
+    before = small.STATS["solves"]
+    a = solve(split, init, max_iterations=5)
+    assert small.STATS["solves"] == before + 1
+    assert type(a.__dict__["_problem"]) is Deferred
+    assert_identical(a, solve(split, init, lane=False, max_iterations=5))
+
+
 def test_the_deferred_problem_is_the_graph_as_solved(data_file):
     """``result.problem`` made after the caller changed the graph and values is the problem that
     was solved (the graph's batches then, the values then), and serves marginals like the

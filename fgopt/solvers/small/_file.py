@@ -62,37 +62,33 @@ def optimize_file(graph: Any, initial: Any, params: Any, t0: float) -> Result | 
         return None
     if not plan.ready():
         return None  # (warming the driver up: the usual path's)
-    per_slot: list[list] = [[] for _ in plan.names]
+    slots: list = []
     residuals = 0
-    for b, (slot, r, hessian) in zip(batches, lane.per_batch):
+    for b, (r, hessian) in zip(batches, lane.per_batch):
         R = b.sqrt_information
         n = b.keys.shape[0]
         if b.loss_code != 0 or (hessian and R is not None) or n == 0:
             return None  # (a hessian call's own J^T J assumes unit noise: CompiledCall)
         residuals += n * r
-        per_slot[slot].append((_writeable(b.keys), b.constants,
-                               None if R is None else np.ascontiguousarray(R)))
+        slots.append((_writeable(b.keys), b.constants,
+                      _pkg._NO_R[r] if R is None else np.ascontiguousarray(R)))
+    if lane.merge is not None:  # (one kernel in several batches: one slot of them all)
+        slots = [_pkg._slot([(k, c, None if R.shape[0] == 0 else R) for k, c, R in
+                             (slots[i] for i in bs)], r) for bs, r in lane.merge]
     tables = lane.tables
-    rows = blk.rows.copy()  # (the driver's x0; what a Problem holds as its initial storage)
-    slots = []
-    for bs, r in zip(per_slot, plan.residual_dims):
-        if len(bs) == 1:  # (_slot's common case, inline)
-            var_idx, consts, R = bs[0]
-            slots.append((var_idx, consts, _pkg._NO_R[r] if R is None else R))
-        else:
-            slots.append(_pkg._slot(bs, r))
+    x0 = blk.rows.reshape(-1).copy()  # (the driver's; what a Problem holds as its initial storage)
     # (the driver numbers the variables: each factor's keys among the block's, status -2 for a
     # missing, repeated or unused key, or keys not ascending)
-    out = _pkg._run_driver(plan, rows.reshape(-1), (_writeable(blk.keys), *_one_kind_tables(
-        V, lane.dim), tables[1], tables[2], tuple(slots)), tables[4], params, t0)
+    out = _pkg._run_driver(plan, x0, (_writeable(blk.keys), *_one_kind_tables(V, lane.dim),
+                                      tables[1], tables[2], tuple(slots)), tables[4], params, t0)
     if out is None:
         return None
     x, result = out
-    x = x.reshape(rows.shape)
+    x = x.reshape(blk.rows.shape)
     final = x.copy()  # the values' rows (read-only), apart from the state's
     final.flags.writeable = False
     d = result.__dict__
-    d["_values"] = _one_block(blk.keys, lane.kind, final)
+    d["_values"] = Variables._of_rows(_Rows(blk.keys, lane.kind, final))
     d["state"] = State([x], {})
     d["_problem"] = Deferred(functools.partial(_compiled_problem, list(batches), blk, params),
                              (residuals, V * lane.dim))
@@ -123,11 +119,12 @@ def _params_ok(p: Any) -> tuple:
 class _Lane:
     """What :func:`optimize_file` knows of a value kind and a graph's kernels (in batch order):
     the kind, its tables, the kernels' driver plan (None: the lane never applies -- kinds differ,
-    a kernel without a compiled call or one that clamps...) and per batch its slot, residual
-    dimension and whether the kernel adds its own ``J^T J``; ``keep``: the objects the cache key's
-    ids name."""
+    a kernel without a compiled call or one that clamps...) and per batch its residual
+    dimension and whether the kernel adds its own ``J^T J``, ``merge``: None when each batch is
+    its own slot in slot order, else per slot its batches' indices and residual dimension;
+    ``keep``: the objects the cache key's ids name."""
 
-    __slots__ = ("dim", "keep", "kind", "per_batch", "plan", "tables")
+    __slots__ = ("dim", "keep", "kind", "merge", "per_batch", "plan", "tables")
 
     def __init__(self, blk: Any, batches: list):
         self.keep = (blk.kind, [b.kernel for b in batches])
@@ -145,8 +142,12 @@ class _Lane:
         if plan.clamps:  # (clamp reports: the usual path's)
             return
         self.kind, self.dim, self.tables, self.plan = kind, kind.dim, tables, plan
-        self.per_batch = tuple((plan.slot_of[id(k)], k.residual_dim, k.compiled_call.hessian)
-                               for k in kernels)
+        self.per_batch = tuple((k.residual_dim, k.compiled_call.hessian) for k in kernels)
+        slot = [plan.slot_of[id(k)] for k in kernels]
+        # batches in slot order, one each (a reader's graph), or per slot its batches' indices
+        self.merge = None if slot == list(range(len(plan.names))) else tuple(
+            (tuple(i for i, s in enumerate(slot) if s == j), r)
+            for j, r in enumerate(plan.residual_dims))
 
 
 #: Per (value kind, kernels in batch order) by id: a :class:`_Lane`.
@@ -158,13 +159,6 @@ def _lane(blk: Any, batches: list, ids: tuple) -> _Lane:
         _LANES.clear()
     lane = _LANES[ids] = _Lane(blk, batches)
     return lane
-
-
-def _one_block(keys: np.ndarray, kind: Any, rows: np.ndarray) -> Any:
-    """New ``Variables`` of one bulk block (as ``Problem.values`` returns a file's values)."""
-    out = Variables()
-    out._pending.append(_Rows(keys, kind, rows))
-    return out
 
 
 def _compiled_problem(batches: list, block: Any, params: Any) -> Any:
