@@ -133,19 +133,24 @@ def compiled_history(hist: np.ndarray, its: int, status: int, message: str,
 
 
 def compiled_result(hist: np.ndarray, its: int, status: int, message: str, cost: float,
-                    init: float, timing: dict, method: str, linear_solver: str) -> "Result":
+                    init: float, timing: dict, method: str, linear_solver: str,
+                    info: dict | None = None) -> "Result":
     """The :class:`Result` of a compiled LM loop (:func:`compiled_history`'s records, status
     and message; no problem, state, unused keys or clamps yet), made without the dataclass'
     ``__init__`` (~1 us of a small problem's ~40 us solve). Same fields as ``Result(...)``."""
+    if info is None:
+        info = {}
     records, st, message = compiled_history(hist, its, status, message, cost)
     init = float(init)
+    costs = [init]
+    costs += [h[0] for h in records.rows if h[6] > 0.5]
     r = object.__new__(Result)
-    r.__dict__.update(
-        _values=None, status=st, message=message, iterations=len(records.rows),
-        initial_cost=init, final_cost=float(cost),
-        cost_history=[init] + [h[0] for h in records.rows if h[6] > 0.5], _records=records,
-        timing=timing, method=method, linear_solver=linear_solver, _problem=None, state=None,
-        info={}, unused_keys=(), clamps=(), num_clamped=0)
+    r.__dict__ = {  # (a literal: ~0.5 us less than update(**fields))
+        "_values": None, "status": st, "message": message, "iterations": len(records.rows),
+        "initial_cost": init, "final_cost": float(cost), "cost_history": costs,
+        "_records": records, "timing": timing, "method": method,
+        "linear_solver": linear_solver, "_problem": None, "state": None, "info": info,
+        "unused_keys": (), "clamps": (), "num_clamped": 0}
     return r
 
 

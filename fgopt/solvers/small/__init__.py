@@ -362,11 +362,9 @@ def _run_driver(plan: _Plan, x0: np.ndarray, inputs: tuple, cls: str, p: Any,
     if status < 0:  # -1: not finite at the start; -2: keys that do not number the variables
         return None
     STATS["solves"] += 1
-    result = compiled_result(hist, its, status, _MESSAGES[int(msg)](float(val), p, rel_tol), cost,
-                             init, {"setup": t1 - t0, "lm": t2 - t1}, "lm",
-                             "dense cholesky (small-problem driver)")
-    result.info["backend"] = "numba"
-    return x, result
+    return x, compiled_result(hist, its, status, _MESSAGES[msg](val, p, rel_tol), cost, init,
+                              {"setup": t1 - t0, "lm": t2 - t1}, "lm",
+                              "dense cholesky (small-problem driver)", {"backend": "numba"})
 
 
 def _split(x: np.ndarray, storages: list) -> list[np.ndarray]:
