@@ -249,3 +249,49 @@ def test_read_only_keys_take_the_lane_without_a_new_compilation(data_file):
     assert type(c.__dict__["_problem"]) is Deferred
     assert len(solve_fn.signatures) == before
     assert_identical(c, a)
+
+
+def test_a_graph_solved_again_reuses_its_inputs_and_sees_every_change(data_file):
+    """The second solve of a graph reuses the driver inputs built by the first (same objects);
+    whatever changes the graph -- a batch's constants replaced or changed in place, a batch
+    added, another values block -- gives the compiled problem's result for the graph as it is
+    then, never the earlier one's."""
+    from fgopt.solvers.small import _file
+
+    graph, init = fgopt.io.read(str(data_file("small/pose2example.txt")), add_prior=True)
+    five = dict(max_iterations=5)
+    first = solve(graph, init, **five)
+    memo = _file._MEMOS[id(graph)]
+    assert_identical(solve(graph, init, **five), first)
+    assert _file._MEMOS[id(graph)] is memo  # reused, not rebuilt
+
+    between = graph.batches[0]
+    between.constants = between.constants + 0.05  # replaced
+    a = solve(graph, init, **five)
+    assert a.final_cost != first.final_cost
+    assert_identical(a, solve(graph, init, lane=False, **five))
+    between.constants[0, 0] += 0.3  # changed in place
+    b = solve(graph, init, **five)
+    assert b.final_cost != a.final_cost
+    assert_identical(b, solve(graph, init, lane=False, **five))
+    graph.add_batch(between.kernel, between.keys[:1], between.constants[1:2])  # one more factor
+    c = solve(graph, init, **five)
+    assert c.final_cost != b.final_cost
+    assert_identical(c, solve(graph, init, lane=False, **five))
+    other = fgopt.io.read(str(data_file("small/pose2example.txt")))[1]  # another values block
+    assert_identical(solve(graph, other, **five), solve(graph, other, lane=False, **five))
+
+
+def test_a_collected_graph_leaves_no_inputs_behind(data_file):
+    """The reused inputs hold the graph weakly: once it is gone, so is its entry."""
+    import gc
+
+    from fgopt.solvers.small import _file
+
+    graph, init = fgopt.io.read(str(data_file("small/noisyToyGraph.txt")), add_prior=True)
+    solve(graph, init)
+    key_ = id(graph)
+    assert key_ in _file._MEMOS
+    del graph
+    gc.collect()
+    assert key_ not in _file._MEMOS
