@@ -307,9 +307,9 @@ def optimize_small(problem: Any, params: Any, t0: float, graph: Any = None,
     cls = _kind_tables(problem.kinds)[4] or _lm_module.problem_class_for(
         problem.kinds, False, lambda: problem.ensure_structure().pattern)
     storages = problem._initial_storages
-    # (_lm copies x0 before it writes)
+    # (the driver writes the final storage into x0: a copy)
     x0 = np.concatenate([s.reshape(-1) for s in storages]) if len(storages) > 1 else \
-        storages[0].reshape(-1)
+        storages[0].reshape(-1).copy()
     out = _run_driver(plan, x0, inputs, cls, params, t0)
     if out is None:
         return None
@@ -347,22 +347,23 @@ def _params_array(p: Any, cls: str) -> tuple[np.ndarray, float]:
 
 def _run_driver(plan: _Plan, x0: np.ndarray, inputs: tuple, cls: str, p: Any,
                 t0: float) -> tuple[np.ndarray, Result] | None:
-    """One call of ``plan``'s driver: the final storage ``x`` and a :class:`Result` without its
-    problem, state, unused keys and clamps (the caller's); None when the initial linearization
-    is not finite."""
+    """One call of ``plan``'s driver: ``x0`` (the caller's scratch copy of the initial storage),
+    now the final storage, and a :class:`Result` without its problem, state, unused keys and
+    clamps (the caller's); None when the initial linearization is not finite or the keys do
+    not number the variables."""
     global _lm_module
     if _lm_module is None:  # (lm imports this module; an import here costs ~1 us a solve)
         from .. import lm as _lm_module
     prm, rel_tol = _params_array(p, cls)
     t1 = time.perf_counter()
-    x, status, msg, val, its, cost, init, hist = plan.module._solve(x0, inputs, prm)
+    status, msg, val, its, cost, init, hist = plan.module._solve(x0, inputs, prm)
     t2 = time.perf_counter()
     if not plan.compiled:
         plan.mark_compiled()
     if status < 0:  # -1: not finite at the start; -2: keys that do not number the variables
         return None
     STATS["solves"] += 1
-    return x, compiled_result(hist, its, status, _MESSAGES[msg](val, p, rel_tol), cost, init,
+    return x0, compiled_result(hist, its, status, _MESSAGES[msg](val, p, rel_tol), cost, init,
                               {"setup": t1 - t0, "lm": t2 - t1}, "lm",
                               "dense cholesky (small-problem driver)", {"backend": "numba"})
 

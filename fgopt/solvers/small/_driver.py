@@ -8,7 +8,8 @@ numba function, :class:`~fgopt.factors.kernel.CompiledCall`), then whitened and 
 dense H by an ``_acc<slot>`` function generated with the kernel's sizes as literals (or, for a
 ``hessian`` call such as a smart factor's Schur complement, the kernel adds its own ``J^T J``).
 
-The entry point is ``_solve(x0, problem, prm)``: ``problem`` is ``(block_keys, var_kind,
+The entry point is ``_solve(x0, problem, prm)`` (it writes the final storage into ``x0``, the
+caller's scratch copy): ``problem`` is ``(block_keys, var_kind,
 var_row, var_dim, kind_sdim, kind_gid, slots)``: the variables' keys (strictly ascending), kinds,
 rows and dims as :class:`~fgopt.problem.Problem` numbers them (storage dims and Lie group ids per
 kind), with one ``(keys, consts, R)`` tuple per kernel in the driver's kernel order (each factor's
@@ -37,7 +38,7 @@ from typing import Any
 from ..fixed._codegen import LM_TEMPLATE
 
 #: Bumped when the emitted source changes meaning (part of the cache key).
-SMALL_CODEGEN_VERSION = "10"
+SMALL_CODEGEN_VERSION = "11"
 #: ``_acc`` functions with at most this many whitened Jacobian entries (``r * D``) are inlined.
 INLINE_MAX_WORK = 18
 #: What a loaded module must define (else it is regenerated).
@@ -207,14 +208,14 @@ def module_source(signatures: tuple, names: tuple) -> str:
         "    return aux[2]",
         "",
     ]
-    slots = ", ".join(f"(soff[v{j}], toff[v{j}], s{j}[1], s{j}[2], {work[j]})"
+    slots = ", ".join(f"(soff[v{j}], to{j}, s{j}[1], s{j}[2], {work[j]})"
                       for j in range(len(signatures)))
     unpack = ", ".join(f"s{j}" for j in range(len(signatures)))
     numbering = []
     for j in range(len(signatures)):
         numbering += [f"    v{j}, fresh = block_var_idx(block_keys, s{j}[0], used)",
                       "    if fresh < 0:",
-                      "        return x0, -2, 0, 0.0, 0, 0.0, 0.0, np.empty((1, 8))",
+                      "        return -2, 0, 0.0, 0, 0.0, 0.0, np.empty((1, 8))",
                       "    seen += fresh"]
     solve = [
         "",
@@ -222,29 +223,33 @@ def module_source(signatures: tuple, names: tuple) -> str:
         '@numba.njit(cache=True, error_model="numpy", nogil=True)',
         "def _solve(x0, problem, prm):",
         '    """_lm on a problem given as variables and per-kernel factors (see the module',
-        '    docstring of fgopt.solvers.small._driver); returns _lm\'s tuple and the history',
-        '    (status -2: the factors\' keys do not number the variables)."""',
+        '    docstring of fgopt.solvers.small._driver): the final storage written into x0,',
+        '    _lm\'s tuple without x and the history (status -1: x0 kept, not finite there; -2:',
+        '    the factors\' keys do not number the variables)."""',
         "    block_keys, var_kind, var_row, var_dim, kind_sdim, kind_gid, slots = problem",
         f"    {unpack}{',' if len(signatures) == 1 else ''} = slots",
         "    used = np.zeros(block_keys.shape[0], dtype=np.bool_)",
         "    seen = 0",
         *numbering,
         "    if seen != block_keys.shape[0]:",
-        "        return x0, -2, 0, 0.0, 0, 0.0, 0.0, np.empty((1, 8))",
+        "        return -2, 0, 0.0, 0, 0.0, 0.0, np.empty((1, 8))",
         "    soff, toff, layout = layout_of(var_kind, var_row, var_dim, kind_sdim, kind_gid)",
         *[f"    n{j} = v{j}.shape[0]" for j in range(len(signatures))],
         "    n = 0",
         "    for v in range(var_dim.shape[0]):",
         "        n += var_dim[v]",
         "    first = envelope_of(toff, var_dim, n)",
-        *[f"    widen_envelope(first, toff[v{j}], var_dim[v{j}])"
-          for j in range(len(signatures))],
+        *[f"    to{j} = toff[v{j}]" for j in range(len(signatures))],
+        *[f"    widen_envelope(first, to{j}, var_dim[v{j}])" for j in range(len(signatures))],
         f"    aux = (({slots}{',' if len(signatures) == 1 else ''}), layout, first)",
         "    hist = np.empty((max(int(prm[0]), 1), 8))",
         "    H = np.zeros((n, n))  # (zero outside the envelope)",
         "    g = np.empty(n)",
         "    x, status, msg, val, its, cost, init = _lm(x0, aux, prm, hist, H, g)",
-        "    return x, status, msg, val, its, cost, init, hist",
+        "    if status >= 0:",
+        "        for i in range(x0.shape[0]):  # (returning x would box a second array)",
+        "            x0[i] = x[i]",
+        "    return status, msg, val, its, cost, init, hist",
         "",
     ]
     return "\n".join(head) + LM_TEMPLATE.replace("{n}", "H.shape[0]") + "\n".join(solve)
