@@ -1,5 +1,6 @@
-"""Exactly 5 LM iterations on the shared pose graphs (2D and 3D, 2-20,000 poses): fgopt vs C++
-Ceres vs GTSAM, CPU time, in one run.
+"""5 LM iterations on the shared pose graphs (2D and 3D, 2-20,000 poses): fgopt vs C++ Ceres vs
+GTSAM, CPU time, in one run; each library's iterations recorded (Ceres' gradient test and
+GTSAM's lambda bound can stop a run early: see ``TABLE_PROTOCOL``).
 
     python -m benchmarks.small_graphs [--files ...] [--sizes 400,1000,3500,10000,20000]
                                       [--repeats 300] [--budget 2] [--out F.md] [--json F]
