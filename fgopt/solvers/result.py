@@ -79,17 +79,25 @@ class _RecordTable:
 
 
 class _HistoryRows:
-    """A compiled LM loop's history rows (see :func:`compiled_history`), made into
-    :class:`IterationRecord` s when first read: building the records costs ~6 us for 5
-    iterations, a tenth of a small problem's whole solve, and most callers never read them."""
+    """A compiled LM loop's history (its first ``its`` rows, see :func:`compiled_history`), made
+    into lists when first read and into :class:`IterationRecord` s when those are: building the
+    records costs ~6 us for 5 iterations and even the lists ~0.7 us, against a tiny problem's
+    ~30 us solve, and most callers read neither (``Result.iteration_records`` and
+    ``Result.cost_history`` make them)."""
 
-    __slots__ = ("rows",)
+    __slots__ = ("hist", "its", "_rows")
 
-    def __init__(self, rows: list[list[float]]):
-        self.rows = rows
+    def __init__(self, hist: np.ndarray, its: int):
+        self.hist, self.its, self._rows = hist, its, None
+
+    @property
+    def rows(self) -> list[list[float]]:
+        if self._rows is None:
+            self._rows = self.hist[:self.its].tolist()
+        return self._rows
 
     def __len__(self) -> int:
-        return len(self.rows)
+        return self.its
 
     def accepted_costs(self) -> list[float]:
         return [h[0] for h in self.rows if h[6] > 0.5]
@@ -116,10 +124,11 @@ def compiled_history(hist: np.ndarray, its: int, status: int, message: str,
     trailing steps were all rejected becomes :func:`stall_status`'s STALLED. The records (pass
     them to :class:`Result` as ``iteration_records``) are made when first read and carry no
     time (NaN: the loop runs compiled)."""
-    rows = hist[:its].tolist()
+    records = _HistoryRows(hist, its)
     st = _COMPILED_STATUS[int(status)]
     if st is not Status.CONVERGED:  # (stall_status changes only a converged run)
-        return _HistoryRows(rows), st, message
+        return records, st, message
+    rows = records.rows
     since, gain = None, 0.0  # the trailing run of rejected steps, as Run tracks it
     for i in range(its - 1, -1, -1):
         h = rows[i]
@@ -129,7 +138,7 @@ def compiled_history(hist: np.ndarray, its: int, status: int, message: str,
         g = h[7] if math.isfinite(h[1]) else math.inf
         gain = max(gain, g if g == g else math.inf)
     st, message = stall_status(st, message, float(cost), since, gain)
-    return _HistoryRows(rows), st, message
+    return records, st, message
 
 
 def compiled_result(hist: np.ndarray, its: int, status: int, message: str, cost: float,
@@ -141,13 +150,10 @@ def compiled_result(hist: np.ndarray, its: int, status: int, message: str, cost:
     if info is None:
         info = {}
     records, st, message = compiled_history(hist, its, status, message, cost)
-    init = float(init)
-    costs = [init]
-    costs += [h[0] for h in records.rows if h[6] > 0.5]
     r = object.__new__(Result)
     r.__dict__ = {  # (a literal: ~0.5 us less than update(**fields))
-        "_values": None, "status": st, "message": message, "iterations": len(records.rows),
-        "initial_cost": init, "final_cost": float(cost), "cost_history": costs,
+        "_values": None, "status": st, "message": message, "iterations": its,
+        "initial_cost": float(init), "final_cost": float(cost), "_cost_history": records,
         "_records": records, "timing": timing, "method": method,
         "linear_solver": linear_solver, "_problem": None, "state": None, "info": info,
         "unused_keys": (), "clamps": (), "num_clamped": 0}
@@ -188,6 +194,24 @@ class _Records:
 
     def __set__(self, obj: "Result", value) -> None:
         obj.__dict__["_records"] = value if isinstance(value, (list, _HistoryRows)) else list(value)
+
+
+class _Costs:
+    """``Result.cost_history``: a list, or for a compiled loop its :class:`_HistoryRows`, turned
+    into the list (the initial cost, then each accepted step's) when first read. A data
+    descriptor with no class-level default, so the field stays required in ``__init__``."""
+
+    def __get__(self, obj: "Result | None", owner: type | None = None):
+        if obj is None:
+            raise AttributeError("cost_history")  # (dataclasses: no default)
+        d = obj.__dict__
+        v = d["_cost_history"]
+        if type(v) is _HistoryRows:
+            v = d["_cost_history"] = [d["initial_cost"]] + v.accepted_costs()
+        return v
+
+    def __set__(self, obj: "Result", value) -> None:
+        obj.__dict__["_cost_history"] = value
 
 
 class Deferred:
@@ -235,7 +259,7 @@ class Result:
     iterations: int
     initial_cost: float
     final_cost: float
-    cost_history: list[float]
+    cost_history: list[float] = _Costs()  # type: ignore[assignment]
     iteration_records: list[IterationRecord] = _Records()  # type: ignore[assignment]
     timing: dict[str, float] = field(default_factory=dict)
     method: str = ""
@@ -274,6 +298,7 @@ class Result:
             state["_values"] = self.values
         state.pop("_problem")
         state["problem"] = state["state"] = None
+        state["_cost_history"] = self.cost_history
         records = state.pop("_records")
         records = state["iteration_records"] = (
             records.records() if type(records) is _HistoryRows else records)
@@ -286,6 +311,8 @@ class Result:
 
     def __setstate__(self, state: dict) -> None:
         state = dict(state)
+        if "cost_history" in state:  # (pickled before it was a descriptor)
+            state["_cost_history"] = state.pop("cost_history")
         records = state.pop("iteration_records", [])
         problem = state.pop("problem", None)
         self.__dict__.update(state)

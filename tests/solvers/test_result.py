@@ -49,3 +49,26 @@ def test_a_deferred_problem_is_made_once_when_first_read():
     assert r.problem == "the problem" and r.problem == "the problem"
     assert made == [1]
     assert Result(None, Status.CONVERGED, "m", 0, 1.0, 1.0, [1.0]).problem is None
+
+
+def test_a_compiled_history_becomes_lists_only_when_read():
+    """The compiled loop's history stays its array until ``cost_history`` or
+    ``iteration_records`` is read; either reads the same as when made eagerly, pickling
+    carries them as lists, and a result pickled with ``cost_history`` as a plain field (before
+    it was made on read) still loads."""
+    import pickle
+
+    from fgopt import Variables
+
+    r = compiled_result(_hist(), 3, 1, "m", 6.0, 10.0, {}, "lm", "dense")
+    r.__dict__["_values"] = Variables()
+    lazy = r.__dict__["_cost_history"]
+    assert lazy is r.__dict__["_records"] and lazy._rows is None  # no lists made yet
+    back = pickle.loads(pickle.dumps(r))
+    assert back.cost_history == [10.0, 8.0, 6.0] == r.cost_history
+    assert [x.cost for x in back.iteration_records] == [8.0, 8.0, 6.0]
+    state = r.__getstate__()
+    state["cost_history"] = state.pop("_cost_history")  # the older form
+    old = object.__new__(Result)
+    old.__setstate__(state)
+    assert old.cost_history == [10.0, 8.0, 6.0] and len(old.iteration_records) == 3
