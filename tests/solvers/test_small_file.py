@@ -295,3 +295,17 @@ def test_a_collected_graph_leaves_no_inputs_behind(data_file):
     del graph
     gc.collect()
     assert key_ not in _file._MEMOS
+
+
+def test_a_graph_the_lane_no_longer_takes_drops_its_kept_inputs(data_file):
+    """Once a graph changes so that the lane declines it (a robust loss here), its kept inputs
+    are dropped, and the usual path solves it."""
+    from fgopt.solvers.small import _file
+
+    graph, init = fgopt.io.read(str(data_file("small/noisyToyGraph.txt")), add_prior=True)
+    solve(graph, init)
+    assert id(graph) in _file._MEMOS
+    graph.batches[0].loss_code, graph.batches[0].loss_param = 1, 1.0  # Huber on the betweens
+    r = solve(graph, init)
+    assert id(graph) not in _file._MEMOS
+    assert type(r.__dict__["_problem"]) is not Deferred

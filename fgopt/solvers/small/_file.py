@@ -105,6 +105,7 @@ def _prepare(graph: Any, blk: Any, batches: list) -> _Inputs | None:
     """The driver's inputs for ``graph``'s batches and values block ``blk`` (kept in
     :data:`_MEMOS` when they are the batches' own arrays), or None where the lane does not
     apply."""
+    _MEMOS.pop(id(graph), None)  # (an earlier entry for this graph no longer holds)
     V = blk.keys.shape[0]
     size = V
     ids = [id(blk.kind)]
