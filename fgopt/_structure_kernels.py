@@ -1,6 +1,7 @@
 """numba kernels of :mod:`fgopt.structure`: the block layout of H's lower CSC, the whole pattern
 in one call (used once numba is in use), row indices, the symmetric product and the scatter map;
-and the small collection's numbering of a file's factors (:func:`block_var_idx`).
+and the small collection's numbering of a file's factors (:func:`block_var_idx`, also
+into a given array: :func:`block_var_idx_into`).
 
 Their vectorized NumPy forms (NumPy backend, and small work while the twin budget lasts) stay in
 :mod:`fgopt.structure`, which picks between the two.
@@ -32,27 +33,34 @@ def block_var_idx(block_keys, keys, used):
     ``(var_idx (n, k), fresh)``, ``fresh`` the number of rows newly marked, or -1 when
     ``block_keys`` is not strictly ascending, a key is absent or a factor repeats a key (the
     caller's general path then says which)."""
+    out = np.empty(keys.shape, dtype=np.int64)
+    return out, block_var_idx_into(block_keys, keys, used, out)
+
+
+@njit(cache=True)
+def block_var_idx_into(block_keys, keys, used, out):
+    """:func:`block_var_idx` writing ``var_idx`` into ``out (n, k)``; returns ``fresh`` (-1: as
+    there). ``used``: flags, zero for rows not yet used (bool or integer)."""
     n, k = keys.shape
     N = block_keys.shape[0]
-    out = np.empty((n, k), dtype=np.int64)
     for r in range(1, N):
         if block_keys[r] <= block_keys[r - 1]:
-            return out, -1
+            return -1
     fresh = 0
     for i in range(n):
         for p in range(k):
             q = keys[i, p]
             r = lower_bound(block_keys, 0, N, q)
             if r == N or block_keys[r] != q:
-                return out, -1
+                return -1
             for t in range(p):
                 if out[i, t] == r:
-                    return out, -1
+                    return -1
             out[i, p] = r
             if not used[r]:
                 used[r] = True
                 fresh += 1
-    return out, fresh
+    return fresh
 
 
 @njit(cache=True)

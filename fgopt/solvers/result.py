@@ -143,20 +143,23 @@ def compiled_history(hist: np.ndarray, its: int, status: int, message: str,
 
 def compiled_result(hist: np.ndarray, its: int, status: int, message: str, cost: float,
                     init: float, timing: dict, method: str, linear_solver: str,
-                    info: dict | None = None) -> "Result":
+                    info: dict | None = None, values: Variables | None = None,
+                    state: object = None, problem: object = None) -> "Result":
     """The :class:`Result` of a compiled LM loop (:func:`compiled_history`'s records, status
-    and message; no problem, state, unused keys or clamps yet), made without the dataclass'
-    ``__init__`` (~1 us of a small problem's ~40 us solve). Same fields as ``Result(...)``."""
-    if info is None:
-        info = {}
-    records, st, message = compiled_history(hist, its, status, message, cost)
+    and message; ``values``, ``state`` and ``problem`` as given, no unused keys or clamps),
+    made without the dataclass' ``__init__`` (~1 us of a small problem's ~40 us solve). Same
+    fields as ``Result(...)``."""
+    records = _HistoryRows(hist, its)
+    st = _COMPILED_STATUS[status]
+    if st is Status.CONVERGED:  # (stall_status changes only a converged run)
+        _, st, message = compiled_history(hist, its, status, message, cost)
     r = object.__new__(Result)
     r.__dict__ = {  # (a literal: ~0.5 us less than update(**fields))
-        "_values": None, "status": st, "message": message, "iterations": its,
+        "_values": values, "status": st, "message": message, "iterations": its,
         "initial_cost": float(init), "final_cost": float(cost), "_cost_history": records,
         "_records": records, "timing": timing, "method": method,
-        "linear_solver": linear_solver, "_problem": None, "state": None, "info": info,
-        "unused_keys": (), "clamps": (), "num_clamped": 0}
+        "linear_solver": linear_solver, "_problem": problem, "state": state,
+        "info": {} if info is None else info, "unused_keys": (), "clamps": (), "num_clamped": 0}
     return r
 
 
@@ -215,14 +218,14 @@ class _Costs:
 
 
 class Deferred:
-    """A problem made by ``make()`` when first read (see :class:`_MadeOnRead`); ``dims``: its
-    ``(residual dimensions, tangent dimensions)`` when known without making it (the chi-square
-    test of :mod:`fgopt.solvers.initialization` needs only those)."""
+    """A problem made by ``make(*args)`` when first read (see :class:`_MadeOnRead`); ``dims``:
+    its ``(residual dimensions, tangent dimensions)`` when known without making it (the
+    chi-square test of :mod:`fgopt.solvers.initialization` needs only those)."""
 
-    __slots__ = ("make", "dims")
+    __slots__ = ("make", "dims", "args")
 
-    def __init__(self, make, dims: tuple[int, int] | None = None):
-        self.make, self.dims = make, dims
+    def __init__(self, make, dims: tuple[int, int] | None = None, args: tuple = ()):
+        self.make, self.dims, self.args = make, dims, args
 
 
 def deferred_dims(result: "Result") -> tuple[int, int] | None:
@@ -242,7 +245,7 @@ class _MadeOnRead:
             return None  # the dataclass field's default
         v = obj.__dict__["_problem"]
         if type(v) is Deferred:
-            v = obj.__dict__["_problem"] = v.make()
+            v = obj.__dict__["_problem"] = v.make(*v.args)
         return v
 
     def __set__(self, obj: "Result", value) -> None:

@@ -137,7 +137,9 @@ def lie_jrinv(gid, v, out):
         sim3_jrinv(v, out)
 
 
-@njit(cache=True)
+# (reference counting explicit: numba compiles a callee without its own _nrt with its caller's,
+# and the small drivers' retract counts none while Sim(3)'s exp allocates)
+@njit(cache=True, _nrt=True)
 def lie_retract(gid, x, delta, out, tmp):
     """out = x * Exp(delta); ``tmp`` is scratch of length >= storage dim."""
     lie_exp(gid, delta, tmp)

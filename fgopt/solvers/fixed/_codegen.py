@@ -29,7 +29,7 @@ from typing import Any
 from ...symbolic.cse import Program, optimize, prune, total_ops
 
 #: Bumped when the emitted source changes meaning (part of the cache key).
-FIXED_CODEGEN_VERSION = "7"  # 7: envelope Cholesky (_envelope)
+FIXED_CODEGEN_VERSION = "8"  # 7: envelope Cholesky (_envelope); 8: _lm's arenas
 
 
 @dataclass(frozen=True)
@@ -230,12 +230,14 @@ def _envelope(_aux, n):
 #: The dense LM of a generated module, around its ``_lin(x, aux, H, g) -> cost``,
 #: ``_retract(x, delta, out, tmp, aux)`` and ``_envelope(aux, n)`` (per row of H the first
 #: column that can be nonzero: the Cholesky skips what lies before it); ``{n}`` is the tangent
-#: dimension's expression. Shared
-#: by the fixed formulation and :mod:`fgopt.solvers.small` (one driver per set of kernels).
+#: dimension's expression and ``{core_flags}`` ``_lm_core``'s extra numba options (see
+#: :func:`lm_source`). Shared by the fixed formulation and :mod:`fgopt.solvers.small` (one
+#: driver per set of kernels).
 LM_TEMPLATE = '''
 # reassociation lets LLVM vectorize the dot products (33 unknowns: 4.1 -> 2.9 us, 72: 34 -> 14
 # us); the order of a sum's terms is all it changes, the same on every call
-@numba.njit(cache=True, fastmath={"reassoc", "contract"}, error_model="numpy", nogil=True)
+@numba.njit(cache=True, fastmath={"reassoc", "contract"}, error_model="numpy", nogil=True,
+            _nrt=False)
 def _cholesky_solve(A, b, L, y, first):
     """Solve A y = b for symmetric A by Cholesky (lower L); False if A is not positive definite.
 
@@ -273,7 +275,7 @@ def _cholesky_solve(A, b, L, y, first):
     return True
 
 
-@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
+@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, _nrt=False)
 def _absmax(g):
     m = 0.0
     for i in range(g.shape[0]):
@@ -283,7 +285,7 @@ def _absmax(g):
     return m
 
 
-@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
+@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, _nrt=False)
 def _all_finite(a):
     for i in range(a.shape[0]):
         if not math.isfinite(a[i]):
@@ -291,7 +293,7 @@ def _all_finite(a):
     return True
 
 
-@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
+@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, _nrt=False)
 def _all_finite_env(a, env):
     """Whether symmetric a's lower envelope (all it can hold) is finite."""
     ok = True
@@ -301,13 +303,13 @@ def _all_finite_env(a, env):
     return ok
 
 
-@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
+@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, _nrt=False)
 def _copy(src, dst):
     for i in range(src.shape[0]):
         dst[i] = src[i]
 
 
-@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
+@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, _nrt=False)
 def _copy_env(src, dst, env):
     """dst = src on symmetric src's envelope, both triangles (outside it both stay zero)."""
     for i in range(src.shape[0]):
@@ -316,7 +318,7 @@ def _copy_env(src, dst, env):
             dst[j, i] = src[j, i]
 
 
-@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
+@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, _nrt=False)
 def _record(hist, row, cost, cand, rel, lam, step, grad, acc, pred):
     hist[row, 7] = pred
     hist[row, 0] = cost
@@ -328,8 +330,8 @@ def _record(hist, row, cost, cand, rel, lam, step, grad, acc, pred):
     hist[row, 6] = acc
 
 
-@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True)
-def _lm(x0, aux, prm, hist, H, g):
+@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True{core_flags})
+def _lm_core(x0, aux, prm, hist, H, g, zw, ew):
     """Dense LM as fgopt.solvers.lm (same damping, gain ratio, lambda policy and stopping tests).
 
     The whole-problem linearization has ONE call site (the generated program is inlined once):
@@ -339,8 +341,10 @@ def _lm(x0, aux, prm, hist, H, g):
     min_relative_decrease, identity damping (1/0), lambda by factor (1/0), lambda_factor.
     hist (max_iterations, 8): cost, candidate cost, relative decrease,
     lambda, |step|, |grad|, accepted, predicted decrease. H, g (out): the linearization at the
-    returned x (H zero on entry: only its envelope is written).
-    Returns (x, status, message, value, iterations, cost, initial cost); status 0 converged,
+    returned x (H zero on entry: only its envelope is written). zw: 2 n^2 + n zeros, ew:
+    2 len(x0) + n^2 + 3 n + 8 scratch (one arena each, not ten arrays: an allocation is ~50
+    ns, a tenth of a 2-pose solve's compiled work); the final x is ew[:len(x0)].
+    Returns (status, message, value, iterations, cost, initial cost); status 0 converged,
     1 max iterations, 2 failed, -1 non-finite at the initial values.
     """
     max_it = int(prm[0])
@@ -350,16 +354,21 @@ def _lm(x0, aux, prm, hist, H, g):
     identity, by_factor, lam_factor = prm[11] > 0.5, prm[12] > 0.5, prm[13]
     n = {n}
     env = _envelope(aux, n)  # per row of H its first column that can be nonzero
-    x = x0.copy()
-    xc = x0.copy()
-    Hc = np.zeros((n, n))
-    gc = np.zeros(n)
-    Hd = np.empty((n, n))
-    L = np.zeros((n, n))
-    Dg = np.empty(n)
-    rhs = np.empty(n)
-    delta = np.empty(n)
-    tmp = np.empty(8)
+    nx = x0.shape[0]
+    Hc = zw[:n * n].reshape((n, n))
+    L = zw[n * n:2 * n * n].reshape((n, n))
+    gc = zw[2 * n * n:2 * n * n + n]
+    x = ew[:nx]
+    xc = ew[nx:2 * nx]
+    for i in range(nx):
+        x[i] = x0[i]
+        xc[i] = x0[i]
+    Hd = ew[2 * nx:2 * nx + n * n].reshape((n, n))
+    o = 2 * nx + n * n
+    Dg = ew[o:o + n]
+    rhs = ew[o + n:o + 2 * n]
+    delta = ew[o + 2 * n:o + 3 * n]
+    tmp = ew[o + 3 * n:o + 3 * n + 8]
     nu = 2.0
     cost = 0.0
     init = 0.0
@@ -372,14 +381,14 @@ def _lm(x0, aux, prm, hist, H, g):
         if first:
             first = False
             if not (math.isfinite(new_cost) and _all_finite(gc) and _all_finite_env(Hc, env)):
-                return x, -1, 0, 0.0, 0, new_cost, new_cost
+                return -1, 0, 0.0, 0, new_cost, new_cost
             _copy_env(Hc, H, env)
             _copy(gc, g)
             cost = new_cost
             init = new_cost
             gn = _absmax(g)
             if gn <= gtol:
-                return x, 0, 1, gn, 0, cost, init
+                return 0, 1, gn, 0, cost, init
         else:
             row = it - 1
             old = cost
@@ -404,11 +413,11 @@ def _lm(x0, aux, prm, hist, H, g):
                 _record(hist, row, cost, new_cost, rel, lam, step_norm, gn, 1.0, predicted)
                 dec = old - new_cost
                 if dec < atol:
-                    return x, 0, 2, dec, it, cost, init
+                    return 0, 2, dec, it, cost, init
                 if old > 0 and dec / old < rtol:
-                    return x, 0, 3, dec / old, it, cost, init
+                    return 0, 3, dec / old, it, cost, init
                 if gn <= gtol:
-                    return x, 0, 1, gn, it, cost, init
+                    return 0, 1, gn, it, cost, init
             else:
                 _record(hist, row, cost, new_cost, rel, lam, step_norm, _absmax(g), 0.0, predicted)
                 if by_factor:
@@ -417,17 +426,17 @@ def _lm(x0, aux, prm, hist, H, g):
                     lam = lam * nu
                     nu = nu * 2.0
                 if lam > max_lam:
-                    return x, 0 if step_norm < 1e-8 else 2, 6, step_norm, it, cost, init
+                    return 0 if step_norm < 1e-8 else 2, 6, step_norm, it, cost, init
             xn = 0.0
             for i in range(x.shape[0]):
                 xn += x[i] * x[i]
             if step_norm <= stol * (math.sqrt(xn) + stol):
-                return x, 0, 4, step_norm, it, cost, init
+                return 0, 4, step_norm, it, cost, init
         # propose the next step (failed factorizations retry with more damping, no linearization)
         while True:
             it += 1
             if it > max_it:
-                return x, 1, 7, 0.0, max_it, cost, init
+                return 1, 7, 0.0, max_it, cost, init
             for i in range(n):
                 Dg[i] = 1.0 if identity else min(max(H[i, i], min_diag), max_diag)
                 for j in range(env[i], i + 1):  # the lower envelope: all the Cholesky reads
@@ -443,7 +452,7 @@ def _lm(x0, aux, prm, hist, H, g):
             lam = lam * nu
             nu = nu * 2.0
             if lam > max_lam:
-                return x, 2, 5, 0.0, it, cost, init
+                return 2, 5, 0.0, it, cost, init
         sn = 0.0
         pred = 0.0
         gd = 0.0
@@ -454,7 +463,29 @@ def _lm(x0, aux, prm, hist, H, g):
         step_norm = math.sqrt(sn)
         predicted = 0.5 * (pred - gd)
         _retract(x, delta, xc, tmp, aux)
+
+
+@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, _nrt=True)
+def _lm(x0, aux, prm, hist, H, g):
+    """_lm_core with its scratch: (x, status, message, value, iterations, cost, initial cost)."""
+    n = {n}
+    nx = x0.shape[0]
+    ew = np.empty(2 * nx + n * n + 3 * n + 8)
+    status, msg, val, its, cost, init = _lm_core(x0, aux, prm, hist, H, g,
+                                                 np.zeros(2 * n * n + n), ew)
+    return ew[:nx], status, msg, val, its, cost, init
 '''
+
+
+def lm_source(n: str, counted: bool = True) -> str:
+    """:data:`LM_TEMPLATE` with ``n`` the tangent dimension's expression; ``counted=False``
+    compiles ``_lm_core`` without numba's reference counting (``_nrt=False``: no atomic
+    increment and decrement of every array it passes or slices, ~7 ns each here, hundreds per
+    solve). Only for modules whose ``_envelope`` is inlined and whose ``_lin`` and
+    ``_retract`` return no new array: a core without counting would never release one."""
+    # (explicit both ways: numba compiles a function without its own _nrt with its caller's)
+    return LM_TEMPLATE.replace("{n}", n).replace("{core_flags}",
+                                                 ", _nrt=True" if counted else ", _nrt=False")
 
 
 def _retract_source(variables: list) -> str:
@@ -586,5 +617,5 @@ def module_source(variables: list, prog: Program, const_syms: set, header: dict)
     ]
     src = ("\n".join(head) + "\n"
            + _FIXED_PROLOGUE.replace("{retract}", _retract_source(variables)) + "\n"
-           + LM_TEMPLATE.replace("{n}", "N") + "\n\n" + "\n".join(py) + "\n")
+           + lm_source("N") + "\n\n" + "\n".join(py) + "\n")
     return src, meta

@@ -334,6 +334,9 @@ def _params_array(p: Any, cls: str) -> tuple[np.ndarray, float]:
         return prm[1], prm[2]
     if len(_PRMS) > 64:
         _PRMS.clear()
+    global _lm_module
+    if _lm_module is None:  # (lm imports this module)
+        from .. import lm as _lm_module
     identity, by_factor = _lm_module.auto_policy(cls, p)
     rel_tol = p.relative_tolerance if p.relative_tolerance is not None else (
         1e-5 if identity else 1e-6)
@@ -351,21 +354,33 @@ def _run_driver(plan: _Plan, x0: np.ndarray, inputs: tuple, cls: str, p: Any,
     now the final storage, and a :class:`Result` without its problem, state, unused keys and
     clamps (the caller's); None when the initial linearization is not finite or the keys do
     not number the variables."""
-    global _lm_module
-    if _lm_module is None:  # (lm imports this module; an import here costs ~1 us a solve)
-        from .. import lm as _lm_module
     prm, rel_tol = _params_array(p, cls)
     t1 = time.perf_counter()
-    status, msg, val, its, cost, init, hist = plan.module._solve(x0, inputs, prm)
+    out = plan.module._solve(x0, inputs, prm)
     t2 = time.perf_counter()
+    result = _driver_result(plan, out, p, rel_tol, t0, t1, t2)
+    return None if result is None else (x0, result)
+
+
+_pc = time.perf_counter
+
+
+def _driver_result(plan: _Plan, out: tuple, p: Any, rel_tol: float, t0: float, t1: float,
+                   t2: float, values: Any = None, state: Any = None,
+                   problem: Any = None) -> Result | None:
+    """The :class:`Result` of a driver call that returned ``out`` (started at ``t0``, the
+    driver called at ``t1``, returned at ``t2``; total time to now), or None for status -1 /
+    -2 (see :func:`_run_driver`)."""
+    status, msg, val, its, cost, init, hist = out
     if not plan.compiled:
         plan.mark_compiled()
     if status < 0:  # -1: not finite at the start; -2: keys that do not number the variables
         return None
     STATS["solves"] += 1
-    return x0, compiled_result(hist, its, status, _MESSAGES[msg](val, p, rel_tol), cost, init,
-                              {"setup": t1 - t0, "lm": t2 - t1}, "lm",
-                              "dense cholesky (small-problem driver)", {"backend": "numba"})
+    return compiled_result(hist, its, status, _MESSAGES[msg](val, p, rel_tol), cost, init,
+                           {"setup": t1 - t0, "lm": t2 - t1, "total": _pc() - t0}, "lm",
+                           "dense cholesky (small-problem driver)", {"backend": "numba"},
+                           values, state, problem)
 
 
 def _split(x: np.ndarray, storages: list) -> list[np.ndarray]:

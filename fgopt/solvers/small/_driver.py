@@ -15,16 +15,19 @@ rows and dims as :class:`~fgopt.problem.Problem` numbers them (storage dims and 
 kind), with one ``(keys, consts, R)`` tuple per kernel in the driver's kernel order (each factor's
 keys, constants, square-root information ``(0 | 1 | n, r, r)``; the argument dims are literals of
 the generated code). ``_solve`` finds each factor's variables among ``block_keys``
-(:func:`fgopt._structure_kernels.block_var_idx`: a missing or repeated key, keys not ascending or
-a variable no factor uses return status -2 before any work; a compiled Problem passes
-``block_keys = arange(V)`` and its factors' variable indices as keys), lays the variables out
-(:func:`fgopt.solvers.small._common.layout_of`) and runs ``_lm`` on ``aux``:
+(:func:`fgopt._structure_kernels.block_var_idx_into`: a missing or repeated key, keys not
+ascending, a factor of another arity or a variable no factor uses return status -2 before any
+work; a compiled Problem passes ``block_keys = arange(V)`` and its factors' variable indices as
+keys), lays the variables out (:func:`fgopt.solvers.small._common.layout_into`) and runs
+``_lm`` on ``aux``:
 ``(slots, layout)`` with per kernel ``(soff, toff, consts, R, work)``, each argument's storage /
 tangent offsets and the kernel's work arrays (its arguments' rows, residuals and Jacobians: made
 once per solve, not per linearization), the ``(V, 5)`` layout of
 :func:`fgopt.solvers.small._common.retract` and H's envelope (per row, the first column a factor
 can fill: the dense Cholesky skips what lies before it) -- in the compiled call, not as Python
-work per solve.
+work per solve. All of these are views of two arenas (one integer, one float array) allocated
+once per solve; only the history, which the :class:`~fgopt.solvers.result.Result` keeps, is an
+array of its own.
 
 Modules live in fgopt's kernel cache (:mod:`fgopt.symbolic.cache`), keyed by the kernels' calls
 and shapes, this template and fgopt's version; numba caches their machine code.
@@ -35,10 +38,10 @@ from __future__ import annotations
 import hashlib
 from typing import Any
 
-from ..fixed._codegen import LM_TEMPLATE
+from ..fixed._codegen import LM_TEMPLATE, lm_source
 
 #: Bumped when the emitted source changes meaning (part of the cache key).
-SMALL_CODEGEN_VERSION = "11"
+SMALL_CODEGEN_VERSION = "12"
 #: ``_acc`` functions with at most this many whitened Jacobian entries (``r * D``) are inlined.
 INLINE_MAX_WORK = 18
 #: What a loaded module must define (else it is regenerated).
@@ -125,7 +128,7 @@ def accumulate_source(slot: int, r: int, tdims: tuple) -> str:
     # 22.0 -> 20.9 us); 3D kernels' larger ones gained nothing (tinyGrid3D: 2 % slower)
     inline = ', inline="always"' if r * D <= INLINE_MAX_WORK else ""
     deco = ('@numba.njit(cache=True, fastmath={"reassoc", "contract"}, error_model="numpy", '
-            f'nogil=True{inline})')
+            f'nogil=True, _nrt=False{inline})')
     return "\n".join([deco] + L)
 
 
@@ -138,21 +141,21 @@ def module_source(signatures: tuple, names: tuple) -> str:
         body.append(f"    # slot {j}: {names[j]}")
         body.append(f"    soff, toff, consts, R, work = slots[{j}]")
         if hessian:  # the kernel adds its own J^T J (unit noise: R unused)
-            work.append("()")
+            work.append([])
             body.append(f"    P, rows = stacked(x, soff, {sdims[0]})")
             body.append(f"    cost = _k{j}({prefix}P, rows, consts{suffix}, toff, H, g, cost)")
             continue
         # the arguments' storage rows (and the kernel's outputs when it fills them): made once
         # per solve by _solve, not per linearization
         args = [f"a{a}" for a in range(len(sdims))]
-        bufs = [f"np.empty((n{j}, {s}))" for s in sdims]
+        shapes = [(f"n{j}", s) for s in sdims]
         if fills:
             args_out = args + ["res", "jac"]
-            bufs += [f"np.empty((n{j}, {r}))", f"np.empty((n{j}, {r}, {D}))"]
+            shapes += [(f"n{j}", r), (f"n{j}", r, D)]
         else:
             args_out = args
-        bufs += [f"np.empty({r})", f"np.empty(({D}, {r}))"]  # _acc's scratch
-        work.append(f"({', '.join(bufs)},)")
+        shapes += [(r,), (D, r)]  # _acc's scratch
+        work.append(shapes)
         body.append(f"    {', '.join(args_out)}, wr, wJ = work")
         for a in range(len(sdims)):
             body.append(f"    gather(x, soff, {a}, a{a})")
@@ -162,6 +165,11 @@ def module_source(signatures: tuple, names: tuple) -> str:
             body.append(f"    res, jac = _k{j}({prefix}{', '.join(args)}, consts{suffix})")
         body.append(f"    cost += _acc{j}(res, jac, toff, R, H, g, wr, wJ)")
         accs.append(accumulate_source(j, r, tdims))
+    # without reference counting where nothing returns a new array (see lm_source): everything
+    # but _solve, which allocates, and a _lin calling kernels that return their outputs
+    counted = any(not fills or hessian for (_, _, _, _, fills, hessian), *_ in signatures)
+    # (explicit both ways: numba compiles a callee without its own _nrt with its caller's)
+    lin_flags = ", _nrt=True" if counted else ", _nrt=False"
     head = [
         "# " + "-" * 98,
         "# Autogenerated by fgopt.solvers.small (template: fgopt/solvers/small/_driver.py and",
@@ -177,9 +185,9 @@ def module_source(signatures: tuple, names: tuple) -> str:
         "import numba",
         "import numpy as np",
         "",
-        "from fgopt._structure_kernels import block_var_idx",
-        "from fgopt.solvers.small._common import (clear, envelope_of, gather, layout_of, retract,",
-        "                                         stacked, widen_envelope)",
+        "from fgopt._structure_kernels import block_var_idx_into",
+        "from fgopt.solvers.small._common import (clear, envelope_into, gather, layout_into,",
+        "                                         retract, stacked, take_into, widen_envelope)",
         "",
         *imports,
         f"KERNELS = {names!r}",
@@ -188,7 +196,7 @@ def module_source(signatures: tuple, names: tuple) -> str:
         "",
         # (the accumulators' flags: an inlined one is compiled with _lin's)
         '@numba.njit(cache=True, fastmath={"reassoc", "contract"}, error_model="numpy", '
-        'nogil=True)',
+        f'nogil=True{lin_flags})',
         "def _lin(x, aux, H, g):",
         '    """Dense H (both triangles), g and the cost at storage x."""',
         "    slots = aux[0]",
@@ -198,58 +206,122 @@ def module_source(signatures: tuple, names: tuple) -> str:
         "    return cost",
         "",
         "",
-        '@numba.njit(cache=True, error_model="numpy", nogil=True)',
+        '@numba.njit(cache=True, error_model="numpy", nogil=True, _nrt=False)',
         "def _retract(x, delta, out, tmp, aux):",
         "    retract(x, delta, out, tmp, aux[1])",
         "",
         "",
-        '@numba.njit(cache=True, error_model="numpy", nogil=True)',
+        "# (inlined: a call returning an array would hold a reference _lm_core never releases)",
+        '@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")',
         "def _envelope(aux, n):",
         "    return aux[2]",
         "",
     ]
-    slots = ", ".join(f"(soff[v{j}], to{j}, s{j}[1], s{j}[2], {work[j]})"
-                      for j in range(len(signatures)))
-    unpack = ", ".join(f"s{j}" for j in range(len(signatures)))
+    k = len(signatures)
+    arity = [len(sig[1]) for sig in signatures]
+    floats, carve = [], []
+    for j in range(k):
+        names_j = []
+        for b, shape in enumerate(work[j]):
+            size = " * ".join(str(d) for d in shape)
+            floats.append(size)
+            view = f"fw[q:q + {size}]" + ("" if len(shape) == 1 else
+                                          f".reshape(({', '.join(str(d) for d in shape)}))")
+            carve += [f"    w{j}_{b} = {view}", f"    q += {size}"]
+            names_j.append(f"w{j}_{b}")
+        work[j] = f"({', '.join(names_j)},)" if names_j else "()"
+    tup = "," if k == 1 else ""
+    slots = ", ".join(f"(so{j}, to{j}, s{j}[1], s{j}[2], {work[j]})" for j in range(k))
+    unpack = ", ".join(f"s{j}" for j in range(k))
+    counts = ", ".join(f"n{j}" for j in range(k))
+    fail = "        return -2, 0, 0.0, 0, 0.0, 0.0"
     numbering = []
-    for j in range(len(signatures)):
-        numbering += [f"    v{j}, fresh = block_var_idx(block_keys, s{j}[0], used)",
-                      "    if fresh < 0:",
-                      "        return -2, 0, 0.0, 0, 0.0, 0.0, np.empty((1, 8))",
+    for j in range(k):
+        numbering += [f"    v{j} = iw[o:o + n{j} * {arity[j]}].reshape((n{j}, {arity[j]}))",
+                      f"    o += n{j} * {arity[j]}",
+                      f"    fresh = block_var_idx_into(block_keys, s{j}[0], used, v{j})",
+                      "    if fresh < 0:", fail,
                       "    seen += fresh"]
+    per_factor = []
+    for j in range(k):
+        for name, src in (("so", "soff"), ("to", "toff"), ("dm", "var_dim")):
+            per_factor += [f"    {name}{j} = iw[o:o + n{j} * {arity[j]}].reshape((n{j}, {arity[j]}))",
+                           f"    o += n{j} * {arity[j]}",
+                           f"    take_into({src}, v{j}, {name}{j})"]
+        per_factor.append(f"    widen_envelope(first, to{j}, dm{j})")
+    work_size = " + ".join(floats) if floats else "0"
     solve = [
         "",
         "",
-        '@numba.njit(cache=True, error_model="numpy", nogil=True)',
+        '@numba.njit(cache=True, error_model="numpy", nogil=True, _nrt=False)',
+        "def _sizes(problem):",
+        '    """(V, K, n, per kernel its factors), or V = -1 when a kernel\'s keys have another',
+        '    arity than its arguments."""',
+        "    block_keys, var_kind, var_row, var_dim, kind_sdim, kind_gid, slots = problem",
+        f"    {unpack}{tup} = slots",
+        *[f"    n{j} = s{j}[0].shape[0]" for j in range(k)],
+        "    V = block_keys.shape[0]",
+        "    if " + " or ".join(f"s{j}[0].shape[1] != {arity[j]}" for j in range(k)) + ":",
+        "        V = -1",
+        "    n = 0",
+        "    for v in range(var_dim.shape[0]):",
+        "        n += var_dim[v]",
+        f"    return V, kind_sdim.shape[0], n, {counts}",
+        "",
+        "",
+        '@numba.njit(cache=True, error_model="numpy", nogil=True, _nrt=True)',
         "def _solve(x0, problem, prm):",
         '    """_lm on a problem given as variables and per-kernel factors (see the module',
         '    docstring of fgopt.solvers.small._driver): the final storage written into x0,',
         '    _lm\'s tuple without x and the history (status -1: x0 kept, not finite there; -2:',
-        '    the factors\' keys do not number the variables)."""',
-        "    block_keys, var_kind, var_row, var_dim, kind_sdim, kind_gid, slots = problem",
-        f"    {unpack}{',' if len(signatures) == 1 else ''} = slots",
-        "    used = np.zeros(block_keys.shape[0], dtype=np.bool_)",
-        "    seen = 0",
-        *numbering,
-        "    if seen != block_keys.shape[0]:",
+        '    the factors\' keys do not number the variables). Allocates the arenas _core',
+        '    lays everything out in (_core and what it calls count no references)."""',
+        f"    V, K, n, {counts} = _sizes(problem)",
+        "    if V < 0:",
         "        return -2, 0, 0.0, 0, 0.0, 0.0, np.empty((1, 8))",
-        "    soff, toff, layout = layout_of(var_kind, var_row, var_dim, kind_sdim, kind_gid)",
-        *[f"    n{j} = v{j}.shape[0]" for j in range(len(signatures))],
-        "    n = 0",
-        "    for v in range(var_dim.shape[0]):",
-        "        n += var_dim[v]",
-        "    first = envelope_of(toff, var_dim, n)",
-        *[f"    to{j} = toff[v{j}]" for j in range(len(signatures))],
-        *[f"    widen_envelope(first, to{j}, var_dim[v{j}])" for j in range(len(signatures))],
-        f"    aux = (({slots}{',' if len(signatures) == 1 else ''}), layout, first)",
+        "    nx = x0.shape[0]",
+        "    iw = np.zeros(8 * V + K + 1 + n + "
+        + " + ".join(f"4 * n{j} * {arity[j]}" for j in range(k)) + ", dtype=np.int64)",
+        f"    fw = np.empty({work_size} + n * n + n + 2 * nx + n * n + 3 * n + 8)",
         "    hist = np.empty((max(int(prm[0]), 1), 8))",
-        "    H = np.zeros((n, n))  # (zero outside the envelope)",
-        "    g = np.empty(n)",
-        "    x, status, msg, val, its, cost, init = _lm(x0, aux, prm, hist, H, g)",
-        "    if status >= 0:",
-        "        for i in range(x0.shape[0]):  # (returning x would box a second array)",
-        "            x0[i] = x[i]",
+        "    status, msg, val, its, cost, init = _core(x0, problem, prm, iw, np.zeros(2 * n * n + n),",
+        "                                              fw, hist)",
         "    return status, msg, val, its, cost, init, hist",
         "",
+        "",
+        '@numba.njit(cache=True, error_model="numpy", nogil=True, _nrt=False)',
+        "def _core(x0, problem, prm, iw, zw, fw, hist):",
+        '    """_solve\'s work on its arenas: iw (integers, zeros), zw (_lm_core\'s zeros), fw."""',
+        "    block_keys, var_kind, var_row, var_dim, kind_sdim, kind_gid, slots = problem",
+        f"    {unpack}{tup} = slots",
+        f"    V, K, n, {counts} = _sizes(problem)",
+        "    used = iw[:V]",
+        "    o = V",
+        "    seen = 0",
+        *numbering,
+        "    if seen != V:",
+        fail,
+        "    base = iw[o:o + K + 1]",
+        "    soff = iw[o + K + 1:o + K + 1 + V]",
+        "    toff = iw[o + K + 1 + V:o + K + 1 + 2 * V]",
+        "    layout = iw[o + K + 1 + 2 * V:o + K + 1 + 7 * V].reshape((V, 5))",
+        "    o += K + 1 + 7 * V",
+        "    layout_into(var_kind, var_row, var_dim, kind_sdim, kind_gid, base, soff, toff, layout)",
+        "    first = iw[o:o + n]",
+        "    o += n",
+        "    envelope_into(toff, var_dim, first)",
+        *per_factor,
+        "    q = 0",
+        *carve,
+        "    H = fw[q:q + n * n].reshape((n, n))  # (read only on the envelope: no zeros needed)",
+        "    g = fw[q + n * n:q + n * n + n]",
+        "    q += n * n + n",
+        f"    aux = (({slots}{tup}), layout, first)",
+        "    status, msg, val, its, cost, init = _lm_core(x0, aux, prm, hist, H, g, zw, fw[q:])",
+        "    if status >= 0:",
+        "        for i in range(x0.shape[0]):",
+        "            x0[i] = fw[q + i]",
+        "    return status, msg, val, its, cost, init",
+        "",
     ]
-    return "\n".join(head) + LM_TEMPLATE.replace("{n}", "H.shape[0]") + "\n".join(solve)
+    return "\n".join(head) + lm_source("H.shape[0]", counted=False) + "\n".join(solve)
