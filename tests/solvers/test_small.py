@@ -368,7 +368,7 @@ def sim3_chain(n=4, seed=0):
 
 def test_driver_runs_release_every_array(tmp_path):
     """The driver's core and most of what it calls count no references (``_nrt=False``): a
-    reference taken there and never released would leak the solve's arenas. Numba's allocation
+    reference taken there and never released would leak what it refers to. Numba's allocation
     counters balance after solves of each kind of driver: kernels that fill their outputs (a
     file's graph), kernels returning them (counted ``_lin``), smart factors (their own
     ``J^T J``), Sim(3) (retracted by ``lie_retract``)."""
@@ -395,7 +395,8 @@ def test_driver_runs_release_every_array(tmp_path):
                 del r
             gc.collect()
             after = rtsys.get_allocation_stats()
-            assert after.alloc - before.alloc > 0, name
+            if name in ("returned outputs", "smart"):  # (kernels that allocate: counted)
+                assert after.alloc - before.alloc > 0, name
             assert after.alloc - before.alloc == after.free - before.free, name
             assert after.mi_alloc - before.mi_alloc == after.mi_free - before.mi_free, name
     finally:

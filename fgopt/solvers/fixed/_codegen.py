@@ -341,9 +341,11 @@ def _lm_core(x0, aux, prm, hist, H, g, zw, ew):
     min_relative_decrease, identity damping (1/0), lambda by factor (1/0), lambda_factor.
     hist (max_iterations, 8): cost, candidate cost, relative decrease,
     lambda, |step|, |grad|, accepted, predicted decrease. H, g (out): the linearization at the
-    returned x (H zero on entry: only its envelope is written). zw: 2 n^2 + n zeros, ew:
-    2 len(x0) + n^2 + 3 n + 8 scratch (one arena each, not ten arrays: an allocation is ~50
-    ns, a tenth of a 2-pose solve's compiled work); the final x is ew[:len(x0)].
+    returned x (H zero on entry: only its envelope is written). zw: 2 n^2 + n scratch for
+    Hc, L and gc (zeros, unless _lin clears H and g on the envelope before it adds to them, as
+    the small drivers' does: the Cholesky reads L only where it has written it), ew:
+    2 len(x0) + n^2 + 3 n + 8 scratch (one arena each, not ten arrays); the final x is
+    ew[:len(x0)].
     Returns (status, message, value, iterations, cost, initial cost); status 0 converged,
     1 max iterations, 2 failed, -1 non-finite at the initial values.
     """

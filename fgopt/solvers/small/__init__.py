@@ -310,7 +310,7 @@ def optimize_small(problem: Any, params: Any, t0: float, graph: Any = None,
     # (the driver writes the final storage into x0: a copy)
     x0 = np.concatenate([s.reshape(-1) for s in storages]) if len(storages) > 1 else \
         storages[0].reshape(-1).copy()
-    out = _run_driver(plan, x0, inputs, cls, params, t0)
+    out = _run_driver(plan, x0, inputs, cls, params, t0, problem.size)
     if out is None:
         return None
     x, result = out
@@ -349,29 +349,39 @@ def _params_array(p: Any, cls: str) -> tuple[np.ndarray, float]:
 
 
 def _run_driver(plan: _Plan, x0: np.ndarray, inputs: tuple, cls: str, p: Any,
-                t0: float) -> tuple[np.ndarray, Result] | None:
-    """One call of ``plan``'s driver: ``x0`` (the caller's scratch copy of the initial storage),
-    now the final storage, and a :class:`Result` without its problem, state, unused keys and
-    clamps (the caller's); None when the initial linearization is not finite or the keys do
-    not number the variables."""
+                t0: float, n: int) -> tuple[np.ndarray, Result] | None:
+    """One call of ``plan``'s driver on a problem of tangent dimension ``n``: ``x0`` (the
+    caller's scratch copy of the initial storage), now the final storage, and a
+    :class:`Result` without its problem, state, unused keys and clamps (the caller's); None
+    when the initial linearization is not finite or the keys do not number the variables."""
     prm, rel_tol = _params_array(p, cls)
+    ni, nf = plan.module.arena_sizes(inputs[0].shape[0], inputs[4].shape[0], n, x0.shape[0],
+                                     [s[0].shape[0] for s in inputs[6]])
+    iw, fw = arenas(ni, nf)
+    hist = np.empty((max(p.max_iterations, 1), 8))
     t1 = time.perf_counter()
-    out = plan.module._solve(x0, inputs, prm)
+    out = plan.module._solve(x0, inputs, prm, iw, fw, hist)
     t2 = time.perf_counter()
-    result = _driver_result(plan, out, p, rel_tol, t0, t1, t2)
+    result = _driver_result(plan, out, hist, p, rel_tol, t0, t1, t2)
     return None if result is None else (x0, result)
+
+
+def arenas(ints: int, floats: int) -> tuple[np.ndarray, np.ndarray]:
+    """A driver call's scratch ``iw`` and ``fw`` (contents undefined; sizes from its module's
+    ``arena_sizes``, see :mod:`._driver`)."""
+    return np.empty(ints, dtype=np.int64), np.empty(floats)
 
 
 _pc = time.perf_counter
 
 
-def _driver_result(plan: _Plan, out: tuple, p: Any, rel_tol: float, t0: float, t1: float,
-                   t2: float, values: Any = None, state: Any = None,
+def _driver_result(plan: _Plan, out: tuple, hist: np.ndarray, p: Any, rel_tol: float,
+                   t0: float, t1: float, t2: float, values: Any = None, state: Any = None,
                    problem: Any = None) -> Result | None:
-    """The :class:`Result` of a driver call that returned ``out`` (started at ``t0``, the
-    driver called at ``t1``, returned at ``t2``; total time to now), or None for status -1 /
-    -2 (see :func:`_run_driver`)."""
-    status, msg, val, its, cost, init, hist = out
+    """The :class:`Result` of a driver call that returned ``out`` and wrote ``hist`` (started
+    at ``t0``, the driver called at ``t1``, returned at ``t2``; total time to now), or None for
+    status -1 / -2 (see :func:`_run_driver`)."""
+    status, msg, val, its, cost, init = out
     if not plan.compiled:
         plan.mark_compiled()
     if status < 0:  # -1: not finite at the start; -2: keys that do not number the variables

@@ -8,26 +8,34 @@ numba function, :class:`~fgopt.factors.kernel.CompiledCall`), then whitened and 
 dense H by an ``_acc<slot>`` function generated with the kernel's sizes as literals (or, for a
 ``hessian`` call such as a smart factor's Schur complement, the kernel adds its own ``J^T J``).
 
-The entry point is ``_solve(x0, problem, prm)`` (it writes the final storage into ``x0``, the
-caller's scratch copy): ``problem`` is ``(block_keys, var_kind,
-var_row, var_dim, kind_sdim, kind_gid, slots)``: the variables' keys (strictly ascending), kinds,
-rows and dims as :class:`~fgopt.problem.Problem` numbers them (storage dims and Lie group ids per
-kind), with one ``(keys, consts, R)`` tuple per kernel in the driver's kernel order (each factor's
-keys, constants, square-root information ``(0 | 1 | n, r, r)``; the argument dims are literals of
-the generated code). ``_solve`` finds each factor's variables among ``block_keys``
+The entry point is ``_solve(x0, problem, prm, iw, fw, hist)`` (it writes the final storage
+into ``x0``, the caller's scratch copy, and the iterations into ``hist``): ``problem`` is
+``(block_keys, var_kind, var_row, var_dim, kind_sdim, kind_gid, slots)``: the variables' keys
+(strictly ascending), kinds, rows and dims as :class:`~fgopt.problem.Problem` numbers them
+(storage dims and Lie group ids per kind), with one ``(keys, consts, R)`` tuple per kernel in
+the driver's kernel order (each factor's keys, constants, square-root information ``(0 | 1 |
+n, r, r)``; the argument dims are literals of the generated code). ``_solve`` finds each
+factor's variables among ``block_keys``
 (:func:`fgopt._structure_kernels.block_var_idx_into`: a missing or repeated key, keys not
 ascending, a factor of another arity or a variable no factor uses return status -2 before any
 work; a compiled Problem passes ``block_keys = arange(V)`` and its factors' variable indices as
 keys), lays the variables out (:func:`fgopt.solvers.small._common.layout_into`) and runs
-``_lm`` on ``aux``:
+``_lm_core`` on ``aux``:
 ``(slots, layout)`` with per kernel ``(soff, toff, consts, R, work)``, each argument's storage /
 tangent offsets and the kernel's work arrays (its arguments' rows, residuals and Jacobians: made
 once per solve, not per linearization), the ``(V, 5)`` layout of
 :func:`fgopt.solvers.small._common.retract` and H's envelope (per row, the first column a factor
 can fill: the dense Cholesky skips what lies before it) -- in the compiled call, not as Python
-work per solve. All of these are views of two arenas (one integer, one float array) allocated
-once per solve; only the history, which the :class:`~fgopt.solvers.result.Result` keeps, is an
-array of its own.
+work per solve. All of these, and ``_lm_core``'s scratch, are views of the two arenas the
+caller passes (``iw`` integers, ``fw`` floats, of at least ``arena_sizes(V, K, n, nx,
+counts)``, a plain Python function of the module).
+
+``_solve`` and everything it calls but a ``_lin`` over kernels that return new arrays count no
+references (numba's ``_nrt=False``): on this machine each atomic increment or decrement is
+~7 ns, and the driver took hundreds per solve (a 2-pose solve's compiled part 9.1 -> 8.0 us,
+5 iterations 32 -> 28 us, measured before the arenas moved to the caller). So nothing in them
+may return a new array (its reference would never be released: a test counts numba's
+allocations).
 
 Modules live in fgopt's kernel cache (:mod:`fgopt.symbolic.cache`), keyed by the kernels' calls
 and shapes, this template and fgopt's version; numba caches their machine code.
@@ -45,7 +53,7 @@ SMALL_CODEGEN_VERSION = "12"
 #: ``_acc`` functions with at most this many whitened Jacobian entries (``r * D``) are inlined.
 INLINE_MAX_WORK = 18
 #: What a loaded module must define (else it is regenerated).
-REQUIRED = ("_lin", "_retract", "_lm", "_solve", "KERNELS")
+REQUIRED = ("_lin", "_retract", "_lm", "_solve", "arena_sizes", "KERNELS")
 
 
 def signature(kernel: Any) -> tuple:
@@ -250,58 +258,50 @@ def module_source(signatures: tuple, names: tuple) -> str:
                            f"    take_into({src}, v{j}, {name}{j})"]
         per_factor.append(f"    widen_envelope(first, to{j}, dm{j})")
     work_size = " + ".join(floats) if floats else "0"
+    ints = "8 * V + K + 1 + n + " + " + ".join(f"4 * n{j} * {arity[j]}" for j in range(k))
+    # work arrays, H and g, _lm_core's zw (Hc, L, gc) and ew (x, xc, Hd, Dg, rhs, delta, tmp)
+    floats_total = f"{work_size} + 4 * n * n + 5 * n + 2 * nx + 8"
     solve = [
         "",
         "",
+        "def arena_sizes(V, K, n, nx, counts):",
+        '    """(integers, floats) of _solve\'s arenas for V variables of K kinds, tangent and',
+        '    storage dimensions n and nx, counts[j] factors of kernel j."""',
+        f"    {counts}{tup} = counts",
+        f"    return {ints}, {floats_total}",
+        "",
+        "",
         '@numba.njit(cache=True, error_model="numpy", nogil=True, _nrt=False)',
-        "def _sizes(problem):",
-        '    """(V, K, n, per kernel its factors), or V = -1 when a kernel\'s keys have another',
-        '    arity than its arguments."""',
+        "def _solve(x0, problem, prm, iw, fw, hist):",
+        '    """_lm on a problem given as variables and per-kernel factors (see the module',
+        '    docstring of fgopt.solvers.small._driver), everything laid out in the arenas iw',
+        '    and fw (arena_sizes; any contents) with the history in hist: the final storage',
+        '    written into x0, _lm\'s tuple without x (status -1: x0 kept, not finite there; -2:',
+        '    the factors\' keys do not number the variables, or arenas too small)."""',
         "    block_keys, var_kind, var_row, var_dim, kind_sdim, kind_gid, slots = problem",
         f"    {unpack}{tup} = slots",
         *[f"    n{j} = s{j}[0].shape[0]" for j in range(k)],
         "    V = block_keys.shape[0]",
-        "    if " + " or ".join(f"s{j}[0].shape[1] != {arity[j]}" for j in range(k)) + ":",
-        "        V = -1",
+        "    K = kind_sdim.shape[0]",
+        "    nx = x0.shape[0]",
         "    n = 0",
         "    for v in range(var_dim.shape[0]):",
         "        n += var_dim[v]",
-        f"    return V, kind_sdim.shape[0], n, {counts}",
-        "",
-        "",
-        '@numba.njit(cache=True, error_model="numpy", nogil=True, _nrt=True)',
-        "def _solve(x0, problem, prm):",
-        '    """_lm on a problem given as variables and per-kernel factors (see the module',
-        '    docstring of fgopt.solvers.small._driver): the final storage written into x0,',
-        '    _lm\'s tuple without x and the history (status -1: x0 kept, not finite there; -2:',
-        '    the factors\' keys do not number the variables). Allocates the arenas _core',
-        '    lays everything out in (_core and what it calls count no references)."""',
-        f"    V, K, n, {counts} = _sizes(problem)",
-        "    if V < 0:",
-        "        return -2, 0, 0.0, 0, 0.0, 0.0, np.empty((1, 8))",
-        "    nx = x0.shape[0]",
-        "    iw = np.zeros(8 * V + K + 1 + n + "
-        + " + ".join(f"4 * n{j} * {arity[j]}" for j in range(k)) + ", dtype=np.int64)",
-        f"    fw = np.empty({work_size} + n * n + n + 2 * nx + n * n + 3 * n + 8)",
-        "    hist = np.empty((max(int(prm[0]), 1), 8))",
-        "    status, msg, val, its, cost, init = _core(x0, problem, prm, iw, np.zeros(2 * n * n + n),",
-        "                                              fw, hist)",
-        "    return status, msg, val, its, cost, init, hist",
-        "",
-        "",
-        '@numba.njit(cache=True, error_model="numpy", nogil=True, _nrt=False)',
-        "def _core(x0, problem, prm, iw, zw, fw, hist):",
-        '    """_solve\'s work on its arenas: iw (integers, zeros), zw (_lm_core\'s zeros), fw."""',
-        "    block_keys, var_kind, var_row, var_dim, kind_sdim, kind_gid, slots = problem",
-        f"    {unpack}{tup} = slots",
-        f"    V, K, n, {counts} = _sizes(problem)",
+        "    if (" + " or ".join(f"s{j}[0].shape[1] != {arity[j]}" for j in range(k))
+        + f" or iw.shape[0] < {ints}",
+        f"            or fw.shape[0] < {floats_total}):",
+        fail,
         "    used = iw[:V]",
+        "    for v in range(V):",
+        "        used[v] = 0",
         "    o = V",
         "    seen = 0",
         *numbering,
         "    if seen != V:",
         fail,
         "    base = iw[o:o + K + 1]",
+        "    for t in range(K + 1):",
+        "        base[t] = 0",
         "    soff = iw[o + K + 1:o + K + 1 + V]",
         "    toff = iw[o + K + 1 + V:o + K + 1 + 2 * V]",
         "    layout = iw[o + K + 1 + 2 * V:o + K + 1 + 7 * V].reshape((V, 5))",
@@ -313,13 +313,17 @@ def module_source(signatures: tuple, names: tuple) -> str:
         *per_factor,
         "    q = 0",
         *carve,
-        "    H = fw[q:q + n * n].reshape((n, n))  # (read only on the envelope: no zeros needed)",
+        "    H = fw[q:q + n * n].reshape((n, n))  # (read only on the envelope)",
         "    g = fw[q + n * n:q + n * n + n]",
         "    q += n * n + n",
         f"    aux = (({slots}{tup}), layout, first)",
+        "    # (_lm_core's zw need not be zeros: _lin clears H and g on the envelope first, and",
+        "    # the Cholesky reads L only where it has written it)",
+        "    zw = fw[q:q + 2 * n * n + n]",
+        "    q += 2 * n * n + n",
         "    status, msg, val, its, cost, init = _lm_core(x0, aux, prm, hist, H, g, zw, fw[q:])",
         "    if status >= 0:",
-        "        for i in range(x0.shape[0]):",
+        "        for i in range(nx):",
         "            x0[i] = fw[q + i]",
         "    return status, msg, val, its, cost, init",
         "",

@@ -61,17 +61,27 @@ def optimize_file(graph: Any, initial: Any, params: Any, t0: float) -> Result | 
     prm, rel_tol = _pkg._params_array(params, lane.tables[4])
     # (the driver numbers the variables: each factor's keys among the block's, status -2 for a
     # missing, repeated or unused key, or keys not ascending)
+    work = memo.work
+    memo.work = None  # (taken: a solve of this graph in another thread makes its own)
+    if work is None:
+        work = memo.sizes
+        if work is None:  # (the driver's own function: known once the plan is ready)
+            work = memo.sizes = plan.module.arena_sizes(
+                blk.keys.shape[0], 1, n, x0.shape[0], [s[0].shape[0] for s in memo.inputs[6]])
+        work = _pkg.arenas(*work)
+    hist = np.empty((max(params.max_iterations, 1), 8))  # (kept by the result)
     t1 = _pc()
-    out = plan.module._solve(x0, memo.inputs, prm)
+    out = plan.module._solve(x0, memo.inputs, prm, work[0], work[1], hist)
     t2 = _pc()
+    memo.work = work  # (scratch only: the next solve may reuse it)
     if out[0] < 0:
-        return _pkg._driver_result(plan, out, params, rel_tol, t0, t1, t2)  # (None)
+        return _pkg._driver_result(plan, out, hist, params, rel_tol, t0, t1, t2)  # (None)
     x = x0.reshape(rows.shape)
     final = x.copy()  # the values' rows (read-only), apart from the state's
     final.flags.writeable = False
     state = _new(State)  # (State([x], {}) without the dataclass' __init__: ~0.2 us)
     state.storages, state.objects = [x], {}
-    return _pkg._driver_result(plan, out, params, rel_tol, t0, t1, t2,
+    return _pkg._driver_result(plan, out, hist, params, rel_tol, t0, t1, t2,
                                Variables._of_rows(_Rows(blk.keys, lane.kind, final)), state,
                                Deferred(_compiled_problem, memo.dims, (list(batches), blk, params)))
 
@@ -84,9 +94,12 @@ class _Inputs:
     with what they were built from: reused by the next solve of the same graph while every one
     of those is the same object (:meth:`holds`: ~0.3 us a batch instead of ~1 us to rebuild).
     The arrays go to the driver as they are (in-place changes reach it); only inputs that are
-    the batches' own arrays are kept (no copies of read-only keys or non-contiguous R)."""
+    the batches' own arrays are kept (no copies of read-only keys or non-contiguous R).
+    ``sizes``: the driver's arena sizes (:func:`~fgopt.solvers.small.arenas`), known at the first
+    solve; ``work``: the arenas themselves (scratch), reused by the next solve that finds them
+    (one that runs while another holds them makes its own)."""
 
-    __slots__ = ("dims", "graph", "inputs", "lane", "parts", "block", "keys")
+    __slots__ = ("dims", "graph", "inputs", "lane", "parts", "block", "keys", "sizes", "work")
 
     def holds(self, graph: Any, blk: Any, batches: list) -> bool:
         if (self.graph() is not graph or blk is not self.block or blk.keys is not self.keys
@@ -140,7 +153,7 @@ def _prepare(graph: Any, blk: Any, batches: list) -> _Inputs | None:
                              (slots[i] for i in bs)], r) for bs, r in lane.merge]
     tables = lane.tables
     memo = _Inputs()
-    memo.lane, memo.dims = lane, (residuals, V * lane.dim)
+    memo.lane, memo.dims, memo.sizes, memo.work = lane, (residuals, V * lane.dim), None, None
     memo.inputs = (_writeable(blk.keys), *_one_kind_tables(V, lane.dim), tables[1], tables[2],
                    tuple(slots))
     if own:
