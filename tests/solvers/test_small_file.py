@@ -282,6 +282,32 @@ def test_a_graph_solved_again_reuses_its_inputs_and_sees_every_change(data_file)
     assert_identical(solve(graph, other, **five), solve(graph, other, lane=False, **five))
 
 
+def test_a_kept_graph_calls_the_machine_code_directly_on_its_own_views(data_file):
+    """After the first solve of a kept graph the lane calls the driver's compiled entry point,
+    skipping numba's typing of the arguments. That entry reads each argument as the type it was
+    compiled for, so the inputs are the lane's own views of the batches' arrays: data changed
+    in place reaches the driver, but a batch array reshaped in place cannot change what the
+    driver reads (results stay the compiled problem's; nothing is misread)."""
+    from fgopt.solvers.small import _file
+
+    graph, init = fgopt.io.read(str(data_file("small/pose2example.txt")), add_prior=True)
+    first = solve(graph, init)
+    memo = _file._MEMOS[id(graph)]
+    assert memo.entry is not None
+    between = graph.batches[0]
+    assert memo.inputs[6][0][0] is not between.keys  # a view of them
+    assert np.shares_memory(memo.inputs[6][0][0], between.keys)
+    assert_identical(solve(graph, init), first)  # the entry point's solve
+    assert _file._MEMOS[id(graph)] is memo
+    between.keys.shape = (between.keys.size,)  # (abuse: the batch itself is now malformed)
+    try:
+        assert_identical(solve(graph, init), first)
+    finally:
+        between.keys.shape = (between.keys.size // 2, 2)
+    between.constants[0, 0] += 0.3  # in place: seen
+    assert_identical(solve(graph, init), solve(graph, init, lane=False))
+
+
 def test_a_collected_graph_leaves_no_inputs_behind(data_file):
     """The reused inputs hold the graph weakly: once it is gone, so is its entry."""
     import gc
