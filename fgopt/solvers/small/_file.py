@@ -6,7 +6,8 @@ rows, as :class:`~fgopt.problem.Problem` numbers them), and ``Result.problem`` i
 when first read. On a few-pose graph the compilation it skips was ~15 us, a third of the solve's
 Python; the result is the compiled problem's, bit for bit. A graph solved again reuses the driver
 inputs built for it while its batches, their arrays and the values block are the same objects
-(:class:`_Inputs`, checked every solve).
+(:class:`_Inputs`, checked every solve), with the driver's scratch and its compiled entry point
+(no typing of the arguments).
 """
 
 from __future__ import annotations
@@ -96,11 +97,13 @@ class _Inputs:
     """A graph's driver inputs as :func:`_prepare` built them from its batches and values block,
     with what they were built from: reused by the next solve of the same graph while every one
     of those is the same object (:meth:`holds`: ~0.3 us a batch instead of ~1 us to rebuild).
-    The arrays go to the driver as they are (in-place changes reach it); only inputs that are
-    the batches' own arrays are kept (no copies of read-only keys or non-contiguous R).
+    Only inputs that are the batches' own arrays are kept (no copies of read-only keys or
+    non-contiguous R), and those go to the driver as the entry's own views of them: in-place
+    changes of the data reach it, but no one else can change their shapes or types.
     ``sizes``: the driver's arena sizes (:func:`~fgopt.solvers.small.arenas`), known at the first
     solve; ``work``: the arenas themselves (scratch), reused by the next solve that finds them
-    (one that runs while another holds them makes its own)."""
+    (one that runs while another holds them makes its own); ``entry``: the driver's compiled
+    entry point for these inputs' types (:func:`_entry_point`), once a solve has run."""
 
     __slots__ = ("dims", "entry", "graph", "inputs", "lane", "parts", "block", "keys", "sizes",
                  "work")
