@@ -308,6 +308,30 @@ def test_a_kept_graph_calls_the_machine_code_directly_on_its_own_views(data_file
     assert_identical(solve(graph, init), solve(graph, init, lane=False))
 
 
+def test_threads_solving_one_kept_graph_each_get_its_result(data_file):
+    """The kept scratch goes to one solve at a time: two threads solving the same graph at
+    once (the driver releases the GIL) each get the compiled problem's result, every time."""
+    import threading
+
+    graph, init = fgopt.io.read(str(data_file("small/pose3example.txt")), add_prior=True)
+    want = solve(graph, init, lane=False, max_iterations=5)
+    solve(graph, init, max_iterations=5)  # (kept, with its entry point)
+    bad = []
+
+    def run():
+        for _ in range(300):
+            r = solve(graph, init, max_iterations=5)
+            if r.final_cost != want.final_cost or r.cost_history != want.cost_history:
+                bad.append(r.final_cost)
+
+    threads = [threading.Thread(target=run) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not bad
+
+
 def test_a_collected_graph_leaves_no_inputs_behind(data_file):
     """The reused inputs hold the graph weakly: once it is gone, so is its entry."""
     import gc

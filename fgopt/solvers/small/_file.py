@@ -62,9 +62,11 @@ def optimize_file(graph: Any, initial: Any, params: Any, t0: float) -> Result | 
     prm, rel_tol = _pkg._params_array(params, lane.tables[4])
     # (the driver numbers the variables: each factor's keys among the block's, status -2 for a
     # missing, repeated or unused key, or keys not ascending)
-    work = memo.work
-    memo.work = None  # (taken: a solve of this graph in another thread makes its own)
-    if work is None:
+    # (list.pop is one step: a solve of this graph in another thread cannot take the same
+    # scratch, it makes its own)
+    try:
+        work = memo.work.pop()
+    except IndexError:
         work = memo.sizes
         if work is None:  # (the driver's own function: known once the plan is ready)
             work = memo.sizes = plan.module.arena_sizes(
@@ -75,7 +77,8 @@ def optimize_file(graph: Any, initial: Any, params: Any, t0: float) -> Result | 
     t1 = _pc()
     out = (solve or plan.module._solve)(x0, memo.inputs, prm, work[0], work[1], hist)
     t2 = _pc()
-    memo.work = work  # (scratch only: the next solve may reuse it)
+    if not memo.work:
+        memo.work.append(work)  # (scratch only: the next solve may reuse it)
     if solve is None and memo.graph is not None:  # (kept: the next solve calls it directly)
         memo.entry = _entry_point(plan.module._solve, (x0, memo.inputs, prm, *work, hist))
     if out[0] < 0:
@@ -101,8 +104,8 @@ class _Inputs:
     non-contiguous R), and those go to the driver as the entry's own views of them: in-place
     changes of the data reach it, but no one else can change their shapes or types.
     ``sizes``: the driver's arena sizes (:func:`~fgopt.solvers.small.arenas`), known at the first
-    solve; ``work``: the arenas themselves (scratch), reused by the next solve that finds them
-    (one that runs while another holds them makes its own); ``entry``: the driver's compiled
+    solve; ``work``: the arenas themselves (scratch, at most one pair), reused by the next solve
+    that takes them (one that runs while another holds them makes its own); ``entry``: the driver's compiled
     entry point for these inputs' types (:func:`_entry_point`), once a solve has run."""
 
     __slots__ = ("dims", "entry", "graph", "inputs", "lane", "parts", "block", "keys", "sizes",
@@ -160,7 +163,7 @@ def _prepare(graph: Any, blk: Any, batches: list) -> _Inputs | None:
                              (slots[i] for i in bs)], r) for bs, r in lane.merge]
     tables = lane.tables
     memo = _Inputs()
-    memo.lane, memo.dims, memo.sizes, memo.work = lane, (residuals, V * lane.dim), None, None
+    memo.lane, memo.dims, memo.sizes, memo.work = lane, (residuals, V * lane.dim), None, []
     memo.graph = memo.entry = None
     block_keys = _writeable(blk.keys)
     if own:  # (kept: the driver gets views of the arrays, whose types no one else can change)
