@@ -58,7 +58,9 @@ def optimize_file(graph: Any, initial: Any, params: Any, t0: float) -> Result | 
     if n > _pkg.SMALL_DENSE_SIZE or n > _pkg.SMALL_MAX_SIZE or not plan.ready():
         return None  # (too large for the driver; or warming it up: the usual path's)
     rows = blk.rows
-    x0 = rows.reshape(-1).copy()  # (the driver's; what a Problem holds as its initial storage)
+    # (the driver's, written in place: what a Problem holds as its initial storage; float64
+    # C-contiguous whatever the rows are, as the kept entry point reads it)
+    x0 = rows.astype(np.float64, order="C").reshape(-1)
     prm, rel_tol = _pkg._params_array(params, lane.tables[4])
     # (the driver numbers the variables: each factor's keys among the block's, status -2 for a
     # missing, repeated or unused key, or keys not ascending)
@@ -104,9 +106,10 @@ class _Inputs:
     non-contiguous R), and those go to the driver as the entry's own views of them: in-place
     changes of the data reach it, but no one else can change their shapes or types.
     ``sizes``: the driver's arena sizes (:func:`~fgopt.solvers.small.arenas`), known at the first
-    solve; ``work``: the arenas themselves (scratch, at most one pair), reused by the next solve
-    that takes them (one that runs while another holds them makes its own); ``entry``: the driver's compiled
-    entry point for these inputs' types (:func:`_entry_point`), once a solve has run."""
+    solve; ``work``: the arenas themselves (scratch, at most one pair), reused by the next
+    solve that takes them (one that runs while another holds them makes its own); ``entry``:
+    the driver's compiled entry point for these inputs' types (:func:`_entry_point`), once a
+    solve has run."""
 
     __slots__ = ("dims", "entry", "graph", "inputs", "lane", "parts", "block", "keys", "sizes",
                  "work")
