@@ -384,13 +384,17 @@ class Problem:
 
     # ----------------------------------------------------------------- compile: small graphs
     def _collect_small(self, graph: Any, values: Variables) -> bool:
-        """:meth:`_collect_variables` and :meth:`_collect_factors` for problems of at most
+        """:meth:`_collect_variables` and :meth:`_collect_factors` for what a file reader makes
+        (:meth:`_collect_file`, any size, once numba is in use) and for problems of at most
         :data:`SMALL_COLLECT_MAX` factors and values, in plain Python: the vectorized collection
-        costs ~60 NumPy calls of 1-5 us whatever the size (150 us on a 2-pose graph). Same attributes,
-        numbering and batches. Anything unusual -- Python factors or manifolds, a missing key,
-        a large bulk block -- returns False: the general collection then runs (and raises its
-        errors)."""
+        costs ~60 NumPy calls of 1-5 us whatever the size (150 us on a 2-pose graph). Same
+        attributes, numbering and batches. Anything unusual -- Python factors or manifolds, a
+        missing key, a large bulk block -- returns False: the general collection then runs (and
+        raises its errors)."""
         factors, batches, pending = graph.factors, graph.batches, values._pending
+        if (not factors and not values._dict and len(pending) == 1 and batches
+                and _jit.is_numba_loaded() and self._collect_file(batches, pending[0], values)):
+            return True  # (compiled calls: any size)
         num_values = len(values._dict)
         for blk in pending:
             num_values += blk.keys.shape[0]
@@ -399,9 +403,6 @@ class Problem:
             size += b.keys.shape[0]
         if size > SMALL_COLLECT_MAX:
             return False
-        if (not factors and not values._dict and len(pending) == 1 and batches
-                and _jit.is_numba_loaded() and self._collect_file(batches, pending[0], values)):
-            return True
         var_of: dict = {}  # key -> variable: the factors' keys in order of first use, ...
         key_var: list[int] = []
         for f in factors:

@@ -22,9 +22,11 @@ from typing import Any
 
 import numpy as np
 
-ORDERINGS = ("amd", "mmd", "metis", "nesdis", "colamd", "natural", "default", "best")
-#: Orderings only CHOLMOD computes (the ``fgopt[cholmod]`` extra).
-CHOLMOD_ORDERINGS = ("metis", "nesdis", "colamd", "default", "best")
+ORDERINGS = ("amd", "mmd", "metis", "nesdis", "colamd", "natural", "default", "best",
+             "cholmod_amd")
+#: Orderings only CHOLMOD computes (the ``fgopt[cholmod]`` extra); ``"cholmod_amd"`` is
+#: CHOLMOD's AMD on either backend (``"amd"`` is fgopt's own on the numba backend).
+CHOLMOD_ORDERINGS = ("metis", "nesdis", "colamd", "default", "best", "cholmod_amd")
 
 
 
@@ -135,10 +137,16 @@ def fill_reducing_order(num_vars: int, pairs_i: np.ndarray, pairs_j: np.ndarray,
                         method: str = "amd") -> np.ndarray:
     """A permutation of the variables (block graph) that reduces Cholesky fill.
 
-    Returns ``perm`` with ``perm[k]`` = the variable eliminated ``k``-th. ``"amd"`` is CHOLMOD's
-    AMD when the ``fgopt[cholmod]`` extra is installed, else ``"mmd"``: the multiple minimum
-    degree ordering of SuperLU (in scipy's wheels) on the block graph, which measured the same
-    fill as AMD on M3500 and less on sphere2500 (``benchmarks/startup.py``, ordering table).
+    Returns ``perm`` with ``perm[k]`` = the variable eliminated ``k``-th. ``"amd"``, on the numba
+    backend (outside :func:`fgopt._jit.numpy_mode`), is fgopt's own approximate minimum degree
+    kernel (:func:`fgopt._amd.amd_order`, on the pairs directly: nnz(L) within 1.1 % of
+    CHOLMOD's AMD on the shared pose graphs, ``benchmarks/ordering.py``; inside a 400-pose solve
+    ~0.15 ms less than CHOLMOD's call, which also runs a symbolic factorization and needs a CSC
+    matrix built first). On the NumPy backend it is CHOLMOD's AMD (``"cholmod_amd"``) when the
+    ``fgopt[cholmod]`` extra is installed, else ``"mmd"``: the multiple minimum degree ordering
+    of SuperLU (in scipy's wheels) on the block graph, which measured the same fill as AMD on
+    M3500 and less on sphere2500 (``benchmarks/startup.py``, ordering table). The two backends
+    then order differently: their results differ in the last bits.
     Tiny problems, and (for ``"amd"`` / ``"mmd"``) graphs densely banded in the given order
     (:func:`_densely_banded`, e.g. a navigation chain of states in time order), keep the given
     order: fill stays inside the band, and skipping the ordering measured 1.4 ms faster per
@@ -155,6 +163,12 @@ def fill_reducing_order(num_vars: int, pairs_i: np.ndarray, pairs_j: np.ndarray,
         return np.arange(num_vars)
     if method in ("amd", "mmd") and _densely_banded(num_vars, pairs_i, pairs_j):
         return np.arange(num_vars)
+    if method == "amd" and not numpy_only():  # the numba backend (whose kernels load numba)
+        perm = amd_order(num_vars, np.ascontiguousarray(pairs_i, dtype=np.int64),
+                         np.ascontiguousarray(pairs_j, dtype=np.int64))
+        if perm.shape[0] != num_vars:  # the kernel lost a node: never expected, checked
+            raise FgoptError(f"AMD ordering returned {perm.shape[0]} of {num_vars} variables")
+        return perm
     A = _block_graph_csc(num_vars, pairs_i, pairs_j)
     if method == "amd" and not have_extra("sksparse"):
         method = "mmd"
@@ -163,7 +177,8 @@ def fill_reducing_order(num_vars: int, pairs_i: np.ndarray, pairs_j: np.ndarray,
     from sksparse.cholmod import analyze
 
     with np.errstate(all="ignore"):
-        f = analyze(A, mode="simplicial", ordering_method=method)
+        f = analyze(A, mode="simplicial",
+                    ordering_method="amd" if method == "cholmod_amd" else method)
     return np.asarray(f.P(), dtype=np.int64)
 
 
@@ -357,6 +372,7 @@ def ranges(lengths: np.ndarray) -> np.ndarray:
     return np.arange(total, dtype=np.int64) - starts
 
 
+from ._amd import amd_order  # noqa: E402
 from ._jit import charge_numpy, is_numba_loaded, numpy_budget_left, numpy_only  # noqa: E402
 from ._structure_kernels import (_block_graph, _block_layout, _block_rows,  # noqa: E402,F401
                                  _pattern_kernel, _scatter_positions, _sym_matvec)

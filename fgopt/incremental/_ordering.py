@@ -12,8 +12,9 @@ Two implementations, chosen by size:
   row of ``ceil(t / 64)`` words per variable) with degree buckets. Eliminating ``p`` ORs its
   row into each neighbour's; the cost is ``O(t^2 / 64 + sum deg(p) t / 64)``, small for the
   tops of typical updates (tens to a few thousand variables).
-* ``amd_groups`` (large tops, e.g. iSAM2's batch step): CHOLMOD's AMD on the whole top, then a
-  stable partition by group (CAMD's constraint, applied after the fact).
+* ``amd_groups`` (large tops, e.g. iSAM2's batch step): AMD (fgopt's kernel, :mod:`fgopt._amd`)
+  on the whole top, then a stable partition by group (CAMD's constraint, applied after the
+  fact).
 """
 
 from __future__ import annotations
@@ -134,7 +135,7 @@ def _bucket_remove(head, nxt, prv, deg, u):
 
 
 def amd_groups(t: int, ap: np.ndarray, ai: np.ndarray, group: np.ndarray) -> np.ndarray:
-    """CHOLMOD AMD on the whole graph, then stably partitioned by group (large tops)."""
+    """AMD on the whole graph, then stably partitioned by group (large tops)."""
     rows = np.repeat(np.arange(t, dtype=np.int64), np.diff(ap))
     keep = rows < ai
     order = fill_reducing_order(t, rows[keep], ai[keep], "amd")

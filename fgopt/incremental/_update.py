@@ -4,7 +4,7 @@ most updates of an online problem re-eliminate a handful of variables).
 ``tree_update`` removes the top for the marked variables, assigns ordering groups, builds the
 top's graph and, when the top is small enough for the bitset minimum degree, orders it and
 calls ``tree_finish`` (re-eliminate, commit, mark the top for back-substitution) itself. A
-larger top returns ``NEED_ORDER`` with its graph; the caller orders it (CHOLMOD AMD) and calls
+larger top returns ``NEED_ORDER`` with its graph; the caller orders it (AMD) and calls
 ``tree_finish``. A non-positive pivot returns ``FAILED`` before anything is committed.
 
 ``info`` (int64): ``[t, nnz change, new cliques, (unused), batch, failed variable]``.

@@ -50,7 +50,9 @@ class LMParams(TerminationParams):
     lambda_factor: float = 10.0
     linear_solver: str = "auto"
     ordering: str = "amd"
-    """Fill-reducing order of the variable graph: amd | metis | nesdis | colamd | natural."""
+    """Fill-reducing order of the variable graph: amd (fgopt's own on the numba backend,
+    CHOLMOD's or SuperLU's MMD on NumPy) | mmd | cholmod_amd | metis | nesdis | colamd |
+    natural."""
     threads: int = 1
     """Threads for linearization (numba prange + nogil kernels); 1 = serial (the default)."""
     backend: str = "auto"

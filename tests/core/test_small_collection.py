@@ -17,9 +17,15 @@ def both(graph, values, monkeypatch):
         m.setattr(P.Problem, "_collect_variables", None)
         lean = P.Problem(graph, values, build_structure=False)
     with monkeypatch.context() as m:
-        m.setattr(P, "SMALL_COLLECT_MAX", -1)
+        general_only(m)
         general = P.Problem(graph, values, build_structure=False)
     return lean, general
+
+
+def general_only(m) -> None:
+    """Turn off both lean collections (the file path runs at any size) in context ``m``."""
+    m.setattr(P, "SMALL_COLLECT_MAX", -1)
+    m.setattr(P.Problem, "_collect_file", lambda self, *a: False)
 
 
 def assert_same_problem(a, b):
@@ -118,9 +124,10 @@ def test_larger_graphs_take_the_general_path(monkeypatch):
 def errors(graph, values, monkeypatch):
     """The (type, message) each collection raises."""
     out = []
-    for limit in (P.SMALL_COLLECT_MAX, -1):
+    for lean in (True, False):
         with monkeypatch.context() as m:
-            m.setattr(P, "SMALL_COLLECT_MAX", limit)
+            if not lean:
+                general_only(m)
             with pytest.raises(FgoptError) as e:
                 P.Problem(graph, values, build_structure=False)
         out.append((type(e.value), str(e.value)))
@@ -200,10 +207,11 @@ def block_of(values):
 
 
 @pytest.mark.parametrize("name", ["small/pose2example.txt", "small/pose3example-offdiagonal.txt",
-                                  "small/Klaus3.g2o", "small/tinyGrid3D.g2o"])
+                                  "small/Klaus3.g2o", "small/tinyGrid3D.g2o", "pose2d/intel.g2o"])
 def test_a_files_graph_numbered_in_one_compiled_call(data_file, name, numba_in_use, monkeypatch):
     """A reader's batches over one ascending bulk block: the file path collects it (block rows
-    as variables, each batch's variables from one compiled call) as the general path does."""
+    as variables, each batch's variables from one compiled call) as the general path does, at
+    any size (intel: 1728 poses, above ``SMALL_COLLECT_MAX``)."""
     a, b = both(*fgopt.io.read(str(data_file(name)), add_prior=True), monkeypatch)
     assert numba_in_use == [True]
     assert_same_problem(a, b)
