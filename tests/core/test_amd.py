@@ -145,3 +145,19 @@ def test_fill_reducing_order_uses_the_kernel_on_the_numba_backend():
     assert np.array_equal(fill_reducing_order(n, pi, pj, "cholmod_amd"), theirs)
     with _jit.numpy_mode():
         assert np.array_equal(fill_reducing_order(n, pi, pj, "amd"), theirs)
+
+
+def test_pairs_outside_the_graph_are_an_error():
+    """A pair naming a node outside ``0..n-1`` (or pair arrays of different lengths): an
+    FgoptError, not a read past the arrays."""
+    from fgopt.errors import FgoptError
+
+    n, pi, pj = grid(5)
+    for bad in (n, -1):
+        pj2 = pj.copy()
+        pj2[3] = bad
+        assert amd_order(n, pi, pj2).shape[0] == 0
+        with pytest.raises(FgoptError, match="outside 0..24"):
+            fill_reducing_order(n, pi, pj2, "amd")
+    with pytest.raises(FgoptError, match="differ in shape"):
+        fill_reducing_order(n, pi, pj[:-1], "amd")
