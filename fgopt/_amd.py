@@ -36,11 +36,13 @@ _VARIABLE, _ELEMENT, _ABSORBED, _MERGED, _DENSE = 0, 1, 2, 3, 4
 @njit(cache=True)
 def _adjacency(n, pairs_i, pairs_j):
     """CSR ``(ptr, adj)`` of the symmetric graph of the pairs, without self loops and
-    duplicates."""
+    duplicates; ``ptr`` is empty when a pair names a node outside ``0..n-1``."""
     m = pairs_i.shape[0]
     cnt = np.zeros(n + 1, dtype=np.int64)
     for t in range(m):
         a, b = pairs_i[t], pairs_j[t]
+        if a < 0 or a >= n or b < 0 or b >= n:
+            return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64)
         if a != b:
             cnt[a + 1] += 1
             cnt[b + 1] += 1
@@ -97,15 +99,19 @@ def _compress(iw, pe, len_, status, n):
 
 
 @njit(cache=True)
-def amd_order(n, pairs_i, pairs_j, dense_factor=10.0):
+def amd_order(n, pairs_i, pairs_j, dense_factor=10.0, elbow=-1):
     """Elimination order ``perm`` (``perm[k]`` = the ``k``-th eliminated node) of the graph on
     ``n`` nodes with edges ``(pairs_i[t], pairs_j[t])`` (any order, duplicates and self pairs
-    allowed)."""
+    allowed; ``pairs_j`` at least as long as ``pairs_i``). Empty when a pair names a node
+    outside ``0..n-1``. ``elbow``: free room after the graph's lists for new elements
+    (default ``nnz / 2 + 4 n``; less only makes the lists compacted more often)."""
     if n == 0:
         return np.empty(0, dtype=np.int64)
     ptr, adj = _adjacency(n, pairs_i, pairs_j)
+    if ptr.shape[0] == 0:
+        return np.empty(0, dtype=np.int64)
     nnz = ptr[n]
-    iwlen = nnz + nnz // 2 + 4 * n + 16
+    iwlen = nnz + (nnz // 2 + 4 * n + 16 if elbow < 0 else elbow)
     iw = np.empty(iwlen, dtype=np.int64)
     iw[:nnz] = adj
     pfree = nnz
@@ -162,8 +168,14 @@ def amd_order(n, pairs_i, pairs_j, dense_factor=10.0):
         nvk = nv[k]
         nel += nvk
         # ---- L_k: k's variables and those of the elements adjacent to k (which it absorbs)
-        if elenk > 0 and pfree + (n - nel + nvk) > iwlen:
+        need = n - nel + nvk  # L_k has at most this many variables
+        if elenk > 0 and pfree + need > iwlen:
             pfree = _compress(iw, pe, len_, status, n)
+            if pfree + need > iwlen:  # (live lists never exceed nnz: kept as a guard)
+                iwlen = pfree + need + n
+                grown = np.empty(iwlen, dtype=np.int64)
+                grown[:pfree] = iw[:pfree]
+                iw = grown
         nv[k] = -nvk
         p = pe[k]
         pk1 = p if elenk == 0 else pfree

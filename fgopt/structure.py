@@ -159,15 +159,19 @@ def fill_reducing_order(num_vars: int, pairs_i: np.ndarray, pairs_j: np.ndarray,
     if method in CHOLMOD_ORDERINGS and not have_extra("sksparse"):
         # Checked before the shortcuts below: a missing extra is an error whatever the graph.
         raise missing_extra("sksparse", f"ordering={method!r}")
+    pairs_i = np.ascontiguousarray(pairs_i, dtype=np.int64)
+    pairs_j = np.ascontiguousarray(pairs_j, dtype=np.int64)
+    if pairs_i.shape != pairs_j.shape or pairs_i.ndim != 1:
+        raise FgoptError(f"ordering: pairs_i and pairs_j differ in shape "
+                         f"({pairs_i.shape} vs {pairs_j.shape})")
     if method == "natural" or num_vars <= 16:  # tiny problems: ordering costs more than fill
         return np.arange(num_vars)
     if method in ("amd", "mmd") and _densely_banded(num_vars, pairs_i, pairs_j):
         return np.arange(num_vars)
     if method == "amd" and not numpy_only():  # the numba backend (whose kernels load numba)
-        perm = amd_order(num_vars, np.ascontiguousarray(pairs_i, dtype=np.int64),
-                         np.ascontiguousarray(pairs_j, dtype=np.int64))
-        if perm.shape[0] != num_vars:  # the kernel lost a node: never expected, checked
-            raise FgoptError(f"AMD ordering returned {perm.shape[0]} of {num_vars} variables")
+        perm = amd_order(num_vars, pairs_i, pairs_j)
+        if perm.shape[0] != num_vars:  # (the kernel never loses a node: tests/core/test_amd.py)
+            raise FgoptError(f"ordering: a pair names a variable outside 0..{num_vars - 1}")
         return perm
     A = _block_graph_csc(num_vars, pairs_i, pairs_j)
     if method == "amd" and not have_extra("sksparse"):

@@ -128,6 +128,10 @@ class Run:
         (exactly: the saved values are written back), instead of damping a copy of H: that copy
         was H's size again (1.1 GB at 5M BA observations).
         """
+        # The move to numba is decided here, when another step is needed, not after an
+        # iteration: a solve that has just converged would pay numba's loads (~1 s on sphere2500)
+        # for nothing.
+        self.maybe_switch()
         H, diag_pos = self.problem.H_data, self.problem.pattern.diag_pos
         if damping is None:
             return self.solve(H, rhs)
@@ -195,7 +199,6 @@ class Run:
             self.history.append(self.cost)
         if self.verbose:
             print(rec.row(), flush=True)
-        self.maybe_switch()
         if self.callback is not None:
             return bool(self.callback(rec))
         return False

@@ -38,14 +38,18 @@ def grid(m: int) -> tuple[int, np.ndarray, np.ndarray]:
 
 
 @settings(max_examples=150, deadline=None)
-@given(n=st.integers(0, 70), data=st.data())
-def test_every_node_exactly_once(n, data):
-    """Any pair list (duplicates, self pairs, isolated nodes, dense hubs) gives a permutation."""
+@given(n=st.integers(0, 70), hubs=st.integers(0, 2), data=st.data())
+def test_every_node_exactly_once(n, hubs, data):
+    """Any pair list (duplicates, self pairs, isolated nodes, hubs coupled to every node, which
+    are ordered last as dense above 16 nodes) gives a permutation."""
     m = data.draw(st.integers(0, 4 * n + 1)) if n else 0
     pi = np.array(data.draw(st.lists(st.integers(0, max(n - 1, 0)), min_size=m, max_size=m)),
                   dtype=np.int64)
     pj = np.array(data.draw(st.lists(st.integers(0, max(n - 1, 0)), min_size=m, max_size=m)),
                   dtype=np.int64)
+    for h in range(min(hubs, n)):
+        pi = np.concatenate([pi, np.full(n, h, dtype=np.int64)])
+        pj = np.concatenate([pj, np.arange(n, dtype=np.int64)])
     perm = amd_order(n, pi, pj)
     assert np.array_equal(np.sort(perm), np.arange(n))
 
@@ -145,3 +149,34 @@ def test_fill_reducing_order_uses_the_kernel_on_the_numba_backend():
     assert np.array_equal(fill_reducing_order(n, pi, pj, "cholmod_amd"), theirs)
     with _jit.numpy_mode():
         assert np.array_equal(fill_reducing_order(n, pi, pj, "amd"), theirs)
+
+
+def test_pairs_outside_the_graph_are_an_error():
+    """A pair naming a node outside ``0..n-1`` (or pair arrays of different lengths): an
+    FgoptError, not a read past the arrays."""
+    from fgopt.errors import FgoptError
+
+    n, pi, pj = grid(5)
+    for bad in (n, -1):
+        pj2 = pj.copy()
+        pj2[3] = bad
+        assert amd_order(n, pi, pj2).shape[0] == 0
+        with pytest.raises(FgoptError, match="outside 0..24"):
+            fill_reducing_order(n, pi, pj2, "amd")
+    with pytest.raises(FgoptError, match="differ in shape"):
+        fill_reducing_order(n, pi, pj[:-1], "amd")
+
+
+@pytest.mark.parametrize("case", ["grid30", "random400"])
+def test_no_free_room_gives_the_same_order(case):
+    """With no room after the graph's lists the kernel compacts them (and grows its array)
+    over and over; the order is the same as with room to spare."""
+    rng = np.random.default_rng(3)
+    if case == "grid30":
+        n, pi, pj = grid(30)
+    else:
+        n = 400
+        pi, pj = rng.integers(0, n, 5 * n), rng.integers(0, n, 5 * n)
+    reference = amd_order(n, pi, pj)
+    for elbow in (0, 1, 7):
+        assert np.array_equal(amd_order(n, pi, pj, 10.0, elbow), reference)

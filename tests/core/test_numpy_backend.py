@@ -168,7 +168,8 @@ def test_numpy_backend_refuses_kernels_without_twins():
 
 def test_long_solve_switches_to_numba_when_warm(monkeypatch):
     """With numba's cache marked warm, a NumPy solve moves to numba after SWITCH_AFTER_SECONDS
-    (0 here): the iterations go on to the numba backend's result."""
+    (0 here: before its first linear solve, after the initial linearization on NumPy): the
+    iterations go on to the numba backend's result."""
     from fgopt.solvers import _run, _warmup
 
     graph, initial = _pose_graph(1500, 3)
@@ -176,11 +177,29 @@ def test_long_solve_switches_to_numba_when_warm(monkeypatch):
     monkeypatch.setattr(_warmup, "is_warm", lambda problem: True)
     monkeypatch.setattr(_jit, "is_numba_loaded", lambda: False)
     switched = fgopt.optimize(graph, initial)
-    assert switched.info["backend"].startswith("numpy for 1 iterations, then numba")
+    assert switched.info["backend"].startswith("numpy for 0 iterations, then numba")
     assert switched.linear_solver == "block"
     plain = fgopt.optimize(graph, initial, backend="numba")
     assert switched.iterations == plain.iterations
     assert switched.final_cost == pytest.approx(plain.final_cost, rel=1e-9)
+
+
+def test_switch_is_decided_only_before_another_step(monkeypatch):
+    """The move to numba is considered before each linear solve, never after the last
+    iteration: a solve that has just converged does not pay numba's loads."""
+    from fgopt.solvers import _run, _warmup
+
+    graph, initial = _pose_graph(1500, 3)
+    monkeypatch.setattr(_warmup, "is_warm", lambda problem: False)  # considered, never taken
+    monkeypatch.setattr(_jit, "is_numba_loaded", lambda: False)
+    done_before = []
+    original = _run.Run.maybe_switch
+    monkeypatch.setattr(_run.Run, "maybe_switch",
+                        lambda self: (done_before.append(len(self.records)), original(self))[1])
+    result = fgopt.optimize(graph, initial, max_iterations=3, relative_tolerance=0.0,
+                            absolute_tolerance=0.0, gradient_tolerance=0.0, step_tolerance=0.0)
+    assert result.iterations == 3 and result.info["backend"] == "numpy"
+    assert done_before == [0, 1, 2]
 
 
 def test_warm_marker_round_trip(tmp_path, monkeypatch):
