@@ -162,8 +162,8 @@ def fill_reducing_order(num_vars: int, pairs_i: np.ndarray, pairs_j: np.ndarray,
     pairs_i = np.ascontiguousarray(pairs_i, dtype=np.int64)
     pairs_j = np.ascontiguousarray(pairs_j, dtype=np.int64)
     if pairs_i.shape != pairs_j.shape or pairs_i.ndim != 1:
-        raise FgoptError(f"ordering: pairs_i and pairs_j differ in shape "
-                         f"({pairs_i.shape} vs {pairs_j.shape})")
+        raise FgoptError(f"ordering: pairs_i and pairs_j must be 1-D arrays of one length, got "
+                         f"shapes {pairs_i.shape} and {pairs_j.shape}")
     if method == "natural" or num_vars <= 16:  # tiny problems: ordering costs more than fill
         return np.arange(num_vars)
     if method in ("amd", "mmd") and _densely_banded(num_vars, pairs_i, pairs_j):
