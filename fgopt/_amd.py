@@ -353,7 +353,6 @@ def amd_order(n, pairs_i, pairs_j, dense_factor=10.0, elbow=-1):
         len_[k] = p - pk1
         if len_[k] == 0:
             pe[k] = -1
-        degree[k] = dk
     return _postorder(n, status, parent, pivots, npiv)
 
 
