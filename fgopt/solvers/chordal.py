@@ -83,7 +83,10 @@ def _solve_spd(A: sp.spmatrix, B: np.ndarray) -> np.ndarray:
     if have_extra("sksparse"):
         from sksparse.cholmod import cholesky
 
-        return cholesky(A.tocsc()).solve_A(B)
+        from .linear.cholmod import serial_openmp
+
+        with serial_openmp():
+            return cholesky(A.tocsc()).solve_A(B)
     from scipy.sparse.linalg import splu
 
     lu = splu(A.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,

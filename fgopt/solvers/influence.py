@@ -231,12 +231,15 @@ def _leverage_fn(problem: Problem, state: State):
     if have_extra("sksparse"):
         from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky
 
+        from .linear.cholmod import serial_openmp
+
         H = problem.pattern.matrix(problem.H_data)
-        try:
-            F = cholesky(H)
-        except CholmodNotPositiveDefiniteError:  # no prior: a tiny ridge fixes the gauge
-            ridge = 1e-9 * max(1.0, float(np.abs(H.diagonal()).max()))
-            F = cholesky(H, beta=ridge)
+        with serial_openmp():
+            try:
+                F = cholesky(H)
+            except CholmodNotPositiveDefiniteError:  # no prior: a tiny ridge fixes the gauge
+                ridge = 1e-9 * max(1.0, float(np.abs(H.diagonal()).max()))
+                F = cholesky(H, beta=ridge)
         return _sparse_leverages(F), 1 << 30
     return _solve_leverages(problem), _DENSE_CHUNK
 
