@@ -47,7 +47,8 @@ TABLE_PROTOCOL = {
 }
 RESULTS = Path(__file__).resolve().parent / "results"
 ALL_PEERS = ["gtsam", "ceres", "ceres_cpp", "symforce", "scipy"]
-THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS",
+THREAD_VARS = ("OMP_NUM_THREADS", "OMP_THREAD_LIMIT", "OPENBLAS_NUM_THREADS",
+               "MKL_NUM_THREADS", "NUMBA_NUM_THREADS",
                "VECLIB_MAXIMUM_THREADS", "BLIS_NUM_THREADS")
 
 LABEL = {"fgopt": "fgopt", "gtsam": "GTSAM", "ceres": "pyceres (Python callback costs)",

@@ -28,7 +28,8 @@ from __future__ import annotations
 
 import os
 
-for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+for _v in ("OMP_NUM_THREADS", "OMP_THREAD_LIMIT", "OPENBLAS_NUM_THREADS",
+           "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
     os.environ[_v] = "1"
 # Warm-process figures: numba kernels and assembly from the first timed solve (a process reaches
 # this after 0.5 s of NumPy-twin work, see fgopt/_jit.py); without it the first small graphs of

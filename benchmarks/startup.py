@@ -58,7 +58,8 @@ def _env(**extra: str) -> dict:
     env["PYTHONPATH"] = str(REPO)  # this checkout's fgopt, whatever is installed
     # a user's install has bytecode (pip compiles at install): let the checkout get its .pyc
     env.pop("PYTHONDONTWRITEBYTECODE", None)
-    for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
+    for var in ("OMP_NUM_THREADS", "OMP_THREAD_LIMIT", "OPENBLAS_NUM_THREADS",
+                "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
         env.setdefault(var, "1")
     env.update(extra)
     return env
