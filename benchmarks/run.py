@@ -214,7 +214,8 @@ def markdown(records: list[dict], meta: dict) -> str:
     a("")
     a("Seconds, median of {r} runs after a warm-up (¹ = one run: the warm-up itself took > {l} s); "
       "×N = time / fgopt's time in the same run (>1: fgopt faster). Single-threaded everywhere: "
-      "OMP/OPENBLAS/MKL/NUMBA_NUM_THREADS=1 set before numpy is imported; per library: {p}. "
+      "OMP/OPENBLAS/MKL/NUMBA_NUM_THREADS=1 and OMP_THREAD_LIMIT=1 set before numpy is imported; "
+      "per library: {p}. "
       "The \"Ceres C++ (quoted, not measured)\" column is copied from BENCHMARKS.md; "
       "\"Ceres C++ (measured)\" is benchmarks/ceres_cpp/ceres_bench run here."
       .format(r=meta["args"]["repeats"], l=meta["args"]["long"],
