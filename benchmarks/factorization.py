@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import os
 
+# No OMP_THREAD_LIMIT here (the other benchmarks set it): the "super omp" column times CHOLMOD
+# with its own OpenMP team, which that limit would make serial too.
 for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
