@@ -225,7 +225,9 @@ def _guess_vertices(rd, dim: int, edges: list[_Edges]) -> _Vertices:
 
 
 def _checked_sqrt_information(rd, edges: list[_Edges], repair: str | None,
-                              floor: float) -> list[np.ndarray]:
+                              floor: float) -> tuple[list[np.ndarray], list[bool]]:
+    """The square-root information of each edge group, and whether any of its rows was
+    repaired."""
     bad = [im.not_positive_definite(e.info) for e in edges]
     num_bad = sum(int(b.sum()) for b in bad)
     total = sum(b.shape[0] for b in bad)
@@ -248,7 +250,7 @@ def _checked_sqrt_information(rd, edges: list[_Edges], repair: str | None,
         log.warning("%s: repaired %d of %d information matrices that were not positive definite "
                     "(eigenvalues clipped to %g x the largest; largest relative change %.3g in "
                     "Frobenius norm)", rd.path, num_bad, total, floor, worst)
-    return out
+    return out, [bool(b.any()) for b in bad]
 
 
 def build_graph(rd, dim: int, add_prior: bool, repair: str | None,
@@ -280,13 +282,15 @@ def build_graph(rd, dim: int, add_prior: bool, repair: str | None,
         values.add_rows(vkeys[pts].tolist(), pkind,
                         np.array([r for r, is_pt in zip(v.rows, pts) if is_pt], dtype=float))
     graph = FactorGraph()
-    sqrt_infos = _checked_sqrt_information(rd, edges, repair, floor)
-    for e, R in zip(edges, sqrt_infos):
+    sqrt_infos, repaired = _checked_sqrt_information(rd, edges, repair, floor)
+    for e, R, changed in zip(edges, sqrt_infos, repaired):
         if e.what == "between":
             kern, keys = between_kernel(kind), np.column_stack([xb + e.i, xb + e.j])
         else:
             kern, keys = pose_point_kernel(dim), np.column_stack([xb + e.i, lb + e.j])
         graph.add_batch(kern, keys, e.meas, R, origin=(str(rd.path), e.group.lines))
+        if e.group.tag in VERBATIM_TAGS and not changed and e.i.shape[0]:
+            _remember_records(rd.sc, graph.batches[-1], e.group)
     fixed = _fixed_keys(rd, v, vkeys)
     add_fixing_priors(graph, values, fixed, f"{rd.path}: FIX")
     if add_prior:
@@ -295,6 +299,23 @@ def build_graph(rd, dim: int, add_prior: bool, repair: str | None,
         log.warning("%s: skipped %d EQUIV lines (TORO vertex equivalences are not supported)",
                     rd.path, rd.groups["EQUIV"].data.shape[0])
     return graph, values
+
+
+#: Edge records written back as the file had them while their batch is unchanged
+#: (:mod:`fgopt.io._records`): the tags the g2o writer writes, in the layout it writes. (TORO's
+#: ``EDGE2`` is written as ``EDGE_SE2``; ``EDGE_SE3_TRACKXYZ`` lines may name a parameter id
+#: that the writer's single ``PARAMS_SE3OFFSET 0`` would not define.)
+VERBATIM_TAGS = ("EDGE_SE2", "EDGE_SE3:QUAT", "EDGE_SE2_XY")
+
+
+def _remember_records(sc, batch, group) -> None:
+    """Remember where ``batch``'s rows (``group``'s records, in order) are in the file."""
+    from ._records import remember, token_ends
+
+    rec = group.rec
+    last = sc.first[rec] + sc.count[rec] - 1  # every edge record has numbers
+    remember(batch, group.tag, sc.buf, sc.tag_start[rec],
+             token_ends(sc.buf, sc.tok_start[last], sc.comment))
 
 
 def add_fixing_priors(graph: FactorGraph, values: Variables, keys: list[int], label: str) -> None:

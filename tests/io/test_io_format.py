@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fgopt import SE2, Variables
+from fgopt import SE2, FactorGraph, Variables
 from fgopt.errors import FgoptError
 from fgopt.io import read_g2o, write_g2o
 from fgopt.io._format import decimal_texts, format_rows
@@ -77,6 +77,16 @@ def test_format_rows_refuses_non_finite_numbers(bad):
         format_rows("EDGE_SE2", np.zeros((4, 2), np.int64), nums)
 
 
+def _rebuilt(graph: FactorGraph) -> FactorGraph:
+    """The same factors in new batch objects (equal arrays)."""
+    out = FactorGraph(graph.factors)
+    for b in graph.batches:
+        out.add_batch(b.kernel, b.keys.copy(), b.constants.copy(),
+                      None if b.sqrt_information is None else b.sqrt_information.copy(),
+                      b.loss_code, b.loss_param, b.origin, loss_shape=b.loss_shape)
+    return out
+
+
 @pytest.mark.parametrize("rel", ["pose2d/input_M3500_g2o.g2o", "pose3d/sphere2500.g2o"])
 def test_written_file_holds_the_exact_numbers_and_reads_back(data_file, tmp_path, rel):
     """After a perturbation that makes every pose 17-digit, each number of the file parses
@@ -86,7 +96,8 @@ def test_written_file_holds_the_exact_numbers_and_reads_back(data_file, tmp_path
     from fgopt.io import _information as im
     from fgopt.io._poses import se2_file, se3_file
 
-    graph, values = read_g2o(data_file(rel))
+    read_graph, values = read_g2o(data_file(rel))
+    graph = _rebuilt(read_graph)  # new batches: formatted, not the file's own records
     rng = np.random.default_rng(5)
     moved = Variables()
     for k, x in values.items():
@@ -110,3 +121,71 @@ def test_written_file_holds_the_exact_numbers_and_reads_back(data_file, tmp_path
     graph2, back = read_g2o(tmp_path / "out.g2o")
     assert back == moved
     assert graph2.error(back) == pytest.approx(graph.error(moved), rel=1e-12)
+
+
+_ODD_LAYOUT = """# a 2D graph with comments, CRLF line ends, tabs and a TORO edge
+VERTEX_SE2 0 0 0 0\r
+VERTEX_SE2 1 1.0 0 0.1
+VERTEX_SE2 2 2.0 0.5 0.2   # trailing comment
+VERTEX_XY 7 1.5 1.5
+EDGE_SE2 0 1\t1.0 0 0.1 100 0 0 100 0 400\r
+EDGE2 1 2 1.0 0.5 0.1 50 0 50 300 0 0
+EDGE_SE2 1 2 1.00000 0.5 0.1 100 0 0 100 0 400 # it continues here
+EDGE_SE2_XY 1 7 0.5 1.5 10 0 10
+EDGE_SE2 0 2 2.0 0.5 0.2 1e2 0 0 100 0 400
+"""
+
+
+def test_edges_read_from_a_file_are_written_back_as_the_file_had_them(tmp_path):
+    """Solving changes vertices, not edges: a batch read from a file and left as it was is
+    written as the file's own records (tag to last number: no comments, no CR, in row order),
+    whatever its line ends and separators; TORO's EDGE2 is still formatted as EDGE_SE2. A batch
+    whose arrays changed (in place or replaced) is formatted from its arrays. Every written
+    file reads back to the graph written."""
+    src = tmp_path / "odd.g2o"
+    src.write_bytes(_ODD_LAYOUT.encode())
+    graph, values = read_g2o(src)
+    write_g2o(tmp_path / "out.g2o", graph, values)
+    out = (tmp_path / "out.g2o").read_bytes().decode()
+    assert "\r" not in out and "#" not in out
+    edges = [ln for ln in out.splitlines() if ln.startswith("EDGE")]
+    assert edges[:3] == ["EDGE_SE2 0 1\t1.0 0 0.1 100 0 0 100 0 400",
+                         "EDGE_SE2 1 2 1.00000 0.5 0.1 100 0 0 100 0 400",
+                         "EDGE_SE2 0 2 2.0 0.5 0.2 1e2 0 0 100 0 400"]
+    assert edges[3].startswith("EDGE_SE2 1 2 ")  # EDGE2, formatted in g2o's order
+    assert np.allclose([float(t) for t in edges[3].split()[3:]],
+                       [1.0, 0.5, 0.1, 50, 0, 0, 50, 0, 300], rtol=1e-14, atol=1e-14)
+    assert edges[4] == "EDGE_SE2_XY 1 7 0.5 1.5 10 0 10"
+    graph2, values2 = read_g2o(tmp_path / "out.g2o")
+    assert values2 == values
+    assert graph2.error(values) == pytest.approx(graph.error(values), rel=1e-14)
+
+    # in place: the EDGE_SE2 batch's measurement of row 1, x 1.0 -> 1.25 (storage: c, s, x, y)
+    b = next(b for b in graph.batches if len(b) == 3)
+    b.constants[1, 2] += 0.25
+    write_g2o(tmp_path / "changed.g2o", graph, values)
+    changed = [ln for ln in (tmp_path / "changed.g2o").read_text().splitlines()
+               if ln.startswith("EDGE_SE2 ")]
+    assert changed[0].startswith("EDGE_SE2 0 1 1.0 0.0 ")  # the batch is formatted
+    assert float(changed[1].split()[3]) == 1.25
+    graph3, _ = read_g2o(tmp_path / "changed.g2o")
+    assert graph3.error(values) == pytest.approx(graph.error(values), rel=1e-14)
+    # replaced: new arrays with the file's contents are the same records again
+    b.constants = b.constants.copy()
+    b.constants[1, 2] -= 0.25
+    write_g2o(tmp_path / "again.g2o", graph, values)
+    assert (tmp_path / "again.g2o").read_bytes() == (tmp_path / "out.g2o").read_bytes()
+
+
+def test_repaired_information_is_written_as_repaired(tmp_path):
+    """Edges whose information was repaired on reading are written with the repaired numbers,
+    not the file's (the file's text would read back to a different graph)."""
+    src = tmp_path / "bad.g2o"
+    src.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\n"
+                   "EDGE_SE2 0 1 1 0 0 100 0 0 -1 0 400\n")
+    graph, values = read_g2o(src, repair_information="clip")
+    write_g2o(tmp_path / "out.g2o", graph, values)
+    edge = (tmp_path / "out.g2o").read_text().splitlines()[-1]
+    assert edge != "EDGE_SE2 0 1 1 0 0 100 0 0 -1 0 400"
+    graph2, _ = read_g2o(tmp_path / "out.g2o")
+    assert graph2.error(values) == pytest.approx(graph.error(values), rel=1e-12)
