@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import html
 from collections import Counter
 from typing import Any, Iterator
 
@@ -215,10 +216,7 @@ class Variables:
         return self
 
     def insert_or_assign(self, k: int, value: Any) -> "Variables":
-        k = as_key(k)
-        if k in self._values:
-            return self.update(k, value)
-        return self.add(k, value)
+        return self.update(k, value) if as_key(k) in self else self.add(k, value)
 
     # -- reading
     def at(self, k: int) -> Any:
@@ -310,7 +308,11 @@ class Variables:
         return True
 
     def type_counts(self) -> Counter:
-        return Counter(_type_name(v) for v in self._values.values())
+        """Values per type name; bulk rows by their block's kind (no per-key objects made)."""
+        counts = Counter(_type_name(v) for v in self._dict.values())
+        for b in (b for b in self._pending if b.keys.shape[0]):
+            counts[_type_name(b.kind.wrap_all(b.rows[:1])[0])] += b.keys.shape[0]
+        return counts
 
     def __repr__(self) -> str:
         counts = ", ".join(f"{n} {t}" for t, n in self.type_counts().most_common())
@@ -331,7 +333,7 @@ class Variables:
         items = list(self._values.items())
         for k, v in items[:20]:
             rows.append(f"<tr><td><code>{key_str(k)}</code></td><td>{_type_name(v)}</td>"
-                        f"<td><code>{_html_escape(_short(v))}</code></td></tr>")
+                        f"<td><code>{html.escape(_short(v), quote=False)}</code></td></tr>")
         more = f"<tr><td colspan=3>... {len(items) - 20} more</td></tr>" if len(items) > 20 else ""
         counts = ", ".join(f"{n} {t}" for t, n in self.type_counts().most_common())
         return (f"<b>Variables</b> ({len(self)} keys: {counts})<table>"
@@ -353,10 +355,6 @@ def _short(v: Any) -> str:
     if isinstance(v, float):
         return f"{v:.6g}"
     return repr(v)
-
-
-def _html_escape(s: str) -> str:
-    return s.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
 
 
 # ----------------------------------------------------------------------------- pickling

@@ -126,6 +126,25 @@ def test_reading_bulk_rows_by_key_keeps_the_rows(monkeypatch):
     assert list(v.keys())[:3] == [key("l", 0), key("x", 3), key("x", 0)]
 
 
+def test_type_counts_count_bulk_rows_without_making_their_objects():
+    """``type_counts`` of bulk rows (a file's poses) equals that of the same values held one by
+    one, and leaves the rows as rows (a message must not cost the bulk path)."""
+    from fgopt import SE3
+    from fgopt.manifolds import ops_for
+    from fgopt.manifolds.base import vector_kind
+
+    poses = [SE3.exp(np.array([0.1 * j, 0.2, 0.3, 1.0, 2.0, 3.0])) for j in range(4)]
+    kind = ops_for(poses[0]).batch_kind(poses[0])
+    v = Variables().add(key("l", 0), 2.0).add(key("l", 1), np.zeros(3))
+    v.add_rows(np.array([int(key("x", j)) for j in range(4)]), kind,
+               np.array([p.to_storage() for p in poses]))
+    v.add_rows(np.array([int(key("p", 0)), int(key("p", 1))]), vector_kind(3), np.ones((2, 3)))
+    counts = v.type_counts()
+    assert all(blk._objects is None for blk in v._pending) and len(v._pending) == 2
+    assert counts == {"float": 1, "R3": 3, "SE3": 4}
+    assert counts == v.copy().type_counts() == Variables(dict(v.items())).type_counts()
+
+
 def test_problem_takes_bulk_rows_as_arrays():
     """A problem compiled from bulk rows has the same variables, kinds, order and storage as
     one compiled from per-key values, and never turns the rows into per-key objects."""

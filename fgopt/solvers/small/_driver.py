@@ -46,7 +46,6 @@ from __future__ import annotations
 import hashlib
 from typing import Any
 
-from ..fixed._codegen import LM_TEMPLATE, lm_source
 
 #: Bumped when the emitted source changes meaning (part of the cache key).
 SMALL_CODEGEN_VERSION = "12"
@@ -65,7 +64,10 @@ def signature(kernel: Any) -> tuple:
 
 
 def module_key(signatures: tuple) -> str:
+    # (imported here: the fixed-structure package and its code generator cost ~8 ms of every
+    # process that imports the solvers, and only small problems need them)
     from ...symbolic import cache as _cache
+    from ..fixed._codegen import LM_TEMPLATE
 
     h = hashlib.sha256(repr(signatures).encode())
     h.update(SMALL_CODEGEN_VERSION.encode())
@@ -142,6 +144,8 @@ def accumulate_source(slot: int, r: int, tdims: tuple) -> str:
 
 def module_source(signatures: tuple, names: tuple) -> str:
     """The driver module for kernels with these :func:`signature` s (in slot order)."""
+    from ..fixed._codegen import lm_source
+
     imports, body, accs, work = [], [], [], []
     for j, ((mod, fn, prefix, suffix, fills, hessian), sdims, r, D, tdims) in enumerate(
             signatures):
