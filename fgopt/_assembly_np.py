@@ -85,8 +85,11 @@ def scatter_batch(res, jac, sqrt_info, unit, loss_code, loss_param, loss_shape, 
         plan = scatter_plan(arg_dims, arg_local_off, toff, pos, col_shift, H_data.shape[0])
     g_idx, g_sel, H_idx, H_sel = plan
     Jt = np.swapaxes(J, 1, 2)                                        # (n, D, r)
-    gl = w[:, None] * np.matmul(Jt, r[:, :, None])[:, :, 0]          # (n, D)
-    Hl = w[:, None, None] * np.matmul(Jt, J)                         # (n, D, D)
+    gl = np.matmul(Jt, r[:, :, None])[:, :, 0]                       # (n, D)
+    Hl = np.matmul(Jt, J)                                            # (n, D, D)
+    if loss_code != 0:  # (without a robust loss every weight is 1)
+        gl *= w[:, None]
+        Hl *= w[:, None, None]
     g += np.bincount(g_idx, gl.reshape(-1)[g_sel], minlength=g.shape[0])
     if H_idx.shape[0]:
         H_data += np.bincount(H_idx, Hl.reshape(-1)[H_sel], minlength=H_data.shape[0])

@@ -21,6 +21,7 @@ _FIELD[48:58] = 1
 _FIELD[46] = 1 << 8
 _FIELD[[43, 45]] = 1 << 16
 _P10 = 10.0 ** np.arange(23)  # exact doubles
+_SHORT_DIGITS = 4
 
 
 def _scan_np(buf, has_tag, comment):
@@ -107,31 +108,38 @@ def parse_tokens(buf: np.ndarray, start: np.ndarray, end: np.ndarray
     dots = np.flatnonzero(buf == 46)
     decimals[with_dot] = end[with_dot] - 1 - dots[np.searchsorted(dots, start[with_dot])]
     plain &= decimals <= 22
-    idx = np.flatnonzero(plain)
-    if idx.shape[0]:
-        small = np.int32 if n < 2 ** 31 else np.int64
-        nd = ndig[idx]
-        width = int(nd.max())
-        # digit k from the right sits at byte end - 1 - k, one further left past the dot
-        skip = decimals[idx].astype(small)
-        skip[ndot[idx] == 0] = width  # no dot: nothing to skip
-        k = np.arange(width, dtype=small)
-        pos = (end[idx].astype(small) - 1)[:, None] - k - (k >= skip[:, None])
-        dead = k >= nd[:, None]
-        pos[dead] = 0
-        digits = buf[pos].astype(np.float64)
-        digits -= 48.0
-        digits[dead] = 0.0
-        mant = digits @ _P10[:width]
-        dec = decimals[idx]
-        exact = mant < 2.0 ** 53
-        v = mant / _P10[dec]
-        values[idx] = np.where(first[idx] == 45, -v, v)
-        plain[idx[~exact]] = False
+    # tokens of few digits (a file's 0, 1, 10: a third to a half of a pose graph's) in their own
+    # pass: the digit matrix is as wide as the pass's longest token
+    short = ndig <= _SHORT_DIGITS
+    for idx in (np.flatnonzero(plain & short), np.flatnonzero(plain & ~short)):
+        if idx.shape[0]:
+            v, exact = _plain_values(buf, end[idx], ndig[idx], ndot[idx], decimals[idx])
+            values[idx] = np.where(first[idx] == 45, -v, v)
+            plain[idx[~exact]] = False
     rest = np.flatnonzero(~plain)
     if rest.shape[0]:
         values[rest], bad[rest] = _parse_slow(buf, start[rest], end[rest])
     return values, bad
+
+
+def _plain_values(buf: np.ndarray, end: np.ndarray, ndig: np.ndarray, ndot: np.ndarray,
+                  decimals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``|value|`` of plain tokens ending at ``end`` (``ndig`` digits, ``ndot`` dots,
+    ``decimals`` digits after the dot), and whether it is exact (mantissa below 2**53)."""
+    small = np.int32 if buf.shape[0] < 2 ** 31 else np.int64
+    width = int(ndig.max())
+    # digit k from the right sits at byte end - 1 - k, one further left past the dot
+    skip = decimals.astype(small)
+    skip[ndot == 0] = width  # no dot: nothing to skip
+    k = np.arange(width, dtype=small)
+    pos = (end.astype(small) - 1)[:, None] - k - (k >= skip[:, None])
+    dead = k >= ndig[:, None]
+    pos[dead] = 0
+    digits = buf[pos].astype(np.float64)
+    digits -= 48.0
+    digits[dead] = 0.0
+    mant = digits @ _P10[:width]
+    return mant / _P10[decimals], mant < 2.0 ** 53
 
 
 def _parse_slow(buf: np.ndarray, start: np.ndarray, end: np.ndarray
