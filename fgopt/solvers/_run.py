@@ -33,7 +33,7 @@ def _needs_numba(pattern: Any) -> bool:
     """BA-shaped problems (many small point blocks): their solver is the numba Schur complement."""
     if pattern.size <= 300:
         return False
-    from .linear.schur import is_ba_shaped
+    from .linear._schur_layout import is_ba_shaped
 
     return is_ba_shaped(pattern)
 

@@ -48,7 +48,7 @@ def problem_class_for(kinds: Any, has_slow: bool, pattern: Any) -> str:
         return "pose"
     if all(is_vector_kind(k) for k in kinds):
         return "scaled"
-    from .linear.schur import is_ba_shaped
+    from .linear._schur_layout import is_ba_shaped
 
     pat = pattern()
     return "mixed" if pat is not None and not is_ba_shaped(pat) else "scaled"

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..._jit import njit
 from ...errors import FgoptError
-from ...structure import HessianPattern, ranges
+from ...structure import HessianPattern, ba_shaped_kind, kinds_by_count, ranges
 from . import _schur_kernels as K
 
 
@@ -160,3 +160,26 @@ def csc_positions(pat: HessianPattern, row: np.ndarray, col: np.ndarray) -> np.n
                           or not np.array_equal(keys[pos], want)):
         raise AssertionError("Schur: an entry is missing from the reduced pattern")
     return pos
+
+
+def is_ba_shaped(pattern: HessianPattern) -> bool:
+    """True when the kind with the most variables is independent (no factor couples two of
+    its variables), has at least twice as many variables as all others together and at least
+    half of the tangent dimension: eliminating it leaves a much smaller reduced system
+    (:func:`fgopt.structure.ba_shaped_kind`)."""
+    kinds = pattern.var_kind
+    if kinds is None or pattern.size == 0:
+        return False
+    if pattern.ba_kind is not None:  # asked before (the solver choice, LM's policy, ...)
+        return pattern.ba_kind >= 0
+    kinds = np.asarray(kinds)
+    known = pattern.independent_kinds
+    if known is None:  # a pattern not built by a Problem: look at its blocks
+        by_count = kinds_by_count(kinds)
+        if not by_count or not is_independent(pattern, kinds == by_count[0]):
+            pattern.ba_kind = -1
+            return False
+        known = (by_count[0],)
+    kind = ba_shaped_kind(kinds, pattern.var_dim, known)
+    pattern.ba_kind = -1 if kind is None else kind
+    return kind is not None

@@ -50,7 +50,7 @@ def choose_linear_solver(pattern: HessianPattern | None, backend: str = "numba")
         return "dense" if full >= DENSE_MIN_FILL * pattern.size ** 2 else "block"
     if backend == "numpy":
         return "cholmod" if have_extra("sksparse") else "ldlt"
-    from .schur import is_ba_shaped
+    from ._schur_layout import is_ba_shaped
 
     if is_ba_shaped(pattern):
         return "schur"

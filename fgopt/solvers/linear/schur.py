@@ -37,10 +37,11 @@ import time
 import numpy as np
 
 from ...errors import FgoptError, NotPositiveDefiniteError
-from ...structure import (HessianPattern, _sym_matvec, ba_shaped_kind, build_pattern,
-                          fill_reducing_order, kinds_by_count)
+from ...structure import (HessianPattern, _sym_matvec, build_pattern, fill_reducing_order,
+                          kinds_by_count)
 from . import _schur_kernels as K
 from . import _schur_layout as L
+from ._schur_layout import is_ba_shaped as is_ba_shaped
 
 REDUCED = ("auto", "dense", "sparse", "pcg")
 TIMING_KEYS = ("eliminate", "factor_S", "reduce_rhs", "solve_S", "back_substitute")
@@ -403,29 +404,6 @@ def eliminated_mask(pattern: HessianPattern, eliminate=None, blk=None) -> np.nda
     mask = np.zeros(V, dtype=bool)
     mask[arr.astype(np.int64)] = True
     return mask
-
-
-def is_ba_shaped(pattern: HessianPattern) -> bool:
-    """True when the kind with the most variables is independent (no factor couples two of
-    its variables), has at least twice as many variables as all others together and at least
-    half of the tangent dimension: eliminating it leaves a much smaller reduced system
-    (:func:`fgopt.structure.ba_shaped_kind`)."""
-    kinds = pattern.var_kind
-    if kinds is None or pattern.size == 0:
-        return False
-    if pattern.ba_kind is not None:  # asked before (the solver choice, LM's policy, ...)
-        return pattern.ba_kind >= 0
-    kinds = np.asarray(kinds)
-    known = pattern.independent_kinds
-    if known is None:  # a pattern not built by a Problem: look at its blocks
-        by_count = kinds_by_count(kinds)
-        if not by_count or not L.is_independent(pattern, kinds == by_count[0]):
-            pattern.ba_kind = -1
-            return False
-        known = (by_count[0],)
-    kind = ba_shaped_kind(kinds, pattern.var_dim, known)
-    pattern.ba_kind = -1 if kind is None else kind
-    return kind is not None
 
 
 def choose_linear_solver(pattern: HessianPattern) -> SchurSolver | None:
