@@ -186,8 +186,10 @@ def _load(args: argparse.Namespace) -> tuple[str, Any, Any, float]:
     if fmt in ("bal", "bundler"):
         graph, values = read(args.file, format=fmt)
     else:
+        # --out writes the file's unchanged edges back as the file had them
         graph, values = read(args.file, format="g2o", skip_unknown=args.skip_unknown,
-                             repair_information=args.repair_information)
+                             repair_information=args.repair_information,
+                             keep_edge_text=getattr(args, "out", None) is not None)
     return fmt, graph, values, time.perf_counter() - t0
 
 

@@ -43,6 +43,9 @@ def test_solve_prints_table_and_summary_and_writes_outputs(small, tmp_path, caps
     graph, values = read_g2o(out)
     assert graph.error(values) < 1e-12  # consistent measurements: optimum has zero cost
     assert len(graph) == 5  # the gauge prior is not written back
+    # the edges come back as the input had them (solving changed only the vertices)
+    edges = [ln for ln in out.read_text().splitlines() if ln.startswith("EDGE")]
+    assert edges == [ln for ln in SMALL.splitlines() if ln.startswith("EDGE")]
     assert png.stat().st_size > 10_000
 
 

@@ -253,8 +253,8 @@ def _checked_sqrt_information(rd, edges: list[_Edges], repair: str | None,
     return out, [bool(b.any()) for b in bad]
 
 
-def build_graph(rd, dim: int, add_prior: bool, repair: str | None,
-                floor: float) -> tuple[FactorGraph, Variables]:
+def build_graph(rd, dim: int, add_prior: bool, repair: str | None, floor: float,
+                keep_edge_text: bool = False) -> tuple[FactorGraph, Variables]:
     from ..factors.library.prior_between import between_kernel_for as between_kernel
     from ..factors.library.pose_point import pose_point_kernel
     kind = pose_kind(dim)
@@ -289,7 +289,7 @@ def build_graph(rd, dim: int, add_prior: bool, repair: str | None,
         else:
             kern, keys = pose_point_kernel(dim), np.column_stack([xb + e.i, lb + e.j])
         graph.add_batch(kern, keys, e.meas, R, origin=(str(rd.path), e.group.lines))
-        if e.group.tag in VERBATIM_TAGS and not changed and e.i.shape[0]:
+        if keep_edge_text and e.group.tag in VERBATIM_TAGS and not changed and e.i.shape[0]:
             _remember_records(rd.sc, graph.batches[-1], e.group)
     fixed = _fixed_keys(rd, v, vkeys)
     add_fixing_priors(graph, values, fixed, f"{rd.path}: FIX")

@@ -4,15 +4,17 @@ they were.
 Solving a g2o file changes its vertices, not its edges. Writing the result formatted every edge
 again: sphere2500's 4949 edges are ~150,000 numbers, ~60 ms of a 0.7 s ``fgopt solve``, and the
 text differed from the file's while meaning the same (``10.000000000000002`` for ``10``: the
-information went through ``R^T R`` and back; quaternions were normalized). So a reader remembers,
-per batch it made, where the batch's records lie in the file's bytes, the tag they had, and a
+information went through ``R^T R`` and back; quaternions were normalized). So a reader asked to
+(``read_g2o(keep_edge_text=True)``) remembers, per batch it made, where the batch's records lie in the file's bytes, the tag they had, and a
 digest of the batch's kernel, keys, constants and square-root information as read. A writer that
 would write the same tag asks :func:`recall`: while the batch still holds the same contents, it
 gets the records' bytes (each record from its tag to the end of its last number: comments and
 line-end whitespace left out), else ``None`` and formats the rows itself.
 
 The table is weak: a batch's entry (and with it the file's bytes) lives as long as the batch.
-Nothing is pickled with a batch; a copy made elsewhere is formatted.
+Nothing is pickled with a batch; a copy made elsewhere is formatted. Opt-in, because keeping a
+file's bytes costs its size in memory (a 100k-pose grid: ~35 MB) and the digest ~0.5 ms per MB
+of arrays, for graphs that are mostly never written back.
 """
 
 from __future__ import annotations

@@ -49,7 +49,7 @@ def detect_format(path: str | os.PathLike, data: bytes | None = None) -> str:
 
 def read(path: str | os.PathLike, *, format: str | None = None, add_prior: bool = False,
          skip_unknown: bool = False, repair_information: str | None = None,
-         progress: bool = True) -> tuple[FactorGraph, Variables]:
+         progress: bool = True, keep_edge_text: bool = False) -> tuple[FactorGraph, Variables]:
     """Read any supported file; returns ``(graph, initial)``.
 
     Args:
@@ -58,7 +58,8 @@ def read(path: str | os.PathLike, *, format: str | None = None, add_prior: bool 
         format: ``"g2o"``, ``"bal"``, ``"bundler"`` or ``"load2d"`` (GTSAM's 2-D SLAM files
             with ``ODOMETRY`` / ``LANDMARK`` / ``BR`` records, :func:`fgopt.io.load2d`) to skip
             detection.
-        add_prior, skip_unknown, repair_information: g2o options, see :func:`read_g2o`
+        add_prior, skip_unknown, repair_information, keep_edge_text: g2o options, see
+            :func:`read_g2o`
             (BAL files have no gauge prior, unknown tags or information matrices; passing a
             non-default value for one is an error).
         progress: show a progress bar on stderr (tqdm, when installed) if scanning the file
@@ -76,24 +77,28 @@ def read(path: str | os.PathLike, *, format: str | None = None, add_prior: bool 
         from .g2o import read_g2o
 
         return read_g2o(p, add_prior=add_prior, skip_unknown=skip_unknown,
-                        repair_information=repair_information, data=data, progress=progress)
+                        repair_information=repair_information, data=data, progress=progress,
+                        keep_edge_text=keep_edge_text)
     if format == "bal":
-        if add_prior or skip_unknown or repair_information is not None:
-            raise FgoptError("read: add_prior, skip_unknown and repair_information apply to g2o "
+        if add_prior or skip_unknown or repair_information is not None or keep_edge_text:
+            raise FgoptError("read: add_prior, skip_unknown, repair_information and "
+                             "keep_edge_text apply to g2o "
                              f"files; {p} is a BAL file")
         from .bal import read_bal
 
         return read_bal(p, data=data, progress=progress)
     if format == "bundler":
-        if add_prior or skip_unknown or repair_information is not None:
-            raise FgoptError("read: add_prior, skip_unknown and repair_information apply to g2o "
+        if add_prior or skip_unknown or repair_information is not None or keep_edge_text:
+            raise FgoptError("read: add_prior, skip_unknown, repair_information and "
+                             "keep_edge_text apply to g2o "
                              f"files; {p} is a Bundler file")
         from .bundler import read_bundler
 
         return read_bundler(p, data=data)
     if format == "load2d":
-        if add_prior or skip_unknown or repair_information is not None:
-            raise FgoptError("read: add_prior, skip_unknown and repair_information apply to g2o "
+        if add_prior or skip_unknown or repair_information is not None or keep_edge_text:
+            raise FgoptError("read: add_prior, skip_unknown, repair_information and "
+                             "keep_edge_text apply to g2o "
                              f"files; {p} is a load2D file (see fgopt.io.load2d for its options)")
         from .load2d import load2d
 

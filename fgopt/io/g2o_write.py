@@ -7,9 +7,10 @@ points must not share an index. Factors: between factors on SE2 / SE3 become ``E
 information ``R^T R`` permuted back to g2o's translation-first order; a prior with sigma
 :data:`~fgopt.io.g2o.FIX_SIGMA` at its variable's value becomes ``FIX``. Numbers are written with
 ``repr`` (shortest round-trip form), so reading the file back gives the same graph. Edges read
-from a g2o file whose batch still holds what was read are written as the file's own records
-(:mod:`fgopt.io._records`): solving changes the vertices, and the edges come back as written
-(``10``, not ``10.000000000000002`` after ``R^T R``), in a tenth of the time. Factors g2o cannot
+with ``read_g2o(keep_edge_text=True)`` (as ``fgopt solve --out`` reads) whose batch still holds
+what was read are written as the file's own records (:mod:`fgopt.io._records`): solving changes
+the vertices, and the edges come back as written (``10``, not ``10.000000000000002`` after
+``R^T R``), in a tenth of the time. Factors g2o cannot
 express (other priors, custom factors) and robust losses are left out with a warning.
 """
 

@@ -9,6 +9,7 @@ import pytest
 from fgopt import SE2, FactorGraph, Variables
 from fgopt.errors import FgoptError
 from fgopt.io import read_g2o, write_g2o
+from fgopt.io import _records
 from fgopt.io._format import decimal_texts, format_rows
 
 EDGE_CASES = [0.0, -0.0, 1.0, -1.0, 5.0, 0.1, 0.30000000000000004, 1e-4, -1e-4,
@@ -96,7 +97,7 @@ def test_written_file_holds_the_exact_numbers_and_reads_back(data_file, tmp_path
     from fgopt.io import _information as im
     from fgopt.io._poses import se2_file, se3_file
 
-    read_graph, values = read_g2o(data_file(rel))
+    read_graph, values = read_g2o(data_file(rel), keep_edge_text=True)
     graph = _rebuilt(read_graph)  # new batches: formatted, not the file's own records
     rng = np.random.default_rng(5)
     moved = Variables()
@@ -144,7 +145,7 @@ def test_edges_read_from_a_file_are_written_back_as_the_file_had_them(tmp_path):
     file reads back to the graph written."""
     src = tmp_path / "odd.g2o"
     src.write_bytes(_ODD_LAYOUT.encode())
-    graph, values = read_g2o(src)
+    graph, values = read_g2o(src, keep_edge_text=True)
     write_g2o(tmp_path / "out.g2o", graph, values)
     out = (tmp_path / "out.g2o").read_bytes().decode()
     assert "\r" not in out and "#" not in out
@@ -175,6 +176,11 @@ def test_edges_read_from_a_file_are_written_back_as_the_file_had_them(tmp_path):
     b.constants[1, 2] -= 0.25
     write_g2o(tmp_path / "again.g2o", graph, values)
     assert (tmp_path / "again.g2o").read_bytes() == (tmp_path / "out.g2o").read_bytes()
+    # without keep_edge_text (the default) nothing is kept: every batch is formatted
+    plain, _ = read_g2o(src)
+    write_g2o(tmp_path / "plain.g2o", plain, values)
+    assert "EDGE_SE2 0 1\t" not in (tmp_path / "plain.g2o").read_text()
+    assert not any(b in _records._table for b in plain.batches)
 
 
 def test_repaired_information_is_written_as_repaired(tmp_path):
@@ -183,7 +189,7 @@ def test_repaired_information_is_written_as_repaired(tmp_path):
     src = tmp_path / "bad.g2o"
     src.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\n"
                    "EDGE_SE2 0 1 1 0 0 100 0 0 -1 0 400\n")
-    graph, values = read_g2o(src, repair_information="clip")
+    graph, values = read_g2o(src, repair_information="clip", keep_edge_text=True)
     write_g2o(tmp_path / "out.g2o", graph, values)
     edge = (tmp_path / "out.g2o").read_text().splitlines()[-1]
     assert edge != "EDGE_SE2 0 1 1 0 0 100 0 0 -1 0 400"
