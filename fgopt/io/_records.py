@@ -5,11 +5,12 @@ Solving a g2o file changes its vertices, not its edges. Writing the result forma
 again: sphere2500's 4949 edges are ~150,000 numbers, ~60 ms of a 0.7 s ``fgopt solve``, and the
 text differed from the file's while meaning the same (``10.000000000000002`` for ``10``: the
 information went through ``R^T R`` and back; quaternions were normalized). So a reader asked to
-(``read_g2o(keep_edge_text=True)``) remembers, per batch it made, where the batch's records lie in the file's bytes, the tag they had, and a
-digest of the batch's kernel, keys, constants and square-root information as read. A writer that
-would write the same tag asks :func:`recall`: while the batch still holds the same contents, it
-gets the records' bytes (each record from its tag to the end of its last number: comments and
-line-end whitespace left out), else ``None`` and formats the rows itself.
+(``read_g2o(keep_edge_text=True)``) remembers, per batch it made, where the batch's records lie
+in the file's bytes, the tag they had, and a digest of the batch's kernel, keys, constants and
+square-root information as read. A writer that would write the same tag asks :func:`recall`:
+while the batch still holds the same contents, it gets the records' bytes (each record from its
+tag to the end of its last number: comments and line-end whitespace left out), else ``None``
+and formats the rows itself.
 
 The table is weak: a batch's entry (and with it the file's bytes) lives as long as the batch.
 Nothing is pickled with a batch; a copy made elsewhere is formatted. Opt-in, because keeping a
@@ -22,6 +23,7 @@ from __future__ import annotations
 import hashlib
 import threading
 import weakref
+
 import numpy as np
 
 from ._scan_np import _IS_SPACE

@@ -10,8 +10,9 @@ information ``R^T R`` permuted back to g2o's translation-first order; a prior wi
 with ``read_g2o(keep_edge_text=True)`` (as ``fgopt solve --out`` reads) whose batch still holds
 what was read are written as the file's own records (:mod:`fgopt.io._records`): solving changes
 the vertices, and the edges come back as written (``10``, not ``10.000000000000002`` after
-``R^T R``), in a tenth of the time. Factors g2o cannot
-express (other priors, custom factors) and robust losses are left out with a warning.
+``R^T R``), and sooner (sphere2500's result: the whole write 30 instead of 75 ms, ad hoc).
+Factors g2o cannot express (other priors, custom factors) and robust losses are left out with a
+warning.
 """
 
 from __future__ import annotations
