@@ -59,9 +59,10 @@ def pose_rows(rd, g, values: np.ndarray, dim: int) -> np.ndarray:
 
 @dataclass(eq=False)
 class _Vertices:
-    ids: np.ndarray  # (n,) file ids
+    ids: np.ndarray  # (n,) file ids, in file order
     is_point: np.ndarray  # (n,) bool
-    rows: list  # per vertex: storage row (pose) or position (point)
+    pose_rows: np.ndarray  # (poses, storage) the poses' storage rows, in file order
+    point_rows: np.ndarray  # (points, dim) the points' positions, in file order
     lines: np.ndarray  # (n,) line numbers; 0 for guessed vertices
 
     def index(self) -> tuple[np.ndarray, np.ndarray]:
@@ -91,7 +92,7 @@ def _edges_of(rd, g, dim: int) -> _Edges:
     if g.spec.what == "between" and dim == 2:
         meas = se2_storage(d[:, 2:5])
         packed = d[:, 5:11][:, TORO_TO_G2O] if g.spec.toro else d[:, 5:11]
-        info = im.permute(im.unpack_upper(packed, 3), im.PERM_SE2)
+        info = im.unpack_upper(packed, 3, im.PERM_SE2)
         if g.spec.toro and im.not_positive_definite(info).any():
             # GTSAM's example files w10000 / w20000 write EDGE2 entries as a *covariance* in g2o's
             # order (cxx cxy cxt cyy cyt ctt); GTSAM's load2D recognizes them by that layout
@@ -106,7 +107,7 @@ def _edges_of(rd, g, dim: int) -> _Edges:
     elif g.spec.what == "between":
         meas, norms = se3_storage(d[:, 2:9])
         check_quaternions(rd, g, norms)
-        info = im.permute(im.unpack_upper(d[:, 9:30], 6), im.PERM_SE3)
+        info = im.unpack_upper(d[:, 9:30], 6, im.PERM_SE3)
     elif dim == 2:
         meas = d[:, 2:4].copy()
         info = im.unpack_upper(d[:, 4:7], 2)
@@ -124,24 +125,35 @@ def _edges_of(rd, g, dim: int) -> _Edges:
 
 
 def _vertices_of(rd, dim: int) -> _Vertices | None:
-    ids, is_point, rows, lines = [], [], [], []
+    ids, is_point, lines = [], [], []
+    rows: dict[bool, list] = {False: [], True: []}  # is_point -> [(rows, lines)]
     for g in rd.groups.values():
         if g.spec.role != "vertex":
             continue
         vid = rd.ids(g, [0])[:, 0]
-        if g.spec.what == "pose":
-            r = pose_rows(rd, g, g.data[:, 1:], dim)
+        point = g.spec.what == "point"
+        if point:
+            r = g.data[:, 1:1 + dim]
         else:
-            r = g.data[:, 1:1 + dim].copy()
+            r = pose_rows(rd, g, g.data[:, 1:], dim)
         ids.append(vid)
-        is_point.append(np.full(vid.shape[0], g.spec.what == "point"))
-        rows.extend(list(r))
+        is_point.append(np.full(vid.shape[0], point))
+        rows[point].append((r, g.lines))
         lines.append(g.lines)
     if not ids:
         return None
-    v = _Vertices(np.concatenate(ids), np.concatenate(is_point), rows, np.concatenate(lines))
-    order = np.argsort(v.lines, kind="stable")  # file order
-    v = _Vertices(v.ids[order], v.is_point[order], [v.rows[i] for i in order], v.lines[order])
+    in_file_order = {}
+    for point, parts in rows.items():
+        if not parts:
+            in_file_order[point] = np.zeros((0, dim if point else pose_kind(dim).storage_dim))
+            continue
+        r = np.concatenate([p[0] for p in parts])
+        order = np.argsort(np.concatenate([p[1] for p in parts]), kind="stable")
+        in_file_order[point] = r[order]  # a copy: the rows are the graph's to normalize
+    all_lines = np.concatenate(lines)
+    order = np.argsort(all_lines, kind="stable")  # file order
+    v = _Vertices(np.concatenate(ids)[order], np.concatenate(is_point)[order],
+                  in_file_order[False], in_file_order[True], all_lines[order])
     sorted_ids, perm = v.index()
     dup = np.nonzero(sorted_ids[1:] == sorted_ids[:-1])[0]
     if dup.shape[0] > 0:
@@ -209,26 +221,27 @@ def _guess_vertices(rd, dim: int, edges: list[_Edges]) -> _Vertices:
     if comps > 1:
         log.warning("%s: the edges form %d disconnected components; each extra component "
                     "starts at the identity", rd.path, comps)
-    rows = list(poses)
     ids = [pose_ids]
+    world = np.zeros((0, dim))
     if point_ids.shape[0] > 0:
         pi = cat([e.i for e in pts])
         pj = cat([e.j for e in pts])
         pm = np.concatenate([e.meas for e in pts])
         first_obs = np.unique(pj, return_index=True)[1]  # first edge observing each point
         world = _rotate(poses[np.searchsorted(pose_ids, pi[first_obs])], pm[first_obs], dim)
-        rows.extend(list(world))
         ids.append(pj[first_obs])
     all_ids = np.concatenate(ids)
     is_point = np.arange(all_ids.shape[0]) >= pose_ids.shape[0]
-    return _Vertices(all_ids, is_point, rows, np.zeros(all_ids.shape[0], np.int64))
+    return _Vertices(all_ids, is_point, np.asarray(poses, dtype=float), world,
+                     np.zeros(all_ids.shape[0], np.int64))
 
 
 def _checked_sqrt_information(rd, edges: list[_Edges], repair: str | None,
                               floor: float) -> tuple[list[np.ndarray], list[bool]]:
     """The square-root information of each edge group, and whether any of its rows was
     repaired."""
-    bad = [im.not_positive_definite(e.info) for e in edges]
+    checked = [im.checked_sqrt_information(e.info) for e in edges]
+    bad = [b for _, b in checked]
     num_bad = sum(int(b.sum()) for b in bad)
     total = sum(b.shape[0] for b in bad)
     if num_bad > 0 and repair is None:
@@ -240,12 +253,13 @@ def _checked_sqrt_information(rd, edges: list[_Edges], repair: str | None,
             "floor", lines[0])
     out = []
     worst = 0.0
-    for e, b in zip(edges, bad):
+    for e, (R, b) in zip(edges, checked):
         rows = np.nonzero(b)[0]
         if rows.shape[0] > 0:
             e.info, change = im.clip_eigenvalues(e.info, rows, floor)
             worst = max(worst, change)
-        out.append(im.sqrt_information(e.info))
+            R = im.sqrt_information(e.info)
+        out.append(R)
     if num_bad > 0:
         log.warning("%s: repaired %d of %d information matrices that were not positive definite "
                     "(eigenvalues clipped to %g x the largest; largest relative change %.3g in "
@@ -274,13 +288,12 @@ def build_graph(rd, dim: int, add_prior: bool, repair: str | None, floor: float,
     pkind = vector_kind(dim)
     pts = np.asarray(v.is_point, dtype=bool)
     if np.any(~pts):
-        pose_rows = np.array([r for r, is_pt in zip(v.rows, pts) if not is_pt], dtype=float)
+        pose_rows = np.asarray(v.pose_rows, dtype=float)  # _vertices_of's copy: normalized here
         nrot = 2 if dim == 2 else 4  # (cos, sin) or the quaternion: project onto the group
         pose_rows[:, :nrot] /= np.linalg.norm(pose_rows[:, :nrot], axis=1, keepdims=True)
         values.add_rows(vkeys[~pts].tolist(), kind, pose_rows)
     if np.any(pts):
-        values.add_rows(vkeys[pts].tolist(), pkind,
-                        np.array([r for r, is_pt in zip(v.rows, pts) if is_pt], dtype=float))
+        values.add_rows(vkeys[pts].tolist(), pkind, np.array(v.point_rows, dtype=float))
     graph = FactorGraph()
     sqrt_infos, repaired = _checked_sqrt_information(rd, edges, repair, floor)
     for e, R, changed in zip(edges, sqrt_infos, repaired):

@@ -25,14 +25,20 @@ TORO_TO_G2O_SE2 = np.array([0, 1, 3, 5, 2, 4])
 REPAIR_CHOICES = (None, "clip")
 
 
-def unpack_upper(packed: np.ndarray, dim: int) -> np.ndarray:
-    """``(n, dim*(dim+1)/2)`` upper triangles, row by row -> ``(n, dim, dim)`` symmetric."""
+def unpack_upper(packed: np.ndarray, dim: int, perm: np.ndarray | None = None) -> np.ndarray:
+    """``(n, dim*(dim+1)/2)`` upper triangles, row by row -> ``(n, dim, dim)`` symmetric, then
+    permuted (``out[:, a, b] = full[:, perm[a], perm[b]]``) when ``perm`` is given."""
     n = packed.shape[0]
     iu, ju = np.triu_indices(dim)
+    if n > 1 and (packed == packed[0]).all():
+        # one matrix for every edge (most files): unpack it once (a 122k-edge grid: 41 -> 10 ms)
+        out = np.empty((n, dim, dim))
+        out[:] = unpack_upper(packed[:1], dim, perm)[0]
+        return out
     out = np.zeros((n, dim, dim))
     out[:, iu, ju] = packed
     out[:, ju, iu] = packed
-    return out
+    return out if perm is None else permute(out, perm)
 
 
 def pack_upper(mats: np.ndarray) -> np.ndarray:
@@ -100,6 +106,28 @@ def sqrt_information(info: np.ndarray) -> np.ndarray:
     """Upper-triangular ``R`` with ``R^T R = info`` for a stack of PD matrices."""
     L = np.linalg.cholesky(info)
     return np.ascontiguousarray(L.transpose(0, 2, 1))
+
+
+def checked_sqrt_information(info: np.ndarray) -> tuple[np.ndarray | None, np.ndarray]:
+    """``(R, bad)``: :func:`sqrt_information` of ``info`` and the rows that are not positive
+    definite (:func:`not_positive_definite`); ``R`` is None when any row is bad.
+
+    One factorization when every matrix is the same (most files; LAPACK factors each matrix of a
+    stack alone, so the result is the same bits), else one of the stack.
+    """
+    n = info.shape[0]
+    if n > 1 and (info == info[0]).all():
+        try:
+            R1 = np.linalg.cholesky(info[0]).T
+        except np.linalg.LinAlgError:
+            return None, not_positive_definite(info[:1]).repeat(n)
+        R = np.empty_like(info)
+        R[:] = R1
+        return R, np.zeros(n, dtype=bool)
+    try:
+        return sqrt_information(info), np.zeros(n, dtype=bool)
+    except np.linalg.LinAlgError:
+        return None, not_positive_definite(info)
 
 
 def information_of(R: np.ndarray) -> np.ndarray:

@@ -30,6 +30,7 @@ import functools
 import gzip
 import math
 import os
+import time
 import zlib
 from dataclasses import dataclass
 
@@ -434,6 +435,9 @@ def write_bytes(path: str | os.PathLike, data: bytes) -> None:
 
 #: Files are scanned in slices of this many bytes (progress is reported between slices).
 SCAN_SLICE = 1 << 24
+#: Seconds of scanning before the progress bar appears (tqdm's import alone is ~50 ms, so it is
+#: imported only then).
+BAR_DELAY = 1.0
 
 #: Files up to this many bytes are scanned by :func:`_scan_np` while numba is not in use in the
 #: process (numba's scan needs its import, and 4.5 s of compilation with an empty cache). Its
@@ -465,13 +469,13 @@ def scan(path: str | os.PathLike, data: bytes | None = None, has_tag: bool = Tru
             tag_start = tag_end = np.zeros(0, dtype=np.int64)
         return Scan(p, buf, values, bad, vstart, line, first, count, tag_hash, tag_start,
                     tag_end, comment=cm)
-    out = _scan_numba(buf, has_tag, cm, _progress_bar(n, p) if progress and n > SCAN_SLICE
-                      else None)
+    out = _scan_numba(buf, has_tag, cm, p if progress and n > SCAN_SLICE else None)
     return Scan(p, buf, *out, comment=cm)
 
 
-def _scan_numba(buf: np.ndarray, has_tag: bool, cm: int, bar=None) -> tuple:
-    """The numba scan in slices of ``SCAN_SLICE`` bytes (``bar``: a progress bar, closed here):
+def _scan_numba(buf: np.ndarray, has_tag: bool, cm: int, label: str | None = None) -> tuple:
+    """The numba scan in slices of ``SCAN_SLICE`` bytes (with ``label``, a progress bar naming it
+    once the scan has taken ``BAR_DELAY`` seconds):
     ``(values, bad, tok_start, line, first, count, tag_hash, tag_start, tag_end)``."""
     n = buf.shape[0]
     lines, toks = _count(buf)  # exact-size outputs: no over-allocation, no copies
@@ -484,12 +488,16 @@ def _scan_numba(buf: np.ndarray, has_tag: bool, cm: int, bar=None) -> tuple:
             else [np.zeros(0, dtype=np.uint64), np.zeros(0, dtype=np.int64),
                   np.zeros(0, dtype=np.int64)])
     state = np.array([0, 0, 0, 1], dtype=np.int64)
+    bar, start = None, time.perf_counter()
     try:
         while state[0] <= n:
             done = int(state[0])
             _scan_part(buf, min(done + SCAN_SLICE, n + 1), has_tag, cm, *_pow10(),
                        values, slow, tok_start, rec[0], rec[1], rec[2], tags[0], tags[1],
                        tags[2], state)
+            if bar is None and label is not None and time.perf_counter() - start >= BAR_DELAY:
+                bar, label = _progress_bar(n, label), None  # None without tqdm: not again
+                done = 0  # the bar starts with what is scanned so far
             if bar is not None:
                 bar.update(min(int(state[0]), n) - done)
     finally:
@@ -510,10 +518,10 @@ def _scan_numba(buf: np.ndarray, has_tag: bool, cm: int, bar=None) -> tuple:
 
 
 def _progress_bar(total: int, path: str):
-    """A byte-count progress bar shown after one second, or None without tqdm."""
+    """A byte-count progress bar, or None without tqdm."""
     try:
         from tqdm.auto import tqdm
     except ImportError:
         return None
-    return tqdm(total=total, unit="B", unit_scale=True, unit_divisor=1024, delay=1.0,
+    return tqdm(total=total, unit="B", unit_scale=True, unit_divisor=1024,
                 desc=f"reading {os.path.basename(path)}", leave=False)

@@ -252,3 +252,42 @@ def test_write_takes_bulk_rows_as_arrays(tmp_path):
     clash.add(key("l", 3), np.zeros(2))
     with pytest.raises(FgoptError, match="g2o id 3"):
         write_g2o(tmp_path / "c.g2o", graph, clash)
+
+
+def test_one_information_for_every_edge_factors_once_and_gives_the_same_bits():
+    """A stack of one repeated information matrix (the fast path of most files) gives the same
+    square roots, bit for bit, as the per-matrix factorization of a stack that differs; a
+    repeated matrix that is not positive definite marks every row bad."""
+    from fgopt.io import _information as im
+
+    rng = np.random.default_rng(0)
+    a = rng.standard_normal((6, 6))
+    one = a @ a.T + 6 * np.eye(6)
+    same = np.repeat(one[None], 50, axis=0)
+    R, bad = im.checked_sqrt_information(same)
+    varied = same.copy()
+    varied[-1] *= 2.0
+    R_ref, bad_ref = im.checked_sqrt_information(varied)
+    assert not bad.any() and not bad_ref.any()
+    assert np.array_equal(R[:-1], R_ref[:-1]) and R.flags.c_contiguous and R.flags.writeable
+    not_pd = np.repeat(np.diag([1.0, -1.0, 1.0, 1.0, 1.0, 1.0])[None], 4, axis=0)
+    R_bad, bad_all = im.checked_sqrt_information(not_pd)
+    assert R_bad is None and bad_all.tolist() == [True] * 4
+    packed = np.repeat(im.pack_upper(one[None]), 7, axis=0)
+    unpacked = im.unpack_upper(packed, 6, im.PERM_SE3)
+    packed[-1, 0] += 1.0  # no longer one matrix: the general path
+    assert np.array_equal(unpacked[:-1], im.unpack_upper(packed, 6, im.PERM_SE3)[:-1])
+
+
+def test_every_edge_with_the_same_bad_information_is_named_and_repaired(tmp_path, caplog):
+    """Edges that share one information matrix that is not positive definite: the error names
+    their lines; the clip repair repairs every one of them."""
+    v = "".join(f"VERTEX_SE2 {i} {i} 0 0\n" for i in range(4))
+    e = "".join(f"EDGE_SE2 {i} {i + 1} 1 0 0 1 2 0 1 0 1\n" for i in range(3))
+    with pytest.raises(FileFormatError, match=r"3 of 3 edges .* \(lines 5, 6, 7\)"):
+        read_g2o(_write(tmp_path, v + e))
+    with caplog.at_level(logging.WARNING, logger="fgopt.io"):
+        graph, _ = read_g2o(_write(tmp_path, v + e), repair_information="clip")
+    assert "repaired 3 of 3 information matrices" in caplog.text
+    R = graph.batches[0].sqrt_information
+    assert np.linalg.eigvalsh(np.einsum("nki,nkj->nij", R, R)).min() > 0

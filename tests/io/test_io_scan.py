@@ -78,11 +78,26 @@ def test_sliced_scan_reports_progress_and_equals_one_pass(monkeypatch):
 
     bars = []
     monkeypatch.setattr(S, "SCAN_SLICE", 97)  # slices end mid-line and mid-token
+    monkeypatch.setattr(S, "BAR_DELAY", 0.0)  # the bar appears after the first slice
     monkeypatch.setattr(S, "_progress_bar", lambda n, p: bars.append(Bar()) or bars[-1])
     sliced = scan("mem.txt", data=data)
     assert bars and bars[0].n == len(data) and bars[0].closed
     for name in ("values", "bad", "tok_start", "line", "first", "count", "tag_hash"):
         assert np.array_equal(getattr(sliced, name), getattr(whole, name)), name
+
+
+def test_no_progress_bar_before_its_delay(monkeypatch):
+    """A sliced scan that ends before ``BAR_DELAY`` seconds never makes a bar (tqdm's import
+    is not paid by reads that end sooner)."""
+    import fgopt.io._scan as S
+
+    made = []
+    monkeypatch.setattr(S, "SCAN_SLICE", 97)
+    monkeypatch.setattr(S, "BAR_DELAY", 3600.0)
+    monkeypatch.setattr(S, "_progress_bar", lambda n, p: made.append(n))
+    data = "".join(f"T {i} {i * 0.5}\n" for i in range(200)).encode()
+    sc = scan("mem.txt", data=data)
+    assert sc.line.shape[0] == 200 and made == []
 
 
 #: Plain decimals of at most 17 digits (leading zeros count) below 2**53: the array path.
