@@ -125,7 +125,7 @@ def _ends_token(buf, j, n, comment):
     return c == 10 or c == comment or _is_space(c)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")  # inlined into the scan loop: 0.27 -> 0.24 s on 48 MB
 def _parse_token(buf, s, n, comment, p10_hi, p10_lo):
     """Parse the token starting at ``s``; returns ``(value, ok, end)``, ``end`` = where the
     token ends. ``ok`` False: let Python decide (also for tokens that are not numbers).
