@@ -68,7 +68,7 @@ TABLE_PROTOCOL = {
         "parameter arrays); GTSAM's optimizer construction + `optimize()` (a `Values` of C++ "
         "objects). Reading the file and building the factors excluded for every library. CPU "
         "time, the minimum over up to 300 solves (fewer above a 2 s budget, at least 7) taken "
-        "in 5 rounds of the libraries in turn, single-threaded, after an untimed warm-up "
+        "in 10 rounds of the libraries in turn, single-threaded, after an untimed warm-up "
         "solve."),
     "stopping": ("5 LM iterations with every stopping test off in every library, from the "
         "file's initial guess, the first pose fixed (fgopt and GTSAM: a prior of sigma 1e-6; "
@@ -301,7 +301,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=300)
     ap.add_argument("--budget", type=float, default=2.0,
                     help="CPU seconds of timed solves per library and graph (at least 7 solves)")
-    ap.add_argument("--rounds", type=int, default=5,
+    ap.add_argument("--rounds", type=int, default=10,
                     help="rounds of the libraries in turn per graph (see interleaved)")
     ap.add_argument("--out", default=None)
     ap.add_argument("--json", default=None)
