@@ -25,19 +25,17 @@ progress bar (tqdm) when that takes over a second.
 
 from __future__ import annotations
 
-import bz2
 import functools
-import gzip
 import math
 import os
 import time
-import zlib
 from dataclasses import dataclass
 
 import numpy as np
 
 from .._jit import is_numba_loaded, njit, numpy_only
 from ..errors import FileFormatError
+from ._files import read_bytes
 from ._scan_np import _FNV_OFFSET, _FNV_PRIME, _scan_np
 
 _MAX_MANTISSA = 1 << 53
@@ -399,38 +397,6 @@ def _first_nonfinite(a):
 
 def _text(b: np.ndarray) -> str:
     return bytes(b).decode("utf-8", errors="replace")
-
-
-def read_bytes(path: str | os.PathLike) -> bytes:
-    """The file's bytes; ``.gz`` and ``.bz2`` are decompressed."""
-    p = os.fspath(path)
-    try:
-        if p.endswith(".bz2"):
-            with bz2.open(p, "rb") as f:
-                return f.read()
-        if p.endswith(".gz"):
-            with gzip.open(p, "rb") as f:
-                return f.read()
-        with open(p, "rb") as f:
-            return f.read()
-    except FileNotFoundError:
-        raise FileFormatError("no such file", p) from None
-    except IsADirectoryError:
-        raise FileFormatError("is a directory, expected a file", p) from None
-    except (OSError, EOFError, zlib.error) as exc:  # zlib.error: a damaged deflate stream
-        raise FileFormatError(f"cannot read: {exc}", p) from None
-
-
-def write_text(path: str | os.PathLike, text: str) -> None:
-    write_bytes(path, text.encode("utf-8"))
-
-
-def write_bytes(path: str | os.PathLike, data: bytes) -> None:
-    """Write ``data``; ``.gz`` / ``.bz2`` paths are compressed."""
-    p = os.fspath(path)
-    opener = bz2.open if p.endswith(".bz2") else gzip.open if p.endswith(".gz") else open
-    with opener(p, "wb") as f:
-        f.write(data)
 
 
 #: Files are scanned in slices of this many bytes (progress is reported between slices).

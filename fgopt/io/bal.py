@@ -27,7 +27,8 @@ from ..graph import FactorGraph
 from ..key import key, key_str
 from ..manifolds.base import vector_kind
 from ..variables import Variables
-from ._scan import scan, write_text
+from ._files import write_text
+from ._scan import scan
 from ._sfm import FORMS as _GTSAM_FORMS
 from ._sfm import gtsam_form_graph, rotations_from_angle_axis
 

@@ -15,7 +15,7 @@ import re
 from ..errors import FgoptError, FileFormatError
 from ..graph import FactorGraph
 from ..variables import Variables
-from ._scan import read_bytes
+from ._files import read_bytes
 
 FORMATS = ("g2o", "bal", "bundler", "load2d")
 #: First tags of GTSAM ``load2D`` SLAM files that the g2o reader does not read.

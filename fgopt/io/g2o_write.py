@@ -34,7 +34,7 @@ from ._graph_build import FIX_SIGMA, pose_kind
 from ._poses import se2_file, se3_file
 from ._format import format_rows
 from ._records import recall
-from ._scan import write_bytes
+from ._files import write_bytes
 
 log = logging.getLogger("fgopt.io")
 
