@@ -254,17 +254,21 @@ def test_write_takes_bulk_rows_as_arrays(tmp_path):
         write_g2o(tmp_path / "c.g2o", graph, clash)
 
 
-def test_one_information_for_every_edge_factors_once_and_gives_the_same_bits():
-    """A stack of one repeated information matrix (the fast path of most files) gives the same
-    square roots, bit for bit, as the per-matrix factorization of a stack that differs; a
-    repeated matrix that is not positive definite marks every row bad."""
+def test_one_information_for_every_edge_factors_once_and_gives_the_same_bits(monkeypatch):
+    """A stack of one repeated information matrix (the fast path of most files) is factored as
+    one matrix and gives the same square roots, bit for bit, as the factorization of a stack
+    that differs; a repeated matrix that is not positive definite marks every row bad."""
     from fgopt.io import _information as im
 
     rng = np.random.default_rng(0)
     a = rng.standard_normal((6, 6))
     one = a @ a.T + 6 * np.eye(6)
     same = np.repeat(one[None], 50, axis=0)
+    shapes = []
+    cholesky = np.linalg.cholesky
+    monkeypatch.setattr(np.linalg, "cholesky", lambda m: shapes.append(m.shape) or cholesky(m))
     R, bad = im.checked_sqrt_information(same)
+    assert shapes == [(6, 6)]
     varied = same.copy()
     varied[-1] *= 2.0
     R_ref, bad_ref = im.checked_sqrt_information(varied)
