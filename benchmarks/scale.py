@@ -17,7 +17,7 @@ in its own process (peak RSS per process), single-threaded, exactly 5 LM iterati
 
 The grid (seconds per process) runs ``--grid-runs`` times per library, alternating, and each
 library's run with the least CPU time (read + setup + iterations) is kept whole: one process's
-read time on this VM swung 1.0-1.5 s. The BA (minutes per process) runs once.
+read time on this VM swung 1.0-1.55 s. The BA (minutes per process) runs once.
 
 Memory per observation = peak RSS / observations. The C++ program must be built first
 (``bash benchmarks/ceres_cpp/build.sh``).
