@@ -62,6 +62,7 @@ _ATTRS = {
     "Variables": (".variables", "Variables"),
     "factor": (".factors.decorator", "factor"),
     "const": (".factors.decorator", "const"),
+    "constraint": (".factors.constraint", "constraint"),
     "io": (".io", None),
     "plot": (".plot", None),
     "datasets": (".datasets", None),

@@ -21,11 +21,15 @@ class FactorGraph:
 
     ``error(values)`` is ``0.5 * sum |R_i e_i|^2`` (robust factors contribute ``rho``), the cost
     GTSAM's ``NonlinearFactorGraph.error`` and Ceres report.
+
+    Constraints (:func:`fgopt.constraint` instances) added with ``add`` are kept apart, in
+    ``constraints``: they are not part of the cost; :func:`fgopt.optimize` enforces them.
     """
 
     def __init__(self, factors: Iterable[Factor] = ()):
         self._factors: list[Factor] = []
         self._batches: list = []  # FactorBatch: vectorized factors (see fgopt.batch)
+        self._constraints: list = []  # fgopt.factors.constraint.Constraint
         for f in factors:
             self.add(f)
 
@@ -38,6 +42,9 @@ class FactorGraph:
             raise FgoptError(
                 f"{type(factor).__name__} was not initialized: call "
                 "super().__init__(keys, dim, loss) in its __init__")
+        if getattr(factor, "is_constraint", False):
+            self._constraints.append(factor)
+            return self
         self._factors.append(factor)
         return self
 
@@ -61,10 +68,16 @@ class FactorGraph:
     def batches(self) -> list:
         return self._batches
 
+    @property
+    def constraints(self) -> list:
+        """The constraints (``g(x) = 0`` / ``h(x) <= 0``), in the order they were added."""
+        return self._constraints
+
     def copy(self) -> "FactorGraph":
         """A new graph with the same factors and batches (adding to it leaves this one alone)."""
         out = FactorGraph(self._factors)
         out._batches = list(self._batches)
+        out._constraints = list(self._constraints)
         return out
 
     def extend(self, factors: Iterable[Factor]) -> "FactorGraph":
@@ -150,6 +163,8 @@ class FactorGraph:
         lines = [f"FactorGraph({len(self)} factors on {len(self.keys())} keys)"]
         for name, n in counts.most_common():
             lines.append(f"  {n:>8} x {name}")
+        if len(self._constraints) > 0:
+            lines.append(f"  constraints: {len(self._constraints)}")
         return "\n".join(lines)
 
     def _repr_html_(self) -> str:

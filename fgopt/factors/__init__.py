@@ -14,6 +14,7 @@ from .numerical import numerical_jacobian as numerical_jacobian
 from .numerical import numerical_jacobians as numerical_jacobians
 
 _DECORATOR_NAMES = ("factor", "const", "SymbolicFactor", "SymbolicFactorType")
+_CONSTRAINT_NAMES = ("constraint", "Constraint", "SymbolicConstraintType")
 
 
 def __getattr__(name: str):
@@ -21,4 +22,8 @@ def __getattr__(name: str):
         from . import decorator
 
         return getattr(decorator, name)
+    if name in _CONSTRAINT_NAMES:
+        from . import constraint
+
+        return getattr(constraint, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

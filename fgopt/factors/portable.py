@@ -127,6 +127,8 @@ def factor_type_from_source(payload: dict) -> Any:
     except Exception as exc:
         raise FgoptError(f"@fgopt.factor {payload['function']}: rebuilding the factor type from "
                          f"its source failed: {exc}") from exc
+    if "inequality" in options:  # a constraint type (fgopt.factors.constraint)
+        from .constraint import SymbolicConstraintType as SymbolicFactorType
     ftype = SymbolicFactorType(namespace[payload["function"]], scope=namespace, **options)
     ftype._fingerprint = payload["fingerprint"]  # the sender's: same cache keys, same kernels
     _FROM_SOURCE[memo_key] = ftype

@@ -58,7 +58,7 @@ _METHODS = {"lm": (LevenbergMarquardt, LMParams), "gn": (GaussNewton, GaussNewto
 def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = "auto",
              max_iterations: int | None = None, verbose: bool | None = None, callback: Any = None,
              params: Any = None, formulation: str = "dynamic", initialization: str = "auto",
-             **options: Any) -> Result:
+             constraint_params: Any = None, **options: Any) -> Result:
     """Minimize ``graph.error`` from ``initial``; returns a :class:`Result` (``initial`` untouched).
 
     Args:
@@ -88,6 +88,12 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
             gauge). ``result.info["initialization"]`` says which start the result comes from,
             ``result.info["initialization_reason"]`` why. Methods ``"gnc"`` (which starts its
             rounds from chordal estimates itself) always start from ``initial``.
+        constraint_params: for a graph holding constraints (:func:`fgopt.constraint`), an
+            :class:`~fgopt.solvers.constrained.AugmentedLagrangianParams` (tolerance, penalty
+            schedule). Such a graph is solved by an augmented-Lagrangian loop around LM from
+            ``initial`` (:mod:`fgopt.solvers.constrained`); the result carries
+            ``constraint_violation`` and ``multipliers``, and ends ``Status.INFEASIBLE`` when the
+            constraints cannot be met.
     """
     if method not in _METHODS:
         raise FgoptError(f"unknown method {method!r}: choose one of {', '.join(_METHODS)}")
@@ -116,6 +122,15 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
     if any(_differs(getattr(params, k), v) for k, v in overrides.items()):
         params = dataclasses.replace(params, **overrides)  # frozen: unchanged ones are shared
     check_initialization(initialization)
+    if len(getattr(graph, "constraints", ())) > 0:
+        if method != "lm" or formulation != "dynamic":
+            raise FgoptError(f"a graph with constraints is solved by method='lm' (an augmented-"
+                             f"Lagrangian loop around LM), formulation='dynamic'; got "
+                             f"method={method!r}, formulation={formulation!r}")
+        from .constrained import inner_params, optimize_constrained
+
+        return optimize_constrained(graph, initial, inner_params(params, set(options), constraint_params),
+                                    constraint_params, solver_obj, callback)
 
     def run(start: Any, run_params: Any) -> Result:
         return _optimize_from(graph, start, cls, run_params, solver_obj, formulation, method,

@@ -22,6 +22,10 @@ class Status(enum.Enum):
     MAX_ITERATIONS = "max iterations"
     FAILED = "failed"
     STOPPED = "stopped by callback"
+    INFEASIBLE = "infeasible"
+    """The constraints could not be met to their tolerance (contradictory constraints, or the
+    augmented-Lagrangian loop ran out of outer iterations or penalty); the values are the last
+    iterate, ``Result.constraint_violation`` says by how much it misses."""
 
     def __repr__(self) -> str:
         return f"Status.{self.name}"
@@ -280,6 +284,13 @@ class Result:
     ``acos``/``asin`` argument lies outside its domain at the final values (at most 100 listed)."""
     num_clamped: int = 0
     """How many such (factor, clamped call) pairs there are in all."""
+    constraint_violation: float = 0.0
+    """Largest constraint violation at the result, ``max(|g|, max(h, 0))`` over every
+    constraint of the graph (0 without constraints)."""
+    multipliers: tuple = ()
+    """Lagrange multipliers, one array per constraint of ``graph.constraints`` (same order), with
+    ``grad cost + sum_i J_i^T multipliers_i = 0`` at a solution; inequality multipliers are
+    ``>= 0`` and zero where the constraint is inactive. Empty without constraints."""
 
     @property
     def values(self) -> Variables:
@@ -337,6 +348,9 @@ class Result:
         if self.num_clamped > 0:
             lines.append(f"  clamped: {self.num_clamped} factor(s) end outside a clamped "
                          f"function's domain, e.g. {self.clamps[0]}")
+        if len(self.multipliers) > 0:
+            lines.append(f"  constraints: {len(self.multipliers)}, largest violation "
+                         f"{self.constraint_violation:.3g}")
         if len(self.unused_keys) > 0:
             shown = ", ".join(key_str(k) for k in self.unused_keys[:8])
             more = ", ..." if len(self.unused_keys) > 8 else ""
