@@ -82,6 +82,9 @@ class Constraint(SymbolicFactor):
     def describe(self) -> str:
         return f"{super().describe()} {'<=' if self.inequality else '=='} 0"
 
+    def __repr__(self) -> str:
+        return f"<constraint {self.describe()}>"
+
 
 class SymbolicConstraintType(SymbolicFactorType):
     """A constraint type made by :func:`constraint`; call it to make instances."""

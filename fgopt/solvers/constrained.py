@@ -194,6 +194,9 @@ def inner_params(params: LMParams, explicit: set,
                  ap: AugmentedLagrangianParams | None = None) -> LMParams:
     """The inner LM's parameters: the caller's, with a tight relative tolerance unless given."""
     ap = ap if ap is not None else AugmentedLagrangianParams()
+    if not isinstance(ap, AugmentedLagrangianParams):
+        raise FgoptError(f"constraint_params must be an AugmentedLagrangianParams, got "
+                         f"{type(ap).__name__}")
     if "relative_tolerance" in explicit or params.relative_tolerance is not None:
         return params
     return dataclasses.replace(params, relative_tolerance=ap.inner_relative_tolerance,
