@@ -127,9 +127,9 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
             raise FgoptError(f"a graph with constraints is solved by method='lm' (an augmented-"
                              f"Lagrangian loop around LM), formulation='dynamic'; got "
                              f"method={method!r}, formulation={formulation!r}")
-        from .constrained import inner_params, optimize_constrained
+        from .constrained import inner_schedule, optimize_constrained
 
-        return optimize_constrained(graph, initial, inner_params(params, set(options), constraint_params),
+        return optimize_constrained(graph, initial, inner_schedule(params, set(options), constraint_params),
                                     constraint_params, solver_obj, callback)
 
     def run(start: Any, run_params: Any) -> Result:
