@@ -1512,6 +1512,241 @@ NB06 = [
 ]
 
 
+# ----------------------------------------------------------------------------------------------
+# 07: equality and inequality constraints
+# ----------------------------------------------------------------------------------------------
+NB07 = [
+    md("""
+    # 07 — Constraints: joint limits, a positive focal length, points on a plane
+
+    `@fgopt.constraint` turns a typed symbolic function into a constraint type, exactly as
+    `@fgopt.factor` does for residuals (same generated kernels, tangent-space Jacobians, any
+    manifold). Its output `c(x)` must be `0`; with `inequality=True` it must be `<= 0`.
+    Instances go into the graph with `graph.add`, and `fgopt.optimize` solves the graph with
+    an augmented-Lagrangian loop around Levenberg-Marquardt. The result says how well the
+    constraints hold (`result.constraint_violation`) and carries the Lagrange multipliers
+    (`result.multipliers`, one array per constraint, `grad f + sum J^T lambda = 0`).
+
+    Three small problems, each with a figure:
+
+    1. inverse kinematics of a planar arm with joint limits (inequalities);
+    2. a focal length kept above the lens' minimum (an inequality keeps it physical);
+    3. noisy 3-D points put on one plane, the plane estimated with them (equalities over
+       the declared manifold `OrientedPlane3`), checked against the closed-form plane fit.
+    """),
+    code("""
+    import numpy as np
+    import matplotlib.pyplot as plt
+
+    import fgopt
+    from fgopt import key
+    from fgopt.symbolic import V1, V2, V3, OrientedPlane3, Scalar, cos, sin
+    """),
+    md("""
+    ## 1. A planar arm reaching a target within joint limits
+
+    Three links of lengths 1.0, 0.8 and 0.6. The cost keeps the joints near the rest pose
+    (`0.5 sum q_i^2`); an equality puts the hand on the target; two inequalities per joint keep
+    `|q_i| <= 1.5` rad (the elbow alone would like to bend further). With `|q_i| <= 1.2` the
+    target is out of reach: the run ends `infeasible` (never `converged`), with the violation
+    it could not remove.
+    """),
+    code("""
+    LINKS = (1.0, 0.8, 0.6)
+
+
+    @fgopt.factor
+    def rest(q: Scalar) -> Scalar:
+        return q
+
+
+    @fgopt.constraint
+    def hand_at(q0: Scalar, q1: Scalar, q2: Scalar, target: V2) -> V2:
+        a0, a1, a2 = q0, q0 + q1, q0 + q1 + q2
+        x = LINKS[0] * cos(a0) + LINKS[1] * cos(a1) + LINKS[2] * cos(a2)
+        y = LINKS[0] * sin(a0) + LINKS[1] * sin(a1) + LINKS[2] * sin(a2)
+        return V2(x - target[0], y - target[1])
+
+
+    @fgopt.constraint(inequality=True)
+    def joint_max(q: Scalar, limit: Scalar) -> Scalar:
+        return q - limit
+
+
+    @fgopt.constraint(inequality=True)
+    def joint_min(q: Scalar, limit: Scalar) -> Scalar:
+        return -limit - q
+
+
+    def solve_arm(target, limit=None):
+        graph, initial = fgopt.FactorGraph(), fgopt.Variables()
+        for i in range(3):
+            graph.add(rest(q=key("q", i)))
+            initial.add(key("q", i), 0.1)
+            if limit is not None:
+                graph.add(joint_max(q=key("q", i), limit=limit))
+                graph.add(joint_min(q=key("q", i), limit=limit))
+        graph.add(hand_at(key("q", 0), key("q", 1), key("q", 2), np.asarray(target)))
+        return fgopt.optimize(graph, initial)
+
+
+    target = np.array([0.2, 1.1])
+    free = solve_arm(target)
+    limited = solve_arm(target, limit=1.5)
+    too_tight = solve_arm(target, limit=1.2)
+    for name, r in (("no limits", free), ("|q| <= 1.5", limited), ("|q| <= 1.2", too_tight)):
+        q = [r.values.at(key("q", i)) for i in range(3)]
+        print(f"{name:>11}: {r.status.value}, q = {np.round(q, 4)}, "
+              f"violation {r.constraint_violation:.1e}")
+    print("joint-limit multipliers:", np.round(np.concatenate(limited.multipliers[:-1]), 4))
+    """),
+    code("""
+    def arm_points(q):
+        a = np.cumsum(q)
+        steps = np.c_[np.cos(a), np.sin(a)] * np.array(LINKS)[:, None]
+        return np.vstack([[0.0, 0.0], np.cumsum(steps, axis=0)])
+
+
+    fig, ax = plt.subplots(figsize=(5, 4.5))
+    for name, r, style in (("no limits", free, "--"), ("|q| <= 1.5", limited, "-")):
+        q = [r.values.at(key("q", i)) for i in range(3)]
+        pts = arm_points(q)
+        ax.plot(pts[:, 0], pts[:, 1], style, marker="o", label=f"{name}: q = {np.round(q, 2)}")
+    ax.plot(*target, "r*", ms=14, label="target")
+    ax.set_aspect("equal")
+    ax.legend(loc="lower left", fontsize=8)
+    ax.set_title("planar arm inverse kinematics")
+    plt.show()
+    """),
+    md("""
+    Without limits the elbow bends past 1.5 rad; with them that joint sits on its limit (its
+    multiplier is positive, the others' zero) and the other joints make up for it: the hand is
+    still on the target.
+
+    ## 2. A focal length kept above the lens' minimum
+
+    A camera looks at points close to its optical axis: pixel offsets `u - cx` are small, so the
+    focal length is poorly determined by the data, and with this noise the least-squares
+    estimate comes out far too short (on other draws of the noise, close to zero). The lens' data sheet says `f >= 400` px: one inequality keeps the estimate
+    physical.
+    """),
+    code("""
+    rng = np.random.default_rng(4)
+    F_TRUE, CX_TRUE = 500.0, 320.0
+    xz = rng.uniform(-0.01, 0.01, size=12)            # X / Z of the points (near the axis)
+    pixels = F_TRUE * xz + CX_TRUE + rng.normal(scale=3.0, size=xz.shape)
+
+
+    @fgopt.factor
+    def pixel(f: Scalar, cx: Scalar, ratio: Scalar, u: Scalar) -> Scalar:
+        return f * ratio + cx - u
+
+
+    @fgopt.constraint(inequality=True)
+    def focal_at_least(f: Scalar, fmin: Scalar) -> Scalar:
+        return fmin - f
+
+
+    def calibrate(fmin=None):
+        graph, initial = fgopt.FactorGraph(), fgopt.Variables()
+        for r, u in zip(xz, pixels):
+            graph.add(pixel(f=key("f", 0), cx=key("c", 0), ratio=float(r), u=float(u)))
+        if fmin is not None:
+            graph.add(focal_at_least(f=key("f", 0), fmin=fmin))
+        initial.add(key("f", 0), 450.0)
+        initial.add(key("c", 0), 300.0)
+        return fgopt.optimize(graph, initial)
+
+
+    plain, bounded = calibrate(), calibrate(fmin=400.0)
+    for name, r in (("least squares", plain), ("f >= 400", bounded)):
+        print(f"{name:>13}: f = {r.values.at(key('f', 0)):8.2f} px, "
+              f"cx = {r.values.at(key('c', 0)):7.2f} px, cost {r.final_cost:.3f}")
+    print("multiplier of f >= 400:", bounded.multipliers[0])
+    """),
+    code("""
+    fs = np.linspace(0.0, 800.0, 400)
+    A = np.c_[xz, np.ones_like(xz)]
+    # cost profile over f (cx at its best value for each f)
+    profile = [0.5 * np.sum((pixels - f * xz - np.mean(pixels - f * xz)) ** 2) for f in fs]
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    ax.plot(fs, profile, label="cost, cx optimal for each f")
+    ax.axvspan(0, 400, color="0.85", label="excluded: f < 400 px")
+    ax.axvline(plain.values.at(key("f", 0)), color="C1", ls="--", label="least squares")
+    ax.axvline(bounded.values.at(key("f", 0)), color="C2", label="with f >= 400")
+    ax.axvline(F_TRUE, color="k", ls=":", label="true f")
+    ax.set_xlabel("focal length f [px]")
+    ax.set_ylabel("cost")
+    ax.legend(fontsize=8)
+    plt.show()
+    """),
+    md("""
+    ## 3. Points on a plane, and the plane with them
+
+    Noisy measurements `m_i` of points that lie on one plane. Each point `p_i` is pulled to its
+    measurement, and an equality `n . p_i + d = 0` puts it on the plane `(n, d)`, itself a
+    variable on the declared manifold `OrientedPlane3` (unit normal x distance). Minimizing
+    `0.5 sum |p_i - m_i|^2` under these constraints is the total-least-squares plane fit: the
+    normal is the singular vector of the centred measurements with the smallest singular value,
+    and every `p_i` is the orthogonal projection of `m_i`. The solver should find exactly that.
+    """),
+    code("""
+    rng = np.random.default_rng(1)
+    n_true = np.array([0.2, -0.3, 1.0]) / np.linalg.norm([0.2, -0.3, 1.0])
+    d_true = -1.5
+    uv = rng.uniform(-2, 2, size=(40, 2))
+    basis = np.linalg.svd(n_true[None])[2][1:]        # two directions in the plane
+    on_plane = uv @ basis - d_true * n_true
+    measured = on_plane + rng.normal(scale=0.05, size=on_plane.shape)
+
+
+    @fgopt.factor
+    def pull(p: V3, m: V3) -> V3:
+        return p - m
+
+
+    @fgopt.constraint
+    def in_plane(p: V3, plane: OrientedPlane3) -> V1:
+        c = plane.plane_coefficients()
+        return V1(c[0] * p[0] + c[1] * p[1] + c[2] * p[2] + c[3])
+
+
+    graph, initial = fgopt.FactorGraph(), fgopt.Variables()
+    for i, m in enumerate(measured):
+        graph.add(pull(p=key("p", i), m=m))
+        graph.add(in_plane(p=key("p", i), plane=key("n", 0)))
+        initial.add(key("p", i), m.copy())
+    initial.add(key("n", 0), fgopt.OrientedPlane3.from_storage(np.array([0.0, 0.0, 1.0, 0.0])))
+    result = fgopt.optimize(graph, initial)
+    plane = result.values.at(key("n", 0)).to_storage()
+    print(result.status.value, f"violation {result.constraint_violation:.1e}")
+
+    # closed form: total least squares
+    centre = measured.mean(axis=0)
+    normal = np.linalg.svd(measured - centre)[2][-1]
+    normal *= np.sign(normal @ plane[:3])
+    print("normal (fgopt)      ", np.round(plane[:3], 8), " d =", round(plane[3], 8))
+    print("normal (closed form)", np.round(normal, 8), " d =", round(-normal @ centre, 8))
+    assert np.allclose(plane[:3], normal, atol=1e-6) and abs(plane[3] + normal @ centre) < 1e-6
+    """),
+    code("""
+    points = np.array([result.values.at(key("p", i)) for i in range(len(measured))])
+    fig = plt.figure(figsize=(6, 4.5))
+    ax = fig.add_subplot(projection="3d")
+    ax.scatter(*measured.T, s=10, label="measured")
+    ax.scatter(*points.T, s=10, label="on the fitted plane")
+    for a, b in zip(measured, points):
+        ax.plot(*np.c_[a, b], color="0.6", lw=0.6)
+    g1, g2 = np.meshgrid(np.linspace(-2, 2, 2), np.linspace(-2, 2, 2))
+    corners = (np.stack([g1, g2], -1) @ basis) - plane[3] * plane[:3]
+    ax.plot_surface(corners[..., 0], corners[..., 1], corners[..., 2], alpha=0.2)
+    ax.legend(fontsize=8)
+    ax.set_title("points on a plane (equality constraints)")
+    plt.show()
+    """),
+]
+
+
 NOTEBOOKS = {
     "01_minisam_pose_graph.ipynb": NB01,
     "02_custom_factor.ipynb": NB02,
@@ -1519,6 +1754,7 @@ NOTEBOOKS = {
     "04_g2o_pose_graph.ipynb": NB04,
     "05_bundle_adjustment.ipynb": NB05,
     "06_on_manifold_ekf.ipynb": NB06,
+    "07_constraints.ipynb": NB07,
 }
 
 
