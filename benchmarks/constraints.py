@@ -310,7 +310,7 @@ def render(doc: dict) -> str:
               "max abs difference to SLSQP's x |", "|---|---|---|---|---|---|"]
     for r in res["small"]:
         lines.append(f"| {r['problem']} | {r['solver']} | {r['seconds']:.4f} | "
-                     f"{r['cost']:.12g} | {r['violation']:.1e} | "
+                     f"{r['cost']:.14g} | {r['violation']:.1e} | "
                      f"{r['distance_to_slsqp']:.1e} |")
     return "\n".join(lines)
 

@@ -16,6 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from . import constraints as constraints_bench
 from . import render_misc, render_peers
 
 HERE = Path(__file__).resolve().parent
@@ -76,6 +77,9 @@ BENCHES: dict[str, Bench] = {
     "small-graphs": Bench("benchmarks.small_graphs", (),
                           ("--out", "{dir}/small-graphs.md", "--json",
                            "{dir}/small-graphs.json"), "small-graphs.json", 5),
+    "constraints": Bench("benchmarks.constraints", (),
+                         ("--out", "{dir}/constraints.md", "--json", "{dir}/constraints.json"),
+                         "constraints.json", 5),
 }
 
 TABLES: dict[str, Table] = {
@@ -88,6 +92,7 @@ TABLES: dict[str, Table] = {
     "scale": Table("scale", render_misc.scale),
     "gnc": Table("gnc", render_misc.gnc),
     "small-graphs": Table("small-graphs", render_misc.small_graphs),
+    "constraints": Table("constraints", constraints_bench.render),
 }
 
 
