@@ -248,7 +248,7 @@ class IncrementalSmoother:
     # ================================================================== validation
     def _check_factors(self, new_factors: Any) -> list[Factor]:
         if isinstance(new_factors, FactorGraph):
-            factors = list(new_factors)
+            factors = list(new_factors) + list(new_factors.constraints)
         elif isinstance(new_factors, Factor):
             factors = [new_factors]
         else:
@@ -257,6 +257,9 @@ class IncrementalSmoother:
             if not isinstance(f, Factor):
                 raise FgoptError(f"update: new_factors must hold Factors, got "
                                  f"{type(f).__name__}")
+            if getattr(f, "is_constraint", False):
+                raise FgoptError(f"update: {f.describe()} is a constraint; the incremental "
+                                 "smoother does not enforce constraints (fgopt.optimize does)")
         return factors
 
     def _check_values(self, new_values: Any, factors: list[Factor]) -> list[tuple[Key, Any]]:

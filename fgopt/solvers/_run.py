@@ -38,6 +38,17 @@ def _needs_numba(pattern: Any) -> bool:
     return is_ba_shaped(pattern)
 
 
+def refuse_constraints(graph: Any, method: str) -> None:
+    """Raise when ``graph`` holds constraints: only ``fgopt.optimize`` enforces them (an
+    optimizer class called directly would drop them without a word)."""
+    cons = getattr(graph, "constraints", ())
+    if len(cons) > 0:
+        raise FgoptError(f"{method}: the graph holds {len(cons)} constraint(s) (e.g. "
+                         f"{cons[0].describe()}), which this optimizer does not enforce; solve "
+                         "it with fgopt.optimize(graph, initial), whose augmented-Lagrangian "
+                         "loop does")
+
+
 def compile_problem(graph: Any, initial: Variables, params: Any, linear_solver: Any,
                     build_structure: bool = True) -> Problem:
     """``graph`` compiled against ``initial`` for a user's solve (warns about unused keys)."""

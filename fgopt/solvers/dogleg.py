@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import NotPositiveDefiniteError
 from ..variables import Variables
-from ._run import Callback, Run
+from ._run import Callback, Run, refuse_constraints
 from .params import DoglegParams
 from .result import Result, Status
 
@@ -55,6 +55,7 @@ class Dogleg:
         self.linear_solver = linear_solver
 
     def optimize(self, graph: Any, initial: Variables, callback: Callback | None = None) -> Result:
+        refuse_constraints(graph, "Dogleg")
         p = self.params
         run = Run(graph, initial, p, "dogleg", callback, self.linear_solver)
         problem = run.problem

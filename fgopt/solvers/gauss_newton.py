@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import NotPositiveDefiniteError
 from ..variables import Variables
-from ._run import Callback, Run
+from ._run import Callback, Run, refuse_constraints
 from .params import GaussNewtonParams
 from .result import Result, Status
 
@@ -27,6 +27,7 @@ class GaussNewton:
         self.linear_solver = linear_solver
 
     def optimize(self, graph: Any, initial: Variables, callback: Callback | None = None) -> Result:
+        refuse_constraints(graph, "GaussNewton")
         p = self.params
         run = Run(graph, initial, p, "gn", callback, self.linear_solver)
         problem = run.problem

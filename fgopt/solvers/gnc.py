@@ -56,6 +56,7 @@ from ..variables import Variables
 from ._gnc_check import _thresholds, _Verifier
 from ._subproblem import Restricted
 from .diagnostics import clamp_hits, warn_clamps, warn_unused
+from ._run import refuse_constraints
 from .lm import LevenbergMarquardt
 from .params import LMParams
 from .result import Result, Status
@@ -180,6 +181,7 @@ class GNC:
 
     def optimize(self, graph: Any, initial: Variables,
                  callback: Callable | None = None) -> Result:
+        refuse_constraints(graph, "GNC")
         p = self.params
         t0 = time.perf_counter()
         deadline = t0 + p.time_limit if p.time_limit is not None else float("inf")

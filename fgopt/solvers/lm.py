@@ -23,7 +23,7 @@ from ..errors import NotPositiveDefiniteError
 from ..manifolds.base import is_vector_kind
 from ..variables import Variables
 from . import small
-from ._run import Callback, Run, compile_problem
+from ._run import Callback, Run, compile_problem, refuse_constraints
 from .params import LMParams
 from .result import Result, Status
 
@@ -88,6 +88,7 @@ class LevenbergMarquardt:
         self.linear_solver = linear_solver
 
     def optimize(self, graph: Any, initial: Variables, callback: Callback | None = None) -> Result:
+        refuse_constraints(graph, "LevenbergMarquardt")
         t0 = time.perf_counter()
         if callback is None and self.linear_solver is None and isinstance(initial, Variables):
             result = small.optimize_file(graph, initial, self.params, t0)

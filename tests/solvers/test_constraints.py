@@ -297,3 +297,20 @@ def test_only_constraints_no_factors():
     r = fgopt.optimize(g, v)
     assert r.status is fgopt.Status.CONVERGED
     assert np.linalg.norm(r.values.at(key("n", 0))) == pytest.approx(2.0, abs=1e-8)
+
+
+def test_optimizers_that_do_not_enforce_constraints_refuse_them():
+    """LevenbergMarquardt / GaussNewton / Dogleg called directly, and the incremental smoother,
+    raise FgoptError naming the constraint instead of dropping it (or treating it as a soft
+    factor) without a word."""
+    from fgopt.solvers import Dogleg, GaussNewton, LevenbergMarquardt
+
+    g, v = _circle_problem()
+    for cls in (LevenbergMarquardt, GaussNewton, Dogleg):
+        with pytest.raises(FgoptError, match=r"on_circle\(n0\) == 0"):
+            cls().optimize(g, v)
+    smoother = fgopt.IncrementalSmoother()
+    with pytest.raises(FgoptError, match="constraint"):
+        smoother.update(g, v)
+    with pytest.raises(FgoptError, match="constraint"):
+        smoother.update([g.constraints[0]], v)
