@@ -314,3 +314,54 @@ def test_optimizers_that_do_not_enforce_constraints_refuse_them():
         smoother.update(g, v)
     with pytest.raises(FgoptError, match="constraint"):
         smoother.update([g.constraints[0]], v)
+
+
+def _step_length_constraint():
+    @fgopt.constraint
+    def step_length(a: Pose2, b: Pose2, d: Scalar) -> V1:
+        t = b.translation() - a.translation()
+        return V1(t[0] * t[0] + t[1] * t[1] - d * d)
+
+    return step_length
+
+
+def test_real_pose_graph_constraints_that_hold_at_the_optimum_change_nothing():
+    """w100 (a real TORO pose graph, 100 poses): step-length equalities on 20 odometry steps,
+    with lengths taken from the unconstrained optimum, hold there: the constrained solve
+    returns the same poses (to the solvers' tolerances) and cost, with multipliers ~0. With
+    every length 5 % longer, the constraints hold to 1e-8, the cost rises and the multipliers
+    are not zero."""
+    import os
+
+    path = os.path.join(os.environ.get("FGOPT_DATA", "/work/shared/data"), "small/w100.graph")
+    if not os.path.exists(path):
+        pytest.skip("FGOPT_DATA has no small/w100.graph")
+    g, v = fgopt.io.read(path, add_prior=True, progress=False)
+    free = fgopt.optimize(g, v, initialization="given", relative_tolerance=1e-12)
+    keys = sorted(v.keys())
+    step = _step_length_constraint()
+
+    def length(values, a, b):
+        return float(np.linalg.norm(np.asarray(values.at(b).translation())
+                                    - np.asarray(values.at(a).translation())))
+
+    pairs = [(keys[i], keys[i + 1]) for i in range(0, 80, 4)]
+    for scale, same in ((1.0, True), (1.05, False)):
+        gc = g.copy()
+        for a, b in pairs:
+            gc.add(step(a=a, b=b, d=scale * length(free.values, a, b)))
+        r = fgopt.optimize(gc, v)
+        assert r.status is fgopt.Status.CONVERGED, r
+        assert r.constraint_violation <= 1e-8
+        for a, b in pairs:
+            assert length(r.values, a, b) == pytest.approx(scale * length(free.values, a, b),
+                                                           abs=1e-7)
+        if same:
+            for k in keys:
+                np.testing.assert_allclose(r.values.at(k).to_storage(),
+                                           free.values.at(k).to_storage(), atol=1e-4)
+            assert max(abs(float(m[0])) for m in r.multipliers) < 1e-4
+            assert r.final_cost == pytest.approx(free.final_cost, rel=1e-6)
+        else:
+            assert r.final_cost > free.final_cost * (1 + 1e-3)
+            assert max(abs(float(m[0])) for m in r.multipliers) > 1e-3
