@@ -241,73 +241,81 @@ def _violation(z, eq, ineq) -> float:
 
 
 def run_small(reps: int) -> list[dict]:
+    from fgopt.solvers.constrained import AugmentedLagrangianParams
+
+    out: list[dict] = []
+    tight = AugmentedLagrangianParams(constraint_tolerance=1e-11)
+    for name, make in (("sphere chain (90 unknowns, 30 eq.)", _sphere_chain),
+                       ("sphere chain (300 unknowns, 100 eq.)", lambda: _sphere_chain(100)),
+                       ("10-link arm IK (2 eq., 20 ineq.)", _arm)):
+        out += _compare(name, make(), reps, tight)
+    return out
+
+
+def _compare(name: str, problem: tuple, reps: int, tight) -> list[dict]:
+    """fgopt, SLSQP and trust-constr on one problem (interleaved, min of ``reps`` warm runs)."""
     import numpy as np
     from scipy.optimize import NonlinearConstraint, minimize
 
     import fgopt
 
+    g, v, z0, f, grad, eq, ineq, read = problem
     out = []
-    from fgopt.solvers.constrained import AugmentedLagrangianParams
 
-    tight = AugmentedLagrangianParams(constraint_tolerance=1e-11)
-    for name, make in (("sphere chain (90 unknowns, 30 eq.)", _sphere_chain),
-                       ("sphere chain (300 unknowns, 100 eq.)", lambda: _sphere_chain(100)),
-                       ("10-link arm IK (2 eq., 20 ineq.)", _arm)):
-        g, v, z0, f, grad, eq, ineq, read = make()
+    def slsqp():
+        cons = [{"type": "eq", "fun": eq[0], "jac": eq[1]}]
+        if ineq is not None:
+            cons.append({"type": "ineq", "fun": ineq[0], "jac": ineq[1]})
+        r = minimize(f, z0, jac=grad, method="SLSQP", constraints=cons,
+                     options={"ftol": 1e-12, "maxiter": 1000})
+        return r.x
 
-        def slsqp():
-            cons = [{"type": "eq", "fun": eq[0], "jac": eq[1]}]
-            if ineq is not None:
-                cons.append({"type": "ineq", "fun": ineq[0], "jac": ineq[1]})
-            r = minimize(f, z0, jac=grad, method="SLSQP", constraints=cons,
-                         options={"ftol": 1e-12, "maxiter": 1000})
-            return r.x
+    def trust():
+        cons = [NonlinearConstraint(eq[0], 0.0, 0.0, jac=eq[1])]
+        if ineq is not None:
+            cons.append(NonlinearConstraint(ineq[0], 0.0, np.inf, jac=ineq[1]))
+        r = minimize(f, z0, jac=grad, method="trust-constr", constraints=cons,
+                     options={"gtol": 1e-10, "xtol": 1e-10, "maxiter": 3000})
+        return r.x
 
-        def trust():
-            cons = [NonlinearConstraint(eq[0], 0.0, 0.0, jac=eq[1])]
-            if ineq is not None:
-                cons.append(NonlinearConstraint(ineq[0], 0.0, np.inf, jac=ineq[1]))
-            r = minimize(f, z0, jac=grad, method="trust-constr", constraints=cons,
-                         options={"gtol": 1e-10, "xtol": 1e-10, "maxiter": 3000})
-            return r.x
+    def ours():
+        r = fgopt.optimize(g, v, constraint_params=tight)
+        assert r.status is fgopt.Status.CONVERGED, r
+        return read(r.values)
 
-        def ours():
-            r = fgopt.optimize(g, v, constraint_params=tight)
-            assert r.status is fgopt.Status.CONVERGED, r
-            return read(r.values)
-
-        runs = {"fgopt": ours, "scipy SLSQP": slsqp, "scipy trust-constr": trust}
-        times: dict = {k: [] for k in runs}
-        zs: dict = {}
-        for rep in range(reps + 1):
-            for k, fn in runs.items():
-                if k == "scipy trust-constr" and rep not in (0, 1):
-                    continue  # seconds to minutes, pure Python: one timed run
-                t = time.perf_counter()
-                zs[k] = fn()
-                times[k].append(time.perf_counter() - t)
-        for k in runs:
-            out.append({"problem": name, "solver": k, "seconds": min(times[k][1:]),
-                        "cost": float(f(zs[k])), "violation": _violation(zs[k], eq, ineq),
-                        "distance_to_slsqp": float(np.max(np.abs(zs[k] - zs["scipy SLSQP"])))})
-            print(out[-1], flush=True)
+    runs = {"fgopt": ours, "scipy SLSQP": slsqp, "scipy trust-constr": trust}
+    times: dict = {k: [] for k in runs}
+    zs: dict = {}
+    for rep in range(reps + 1):
+        for k, fn in runs.items():
+            if k == "scipy trust-constr" and rep not in (0, 1):
+                continue  # seconds to minutes, pure Python: one timed run
+            t = time.perf_counter()
+            zs[k] = fn()
+            times[k].append(time.perf_counter() - t)
+    for k in runs:
+        out.append({"problem": name, "solver": k, "seconds": min(times[k][1:]),
+                    "cost": float(f(zs[k])), "violation": _violation(zs[k], eq, ineq),
+                    "distance_to_slsqp": float(np.max(np.abs(zs[k] - zs["scipy SLSQP"])))})
+        print(out[-1], flush=True)
     return out
 
 
 def render(doc: dict) -> str:
     """Markdown of a saved run (``--json``)."""
-    res = doc["results"] if "results" in doc else doc
-    lines = ["| problem | variables | constraints | unconstrained LM | constrained (AL) | "
-             "ratio (target <= 5) | iterations (LM / AL, outer) | violation |",
-             "|---|---|---|---|---|---|---|---|"]
+    res = doc.get("results", doc)
+    head = ("| problem | variables | constraints | unconstrained LM | constrained (AL) | "
+            "ratio (target <= 5) | iterations (LM / AL, outer) | violation |")
+    lines = [head, "|---|---|---|---|---|---|---|---|"]
     for r in res["large"]:
         lines.append(f"| {r['problem']} | {r['variables']:,} | {r['constraints']:,} | "
                      f"{r['unconstrained_s']:.3f} s | {r['constrained_s']:.3f} s | "
                      f"**{r['ratio']:.2f}x** | {r['unconstrained_iterations']} / "
                      f"{r['constrained_iterations']}, {r['outer_iterations']} | "
                      f"{r['violation']:.1e} ({r['status']}) |")
-    lines += ["", "| problem | solver | seconds | final cost | largest violation | "
-              "max abs difference to SLSQP's x |", "|---|---|---|---|---|---|"]
+    head = ("| problem | solver | seconds | final cost | largest violation | "
+            "max abs difference to SLSQP's x |")
+    lines += ["", head, "|---|---|---|---|---|---|"]
     for r in res["small"]:
         lines.append(f"| {r['problem']} | {r['solver']} | {r['seconds']:.4f} | "
                      f"{r['cost']:.14g} | {r['violation']:.1e} | "

@@ -27,14 +27,14 @@ progress): never ``CONVERGED`` with a violation above tolerance.
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
-from ..errors import FgoptError, KeyNotFoundError
+from ..errors import FgoptError, KeyNotFoundError, NonFiniteError
 from ..factors.kernel import FactorKernel
 from ..key import key_str
 from ..variables import Variables
@@ -238,15 +238,13 @@ def optimize_constrained(graph: Any, initial: Variables, schedule: list[LMParams
     values = [_values(problem, g, state) for g in groups]
     bad = _first_nonfinite(graph, groups, values)
     if bad is not None:
-        from ..errors import NonFiniteError
-
         raise NonFiniteError(f"constraint {bad} is NaN or inf at the initial values")
     f0 = _objective(problem, groups, state)
     mu0 = ap.initial_penalty if ap.initial_penalty is not None else _initial_penalty(
         problem, groups, state, ap.penalty_ratio)
     for g in groups:
         g.mu[:] = mu0
-    records, history, its = [], [f0], 0
+    records, augmented, its = [], [], 0
     timing: dict = {}
     status, message = None, ""
     inner = None
@@ -266,10 +264,10 @@ def optimize_constrained(graph: Any, initial: Variables, schedule: list[LMParams
         values = [_values(problem, g, state) for g in groups]
         feas = _feasibility(groups, values)
         measure = max(_update(g, v, ap) for g, v in zip(groups, values))
-        history.append(inner.final_cost)  # (the augmented Lagrangian's; f(x) at the end)
+        augmented.append(inner.final_cost)
         if ap.verbose:
             print(f"outer {outer}: {inner.iterations} LM iterations ({inner.status.value}), "
-                  f"augmented cost {history[-1]:.9e}, violation {feas:.3e}, measure {measure:.3e}, "
+                  f"augmented cost {augmented[-1]:.9e}, violation {feas:.3e}, measure {measure:.3e}, "
                   f"penalty <= {max(float(g.mu.max()) for g in groups):.3g}")
         if inner.status is Status.STOPPED:
             status, message = Status.STOPPED, "callback asked to stop"
@@ -294,17 +292,17 @@ def optimize_constrained(graph: Any, initial: Variables, schedule: list[LMParams
             status, message = Status.MAX_ITERATIONS, (
                 f"feasible to {feas:.3g} but not converged (last inner solve: {inner.message}) "
                 f"after max_outer_iterations={ap.max_outer_iterations}")
-    history.append(_objective(problem, groups, state))
+    f = _objective(problem, groups, state)
     multipliers = [None] * len(graph.constraints)
     for g in groups:
         for row, i in enumerate(g.members):
             multipliers[i] = g.lam[row].copy()
     timing["total"] = time.perf_counter() - t0
     return Result(None, status=status, message=message, iterations=its, initial_cost=f0,
-                  final_cost=history[-1], cost_history=history, iteration_records=records,
+                  final_cost=f, cost_history=[f0, f], iteration_records=records,
                   timing=timing, method="lm+augmented-lagrangian",
                   linear_solver=getattr(solver, "name", type(solver).__name__), problem=problem,
-                  state=state, info={"outer_iterations": outer,
+                  state=state, info={"outer_iterations": outer, "augmented_costs": augmented,
                                      "penalty_max": max(float(g.mu.max()) for g in groups)},
                   unused_keys=tuple(problem.unused_keys), constraint_violation=feas,
                   multipliers=tuple(multipliers))
