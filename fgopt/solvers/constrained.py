@@ -90,7 +90,9 @@ def penalty_kernel(inner: FactorKernel, inequality: bool, table: _Shifts) -> Fac
     residual ``scale (c + shift)`` (inequality: ``scale max(0, c + shift)``, zero Jacobian rows
     where inactive), Jacobian ``scale dc/dx`` in the same tangent spaces as ``inner``.
     """
-    lin = inner.trusted_linearize or inner.linearize
+    # ``linearize``, not ``trusted_linearize``: on the NumPy backend the inner kernel must take
+    # its NumPy twin (this wrapper is NumPy, so the penalty kernel has one when the inner has)
+    lin = inner.linearize
 
     def split(consts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return consts[:, -1].astype(np.intp), np.ascontiguousarray(consts[:, :-1])
@@ -116,7 +118,7 @@ def penalty_kernel(inner: FactorKernel, inequality: bool, table: _Shifts) -> Fac
                         arg_kinds=inner.arg_kinds, residual_dim=inner.residual_dim,
                         num_constants=inner.num_constants + 1, residual=residual,
                         linearize=linearize, source=inner.source,
-                        nonfinite_hint=inner.nonfinite_hint)
+                        nonfinite_hint=inner.nonfinite_hint, numpy_twin=inner.numpy_twin)
 
 
 @dataclass(eq=False)
