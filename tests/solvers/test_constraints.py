@@ -365,3 +365,34 @@ def test_real_pose_graph_constraints_that_hold_at_the_optimum_change_nothing():
         else:
             assert r.final_cost > free.final_cost * (1 + 1e-3)
             assert max(abs(float(m[0])) for m in r.multipliers) > 1e-3
+
+
+def test_small_constrained_solve_runs_on_numpy_twins():
+    """A small constrained solve in a new process stays on the NumPy backend (the penalty
+    kernels have NumPy twins when the constraints' kernels do): numba is not imported."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = (
+        "import sys, numpy as np, fgopt\n"
+        "from fgopt import key\n"
+        "from fgopt.symbolic import V1, V2, Scalar\n"
+        "@fgopt.factor\n"
+        "def pull2(x: V2, target: V2) -> V2:\n"
+        "    return x - target\n"
+        "@fgopt.constraint\n"
+        "def on_circle(x: V2, radius: Scalar) -> V1:\n"
+        "    return V1(x[0] * x[0] + x[1] * x[1] - radius * radius)\n"
+        "g, v = fgopt.FactorGraph(), fgopt.Variables()\n"
+        "g.add(pull2(x=key('n', 0), target=np.array([2.0, 1.0])))\n"
+        "g.add(on_circle(x=key('n', 0), radius=1.0))\n"
+        "v.add(key('n', 0), np.array([0.3, 0.2]))\n"
+        "r = fgopt.optimize(g, v)\n"
+        "print(r.status.name, r.problem.backend, 'numba' in sys.modules)\n")
+    root = Path(__file__).resolve().parents[2]
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=root, env={**__import__("os").environ, "PYTHONPATH": str(root)},
+                         timeout=600)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["CONVERGED", "numpy", "False"], out.stdout + out.stderr
