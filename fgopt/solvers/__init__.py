@@ -28,7 +28,7 @@ from .result import Status as Status
 #: Loaded on first use: GNC and the Jacobian check are not on a plain solve's path (~2 ms of a
 #: new process, ``fgopt solve``).
 _LAZY = {"GNC": ".gnc", "GNCParams": ".gnc", "JacobianReport": ".jacobian_check",
-         "check_jacobians": ".jacobian_check"}
+         "check_jacobians": ".jacobian_check", "AugmentedLagrangianParams": ".constrained"}
 
 
 def __getattr__(name: str):
