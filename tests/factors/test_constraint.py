@@ -58,3 +58,22 @@ def test_decorator_misuse():
     eq = fgopt.constraint(_plane)
     with pytest.raises(FgoptError, match="no loss"):
         eq(x=key("x", 0), c=1.0, loss=fgopt.noise.Isotropic.sigma(1, 1.0))
+
+
+def test_constraint_type_pickles_as_a_constraint_type():
+    """A constraint type made in a function (not importable by name) pickles by its source and
+    comes back as a constraint type of the same kind, with the same kernel source."""
+    import pickle
+
+    from fgopt.factors.constraint import SymbolicConstraintType
+
+    def made_here():
+        def below(x: V2, c: Scalar) -> V1:
+            return V1(x[0] - c)
+
+        return fgopt.constraint(below, inequality=True)
+
+    ctype = made_here()
+    back = pickle.loads(pickle.dumps(ctype))
+    assert isinstance(back, SymbolicConstraintType) and back.inequality
+    assert back.source == ctype.source
