@@ -163,7 +163,8 @@ def compiled_result(hist: np.ndarray, its: int, status: int, message: str, cost:
         "initial_cost": float(init), "final_cost": float(cost), "_cost_history": records,
         "_records": records, "timing": timing, "method": method,
         "linear_solver": linear_solver, "_problem": problem, "state": state,
-        "info": {} if info is None else info, "unused_keys": (), "clamps": (), "num_clamped": 0}
+        "info": {} if info is None else info, "unused_keys": (), "clamps": (), "num_clamped": 0,
+        "constraint_violation": 0.0, "multipliers": ()}
     return r
 
 
