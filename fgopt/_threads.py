@@ -64,5 +64,5 @@ def linearize_batch_threaded(problem: Any, b: Any, state: Any, H: np.ndarray, g:
     finally:
         numba.set_num_threads(previous)
     asm.scatter_local_blocks(Hl, gl, b.arg_dims, b.arg_local_off, b.toff[lo:hi], b.pos[lo:hi],
-                             problem.pattern.col_shift, H, g)
+                             problem.assembly_shift, H, g)
     return float(cost)

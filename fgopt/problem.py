@@ -322,12 +322,13 @@ class Problem:
 
     def __init__(self, graph: Any, values: Variables, ordering: str | None = "amd",
                  build_structure: bool = True, threads: int = 1, backend: str = "auto",
-                 linear_solver: Any = None):
+                 linear_solver: Any = None, constant: Any = None, bounds: Any = None):
         """``linear_solver``: the name of the solver that will factor H, when known: with a
         Schur-complement solver (a ``"schur..."`` name, or ``"auto"`` on a BA-shaped problem) the
         eliminated variables come first in H and no fill-reducing order is computed
         (:func:`fgopt.structure.schur_order`); otherwise ``ordering`` orders H. ``backend``:
-        see :meth:`choose_backend`."""
+        see :meth:`choose_backend`. ``constant`` / ``bounds``: variables and coordinates held
+        fixed, box bounds on vector-valued variables (:mod:`fgopt.bounds`)."""
         if not graph.factors and not any(b.keys.shape[0] for b in graph.batches):
             raise EmptyProblemError("the factor graph is empty: add factors before optimizing")
         if backend not in BACKENDS:
@@ -338,6 +339,12 @@ class Problem:
         if not self._collect_small(graph, values):
             self._collect_variables(graph, values)
             self._collect_factors(graph)
+        #: Constant variables / coordinates and bounds (:mod:`fgopt.bounds`), or None.
+        self.restrictions = None
+        if constant is not None or bounds is not None:
+            from .bounds import Restrictions
+
+            self.restrictions = Restrictions(self, constant, bounds) or None
         #: ``"numpy"``: kernels' NumPy twins, NumPy assembly and retracts for every batch size
         #: (no numba in the solve); ``"numba"``: numba kernels for batches above
         #: ``NUMPY_MAX_BATCH``. See :meth:`choose_backend`.
@@ -951,27 +958,56 @@ class Problem:
         V = self.var_keys.shape[0]
         independent = self._independent_kinds()
         eliminated = self._schur_kind(linear_solver, independent)
+        R = self.restrictions
+        free = R.free_variables() if R is not None else None
+        var_kind, var_dim, fidx = self.var_kind, self.var_dim, None
+        if free is not None:
+            # constant variables leave H: the pattern is built over the free ones only
+            if free.shape[0] == 0:
+                raise FgoptError("every variable of the problem is constant: nothing to "
+                                 "optimize")
+            fidx = np.full(V, -1, dtype=np.int64)
+            fidx[free] = np.arange(free.shape[0])
+            keep = (fidx[pi] >= 0) & (fidx[pj] >= 0)
+            pi, pj = fidx[pi[keep]], fidx[pj[keep]]
+            var_kind, var_dim = var_kind[free], var_dim[free]
+        Vf = var_kind.shape[0]
         if eliminated is not None:
-            order = schur_order(self.var_kind, eliminated)
+            order = schur_order(var_kind, eliminated)
         else:
-            order = fill_reducing_order(V, pi, pj, ordering)
-        self.pattern, lookup = build_pattern(self.var_dim, order, pi, pj)
+            order = fill_reducing_order(Vf, pi, pj, ordering)
+        self.pattern, lookup = build_pattern(var_dim, order, pi, pj)
         del pi, pj
-        self.pattern.var_kind = self.var_kind
+        self.pattern.var_kind = var_kind
         self.pattern.kind_names = tuple(k.name for k in self.kinds)
         self.pattern.independent_kinds = independent
         if linear_solver == "auto" and self.pattern.size > DENSE_MAX_SIZE:  # computed above
             self.pattern.ba_kind = -1 if eliminated is None else eliminated
-        rank = np.empty(V, dtype=np.int64)
-        rank[order] = np.arange(V)
-        off = self.pattern.var_offset
+        rank = np.empty(Vf, dtype=np.int64)
+        rank[order] = np.arange(Vf)
+        N, nnz = self.pattern.size, self.pattern.nnz
+        #: Tangent offset of every variable (constant ones: N, the start of g's scratch tail).
+        self.var_offset = off = self.pattern.var_offset
+        #: The column shifts the assembly kernels read (with a scratch tail, see below).
+        self.assembly_shift = self.pattern.col_shift
+        trash = 0
+        if fidx is not None:
+            # Constant arguments still come out of the kernels: their gradient goes to a
+            # scratch tail of g (offset N), their diagonal block to a scratch tail of H's data
+            # (p00 = nnz, column shift 0), their off-diagonal blocks nowhere (pos -1).
+            trash = int(self.var_dim.max())
+            off = np.full(V, N, dtype=np.int64)
+            off[free] = self.pattern.var_offset
+            self.var_offset = off
+            self.assembly_shift = np.concatenate([self.pattern.col_shift,
+                                                  np.zeros(trash, np.int64)])
         for b in self.batches:
             b.toff = np.ascontiguousarray(off[b.var_idx])
-            b.pos = scatter_positions(lookup, rank, b.var_idx)
+            b.pos = self._positions(lookup, rank, b.var_idx, fidx, nnz)
             b.plan = None
         for s in self._slow:
             s.toff = off[s.var_idx][None]
-            s.pos = scatter_positions(lookup, rank, s.var_idx[None])
+            s.pos = self._positions(lookup, rank, s.var_idx[None], fidx, nnz)
         del lookup
         # tangent indices of each kind's variables, row order (for batched retract)
         self._kind_tangent = []
@@ -982,12 +1018,44 @@ class Problem:
             order_rows[rows] = vars_
             idx = off[order_rows][:, None] + np.arange(kind.dim)[None, :]
             self._kind_tangent.append(idx)
-        self.H_data = np.zeros(self.pattern.nnz)
-        self.g = np.zeros(self.pattern.size)
+        self._trash = trash
+        self.H_data, self.g = self._buffers()
         self._spare: tuple[np.ndarray, np.ndarray] | None = None
         #: Linearize trial states into a second H (see :meth:`linearize_candidate`).
         self.spare_buffers = self.H_data.nbytes <= SPARE_MAX_BYTES
         self._holds_candidate = False
+        if R is not None:
+            R.attach(self)
+
+    def _buffers(self) -> tuple[np.ndarray, np.ndarray]:
+        """Zeroed H data and g; with constant variables, views of arrays ``_trash`` longer (the
+        scratch tails the assembly writes constant arguments' blocks into)."""
+        nnz, N, t = self.pattern.nnz, self.pattern.size, self._trash
+        if not t:
+            return np.zeros(nnz), np.zeros(N)
+        return np.zeros(nnz + t)[:nnz], np.zeros(N + t)[:N]
+
+    @staticmethod
+    def _positions(lookup: dict, rank: np.ndarray, var_idx: np.ndarray,
+                   fidx: np.ndarray | None, nnz: int) -> np.ndarray:
+        """:func:`scatter_positions` of ``var_idx``; with constant variables (``fidx``: free
+        index of each variable, -1 if constant) a constant argument's diagonal block goes to
+        the scratch position ``nnz`` and its off-diagonal blocks nowhere."""
+        if fidx is None:
+            return scatter_positions(lookup, rank, var_idx)
+        fv = fidx[var_idx]
+        const = fv < 0
+        if not const.any():
+            return scatter_positions(lookup, rank, fv)
+        # a constant argument looked up as a free one of its factor (any stored block will
+        # do: it is overwritten below)
+        stand_in = np.maximum(fv.max(axis=1), 0)
+        pos = scatter_positions(lookup, rank, np.where(const, stand_in[:, None], fv))
+        pos[const[:, :, None] | const[:, None, :]] = -1
+        n, k = const.shape
+        ii, pp = np.nonzero(const)
+        pos[ii, pp, pp] = nnz
+        return np.ascontiguousarray(pos)
 
     # ----------------------------------------------------------------- iteration API
     @functools.cached_property
@@ -1089,7 +1157,7 @@ class Problem:
             return float("nan")
         if self.spare_buffers:
             if self._spare is None:
-                self._spare = (np.zeros_like(self.H_data), np.zeros_like(self.g))
+                self._spare = self._buffers()
             H, g = self._spare
         else:
             H, g = self.H_data, self.g
@@ -1119,14 +1187,20 @@ class Problem:
 
     def _linearize_into(self, state: State, H: np.ndarray, g: np.ndarray) -> float:
         with self.kernel_mode():
-            return self._linearize_batches(state, H, g)
+            if not self._trash:
+                total = self._linearize_batches(state, H, g)
+            else:  # the whole buffers: constant arguments write into their scratch tails
+                total = self._linearize_batches(state, H.base, g.base)
+        if self.restrictions is not None:
+            self.restrictions.clamp(self, state, H, g)
+        return total
 
     def _linearize_batches(self, state: State, H: np.ndarray, g: np.ndarray) -> float:
         H[:] = 0.0
         g[:] = 0.0
         total = 0.0
         t_lin = t_asm = 0.0
-        shift = self.pattern.col_shift
+        shift = self.assembly_shift
         for b in self.batches:
             src = b.source
             n = src.keys.shape[0]
@@ -1238,14 +1312,23 @@ class Problem:
         """A new state ``x (+) delta`` (delta in the problem's tangent order)."""
         t0 = time.perf_counter()
         storages = []
+        R = self.restrictions
+        if self._trash:  # constant variables read their (zero) step from the tail
+            delta = np.concatenate([delta, np.zeros(self._trash)])
         with self.kernel_mode():
             for kid, kind in enumerate(self.kinds):
                 d = np.ascontiguousarray(delta[self._kind_tangent[kid]])
                 storages.append(kind.retract(state.storages[kid], d))
         objects = {}
-        off = self.pattern.var_offset
+        off = self.var_offset
         for v, x in state.objects.items():
+            if R is not None and R.const_var[v]:
+                objects[v] = x
+                continue
             objects[v] = ops_for(x).retract(x, delta[off[v]:off[v] + self.var_dim[v]])
+        if R is not None:
+            storages = [s if s.flags.writeable else s.copy() for s in storages]
+            R.restore(state, storages, objects)
         self.timing["retract"] += time.perf_counter() - t0
         return State(storages, objects)
 

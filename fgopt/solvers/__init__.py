@@ -58,7 +58,8 @@ _METHODS = {"lm": (LevenbergMarquardt, LMParams), "gn": (GaussNewton, GaussNewto
 def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = "auto",
              max_iterations: int | None = None, verbose: bool | None = None, callback: Any = None,
              params: Any = None, formulation: str = "dynamic", initialization: str = "auto",
-             constraint_params: Any = None, **options: Any) -> Result:
+             constraint_params: Any = None, constant: Any = None, bounds: Any = None,
+             **options: Any) -> Result:
     """Minimize ``graph.error`` from ``initial``; returns a :class:`Result` (``initial`` untouched).
 
     Args:
@@ -94,6 +95,20 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
             ``initial`` (:mod:`fgopt.solvers.constrained`); the result carries
             ``constraint_violation`` and ``multipliers``, and ends ``Status.INFEASIBLE`` when the
             constraints cannot be met.
+        constant: keys held fixed (they leave the linear system; their values come back bit
+            for bit), or a dict ``{key: None | [coordinate indices]}`` holding whole variables
+            and single coordinates of vector-valued ones (Ceres' subset manifold).
+        bounds: ``{key: (lower, upper)}`` on vector, scalar and calibration variables (arrays
+            of the tangent dimension or scalars; ``-inf`` / ``inf`` per coordinate); kept by
+            projected LM steps, so every iterate is feasible (``method="lm"``). The initial
+            values must be feasible. With ``constant`` or ``bounds`` the run starts from
+            ``initial`` (``initialization="auto"`` is ``"given"``). See :mod:`fgopt.bounds`
+            and the guide page "Constant variables and bounds".
+
+    Example::
+
+        result = fgopt.optimize(graph, initial, constant=[key("x", 0)],
+                                bounds={key("k", 0): (0.0, np.inf)})
     """
     if method not in _METHODS:
         raise FgoptError(f"unknown method {method!r}: choose one of {', '.join(_METHODS)}")
@@ -122,6 +137,16 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
     if any(_differs(getattr(params, k), v) for k, v in overrides.items()):
         params = dataclasses.replace(params, **overrides)  # frozen: unchanged ones are shared
     check_initialization(initialization)
+    restrict = {}
+    if constant is not None or bounds is not None:
+        if formulation != "dynamic" or method == "gnc" or initialization == "chordal":
+            raise FgoptError("constant / bounds work with formulation='dynamic', methods 'lm', "
+                             "'gn' and 'dogleg', and initialization 'given' or 'auto'")
+        if len(getattr(graph, "constraints", ())) > 0:
+            raise FgoptError("constant / bounds on a graph holding constraints are not "
+                             "supported yet: write a constant as an equality constraint")
+        restrict = {"constant": constant, "bounds": bounds}
+        initialization = "given"  # a chordal start would move the constant variables
     if len(getattr(graph, "constraints", ())) > 0:
         if method != "lm" or formulation != "dynamic":
             raise FgoptError(f"a graph with constraints is solved by method='lm' (an augmented-"
@@ -134,7 +159,7 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
 
     def run(start: Any, run_params: Any) -> Result:
         return _optimize_from(graph, start, cls, run_params, solver_obj, formulation, method,
-                              callback)
+                              callback, **restrict)
 
     if method == "gnc" or initialization == "given":
         result = run(initial, params)
@@ -173,7 +198,7 @@ def _differs(a: Any, b: Any) -> bool:
 
 
 def _optimize_from(graph: Any, initial: Any, cls: Any, params: Any, solver_obj: Any,
-                   formulation: str, method: str, callback: Any) -> Result:
+                   formulation: str, method: str, callback: Any, **restrict: Any) -> Result:
     if formulation == "fixed":
         if method != "lm" or callback is not None or solver_obj is not None:
             raise FgoptError("formulation='fixed' supports method='lm' without callback or "
@@ -187,4 +212,4 @@ def _optimize_from(graph: Any, initial: Any, cls: Any, params: Any, solver_obj: 
         if solver_obj is not None:
             raise FgoptError("method='gnc' takes linear_solver by name")
         return cls(params).optimize(graph, initial, callback=callback)
-    return cls(params, solver_obj).optimize(graph, initial, callback=callback)
+    return cls(params, solver_obj).optimize(graph, initial, callback=callback, **restrict)

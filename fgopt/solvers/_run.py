@@ -50,16 +50,25 @@ def refuse_constraints(graph: Any, method: str) -> None:
 
 
 def compile_problem(graph: Any, initial: Variables, params: Any, linear_solver: Any,
-                    build_structure: bool = True) -> Problem:
-    """``graph`` compiled against ``initial`` for a user's solve (warns about unused keys)."""
+                    build_structure: bool = True, constant: Any = None,
+                    bounds: Any = None) -> Problem:
+    """``graph`` compiled against ``initial`` for a user's solve (warns about unused keys);
+    ``constant`` / ``bounds``: see :mod:`fgopt.bounds`."""
     if not isinstance(initial, Variables):
         raise FgoptError(f"initial values must be fgopt.Variables, got {type(initial).__name__}")
     problem = Problem(graph, initial, ordering=params.ordering,
                       threads=getattr(params, "threads", 1),
                       backend=getattr(params, "backend", "auto"), linear_solver=linear_solver,
-                      build_structure=build_structure)
+                      build_structure=build_structure, constant=constant, bounds=bounds)
     warn_unused(problem.unused_keys)
     return problem
+
+
+def require_no_bounds(bounds: Any, method: str) -> None:
+    """Bounds are kept by LM's projected steps only (:mod:`fgopt.bounds`)."""
+    if bounds:
+        raise FgoptError(f"bounds need method='lm' (projected Levenberg-Marquardt); method "
+                         f"{method!r} takes constant variables only")
 
 
 class Run:
@@ -68,7 +77,8 @@ class Run:
     def __init__(self, graph: Any, initial: Variables | None, params: Any, method: str,
                  callback: Callback | None, linear_solver: Any = None,
                  problem: Problem | None = None, state: State | None = None,
-                 solver: Any = None, compiled: Problem | None = None):
+                 solver: Any = None, compiled: Problem | None = None, constant: Any = None,
+                 bounds: Any = None):
         """Compile ``graph`` against ``initial`` (or take ``compiled``, what
         :func:`compile_problem` made of them), or continue on an already compiled ``problem``
         from ``state`` with an already analyzed ``solver`` (GNC re-solves this way)."""
@@ -86,7 +96,8 @@ class Run:
         if problem is None:
             backend = getattr(params, "backend", "auto")
             if compiled is None:
-                compiled = compile_problem(graph, initial, params, choice)
+                compiled = compile_problem(graph, initial, params, choice, constant=constant,
+                                           bounds=bounds)
             problem = compiled.ensure_structure(params.ordering, choice)
             if backend == "auto" and problem.backend == "numpy" and _needs_numba(problem.pattern):
                 problem.backend = "numba"  # BA-shaped: the Schur complement solver is numba's

@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import NotPositiveDefiniteError
 from ..variables import Variables
-from ._run import Callback, Run, refuse_constraints
+from ._run import Callback, Run, refuse_constraints, require_no_bounds
 from .params import DoglegParams
 from .result import Result, Status
 
@@ -54,10 +54,14 @@ class Dogleg:
         self.params = params or DoglegParams()
         self.linear_solver = linear_solver
 
-    def optimize(self, graph: Any, initial: Variables, callback: Callback | None = None) -> Result:
+    def optimize(self, graph: Any, initial: Variables, callback: Callback | None = None,
+                 constant: Any = None, bounds: Any = None) -> Result:
+        """``constant``: variables / coordinates held fixed (:mod:`fgopt.bounds`); bounds need
+        ``method="lm"``."""
         refuse_constraints(graph, "Dogleg")
         p = self.params
-        run = Run(graph, initial, p, "dogleg", callback, self.linear_solver)
+        require_no_bounds(bounds, "dogleg")
+        run = Run(graph, initial, p, "dogleg", callback, self.linear_solver, constant=constant)
         problem = run.problem
         pattern = problem.pattern
         radius = p.initial_radius

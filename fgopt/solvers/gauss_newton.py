@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import NotPositiveDefiniteError
 from ..variables import Variables
-from ._run import Callback, Run, refuse_constraints
+from ._run import Callback, Run, refuse_constraints, require_no_bounds
 from .params import GaussNewtonParams
 from .result import Result, Status
 
@@ -26,10 +26,14 @@ class GaussNewton:
         self.params = params or GaussNewtonParams()
         self.linear_solver = linear_solver
 
-    def optimize(self, graph: Any, initial: Variables, callback: Callback | None = None) -> Result:
+    def optimize(self, graph: Any, initial: Variables, callback: Callback | None = None,
+                 constant: Any = None, bounds: Any = None) -> Result:
+        """``constant``: variables / coordinates held fixed (:mod:`fgopt.bounds`); bounds need
+        ``method="lm"``."""
         refuse_constraints(graph, "GaussNewton")
         p = self.params
-        run = Run(graph, initial, p, "gn", callback, self.linear_solver)
+        require_no_bounds(bounds, "gn")
+        run = Run(graph, initial, p, "gn", callback, self.linear_solver, constant=constant)
         problem = run.problem
         msg = run.converged_by_gradient()
         if msg is not None:

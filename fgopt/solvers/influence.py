@@ -165,7 +165,7 @@ def prediction_sq_norms(problem: Problem, state: State, batch: Any,
         if todo.size == 0:
             return out
     leverages, cap = _leverage_fn(problem, state)
-    toff = problem.pattern.var_offset[var_idx[todo]]
+    toff = problem.var_offset[var_idx[todo]]
     Jt = Jw[todo]
     h = np.empty((todo.size, m, m))
     step = min(cap, 4000)

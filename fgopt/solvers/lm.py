@@ -87,17 +87,23 @@ class LevenbergMarquardt:
         self.params = params or _DEFAULT_PARAMS  # (frozen: one shared default)
         self.linear_solver = linear_solver
 
-    def optimize(self, graph: Any, initial: Variables, callback: Callback | None = None) -> Result:
+    def optimize(self, graph: Any, initial: Variables, callback: Callback | None = None,
+                 constant: Any = None, bounds: Any = None) -> Result:
+        """``constant``: variables / coordinates held fixed; ``bounds``: key -> (lower, upper)
+        on vector-valued variables, kept by projected steps (:mod:`fgopt.bounds`)."""
         refuse_constraints(graph, "LevenbergMarquardt")
         t0 = time.perf_counter()
-        if callback is None and self.linear_solver is None and isinstance(initial, Variables):
+        plain = constant is None and bounds is None
+        if (plain and callback is None and self.linear_solver is None
+                and isinstance(initial, Variables)):
             result = small.optimize_file(graph, initial, self.params, t0)
             if result is not None:  # a file's small graph: no Problem compiled first
                 return result
         choice = self.linear_solver if self.linear_solver is not None else self.params.linear_solver
-        problem = compile_problem(graph, initial, self.params, choice, build_structure=False)
-        if callback is None and self.linear_solver is None and small.qualifies(problem,
-                                                                               self.params):
+        problem = compile_problem(graph, initial, self.params, choice, build_structure=False,
+                                  constant=constant, bounds=bounds)
+        if (problem.restrictions is None and callback is None and self.linear_solver is None
+                and small.qualifies(problem, self.params)):
             # a small problem in one compiled call (same iteration, dense; None: the initial
             # linearization is not finite, and the general path names the factor)
             result = small.optimize_small(problem, self.params, t0, graph, initial)
@@ -127,6 +133,7 @@ class LevenbergMarquardt:
         if msg is not None:
             return run.finish(Status.CONVERGED, msg)
         ones = np.ones(diag_pos.shape[0]) if identity else None
+        bounded = problem.restrictions is not None and problem.restrictions.has_bounds
         for it in range(1, p.max_iterations + 1):
             H, g = problem.H_data, problem.g
             D = ones if identity else np.clip(H[diag_pos], p.min_diagonal, p.max_diagonal)
@@ -147,9 +154,13 @@ class LevenbergMarquardt:
                 if stop:
                     return run.finish(Status.STOPPED, "callback asked to stop")
                 continue
-            step_norm = math.sqrt(step_sq)
             # predicted decrease of the model: -(g.d + 0.5 d.H.d) with (H + lam D) d = -g
             predicted = 0.5 * float(delta @ (lam * D * delta) - g @ delta)
+            if bounded:  # the step projected into the box, and its own model decrease
+                delta, predicted = problem.restrictions.project_step(problem, run.state, delta,
+                                                                     predicted)
+                step_sq = float(delta @ delta)
+            step_norm = math.sqrt(step_sq)
             candidate = problem.retract(run.state, delta)
             # Linearize the trial point right away (its cost comes with it): steps are usually
             # accepted, and then the residuals need not be evaluated a second time.
