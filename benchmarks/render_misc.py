@@ -332,3 +332,16 @@ def small_graphs(doc: dict) -> str:
               "module, made once per graph structure, is not. Generated summary: "
               + "; ".join(summary) + "."]
     return "\n".join(lines)
+
+
+def constants(doc: dict) -> str:
+    """Constant variables (issue 43): Ladybug-49 with 20 cameras constant vs the free problem,
+    M3500 with 100 poses constant vs GTSAM with ``NonlinearEqualityPose2``; ratio to the
+    reference (below 1: faster)."""
+    lines = _head(["problem", "run", "library", "seconds", "iterations", "s / iteration",
+                   "ratio"])
+    for r in doc["results"]["records"]:
+        lines.append(f"| {r['problem']} | {r['run']} | {r['library']} | {r['seconds']:.3f} | "
+                     f"{r['iterations']} | {r['seconds'] / max(r['iterations'], 1):.4f} | "
+                     f"{r['ratio']:.2f} |")
+    return "\n".join(lines)

@@ -80,6 +80,9 @@ BENCHES: dict[str, Bench] = {
     "constraints": Bench("benchmarks.constraints", (),
                          ("--out", "{dir}/constraints.md", "--json", "{dir}/constraints.json"),
                          "constraints.json", 5),
+    "constants": Bench("benchmarks.constants", ("--repeats", "3"),
+                       ("--out", "{dir}/constants.md", "--json", "{dir}/constants.json"),
+                       "constants.json", 4),
 }
 
 TABLES: dict[str, Table] = {
@@ -93,6 +96,7 @@ TABLES: dict[str, Table] = {
     "gnc": Table("gnc", render_misc.gnc),
     "small-graphs": Table("small-graphs", render_misc.small_graphs),
     "constraints": Table("constraints", constraints_bench.render),
+    "constants": Table("constants", render_misc.constants),
 }
 
 
