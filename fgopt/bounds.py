@@ -270,6 +270,20 @@ class Restrictions:
         H[dp] = np.where(d > 0.0, d, 1.0)
         g[held] = 0.0
 
+    def at_bounds(self, problem: Any, state: Any) -> list[tuple[Key, int, str]]:
+        """``(key, coordinate, "lower" | "upper")`` of every bounded coordinate of ``state``
+        sitting on its bound."""
+        if not self.bounds:
+            return []
+        x = self._bound_values(state)
+        var = problem.var_keys
+        out = []
+        off_var = {int(problem.var_offset[v]): v for v, _, _ in self.bounds}
+        for side, hit in (("lower", x <= self.lower), ("upper", x >= self.upper)):
+            for t, c in zip(self.bt[hit].tolist(), self.bcoord[hit].tolist()):
+                out.append((Key(int(var[off_var[t - c]])), int(c), side))
+        return out
+
     def project_step(self, problem: Any, state: Any, delta: np.ndarray,
                      predicted: float) -> tuple[np.ndarray, float]:
         """``delta`` projected so ``x + delta`` stays in the box, and the model decrease

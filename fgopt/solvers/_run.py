@@ -271,6 +271,10 @@ class Run:
                         unused_keys=tuple(self.problem.unused_keys), clamps=tuple(clamps),
                         num_clamped=num_clamped)
         result.info["backend"] = getattr(self.problem, "backend", "numba")
+        if getattr(self.problem, "restrictions", None) is not None:
+            #: bounded coordinates that end on a bound: (key, coordinate, "lower" | "upper")
+            result.info["at_bounds"] = self.problem.restrictions.at_bounds(self.problem,
+                                                                           self.state)
         if getattr(self, "switched_at", None) is not None:
             result.info["backend"] = f"numpy for {self.switched_at} iterations, then numba"
         if self.top_level:

@@ -169,6 +169,7 @@ def test_bounds_match_scipy_trf():
     ref = so.least_squares(decay_residual, [1.0, 0.5, 0.7], bounds=(lo, hi), method="trf",
                            xtol=1e-15, ftol=1e-15, gtol=1e-15)
     assert x[0] == 1.8 and x[2] == 0.6
+    assert r.info["at_bounds"] == [(P, 2, "lower"), (P, 0, "upper")]
     np.testing.assert_allclose(x, ref.x, rtol=1e-7)
     assert r.final_cost == pytest.approx(0.5 * np.sum(ref.fun ** 2), rel=1e-10)
     free = fgopt.optimize(graph, initial, **TIGHT)
