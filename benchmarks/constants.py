@@ -45,7 +45,8 @@ def _timed(fn):
 
 
 def _alternate(cases: dict, repeats: int) -> dict:
-    """Each case once untimed, then ``repeats`` rounds alternating the cases; min time kept."""
+    """Each case once untimed, then ``repeats`` rounds alternating the cases; min time kept
+    (with what the case returned)."""
     best = {}
     for name, fn in cases.items():
         fn()
@@ -66,15 +67,18 @@ def ladybug(repeats: int) -> list[dict]:
     constant = [key("c", i) for i in range(20)]
 
     def free():
-        return fgopt.optimize(graph, initial, initialization="given").iterations
+        r = fgopt.optimize(graph, initial, initialization="given")
+        return r.iterations, r.final_cost, r.status.value
 
     def held():
-        return fgopt.optimize(graph, initial, constant=constant).iterations
+        r = fgopt.optimize(graph, initial, constant=constant)
+        return r.iterations, r.final_cost, r.status.value
 
     best = _alternate({"free": free, "20 cameras constant": held}, repeats)
     ref = best["free"][0]
     return [{"problem": "Ladybug-49", "run": name, "library": "fgopt", "seconds": t,
-             "iterations": its, "ratio": t / ref} for name, (t, its) in best.items()]
+             "iterations": out[0], "cost": out[1], "status": out[2], "ratio": t / ref}
+            for name, (t, out) in best.items()]
 
 
 def m3500(repeats: int) -> list[dict]:
@@ -93,18 +97,20 @@ def m3500(repeats: int) -> list[dict]:
         ggraph.add(gtsam.NonlinearEqualityPose2(i, gvalues.atPose2(i)))
 
     def ours():
-        return fgopt.optimize(graph, initial, constant=constant).iterations
+        r = fgopt.optimize(graph, initial, constant=constant)
+        return r.iterations, r.final_cost, r.status.value
 
     def theirs():
         opt = gtsam.LevenbergMarquardtOptimizer(ggraph, gvalues,
                                                 gtsam.LevenbergMarquardtParams())
-        opt.optimize()
-        return opt.iterations()
+        out = opt.optimize()
+        return opt.iterations(), ggraph.error(out), "-"
 
     best = _alternate({"gtsam": theirs, "fgopt": ours}, repeats)
     ref = best["gtsam"][0]
     return [{"problem": "M3500", "run": "100 poses constant", "library": lib, "seconds": t,
-             "iterations": its, "ratio": t / ref} for lib, (t, its) in best.items()]
+             "iterations": out[0], "cost": out[1], "status": out[2], "ratio": t / ref}
+            for lib, (t, out) in best.items()]
 
 
 def render(doc: dict) -> str:

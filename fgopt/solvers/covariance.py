@@ -69,20 +69,31 @@ def marginals(result: Any, keys: Iterable[int] | None = None, graph: Any = None,
         raise NotPositiveDefiniteError(
             "marginals: the information matrix H is singular at the solution; fix the gauge "
             "with a prior (e.g. PriorFactor on the first pose)") from None
-    off, dim = problem.pattern.var_offset, problem.var_dim
+    off, dim = problem.var_offset, problem.var_dim
+    out: dict[Key, np.ndarray] = {}
+    # constant variables (fgopt.bounds) are not in H: their covariance is zero, and H's
+    # variables are the free ones, numbered in order
+    R = getattr(problem, "restrictions", None)
+    held = R.const_var if R is not None else np.zeros(problem.var_keys.shape[0], dtype=bool)
+    in_h = np.cumsum(~held) - 1
     cols, spans = [], []
-    for k in key_list:
+    for k in list(key_list):
         v = problem._var_of_key.get(k)
         if v is None:
             raise KeyNotFoundError(f"marginals: {key_str(k)} is not a variable of the problem")
+        if held[v]:
+            out[k] = np.zeros((int(dim[v]), int(dim[v])))
+            key_list.remove(k)
+            continue
         spans.append((len(cols), int(dim[v])))
         cols.extend(range(int(off[v]), int(off[v] + dim[v])))
-    out: dict[Key, np.ndarray] = {}
     if hasattr(solver, "covariance_blocks"):  # the diagonal blocks of the selected inverse
         var = np.array([problem._var_of_key[k] for k in key_list], dtype=np.int64)
+        dvar = dim[var]
+        var = in_h[var]
         blocks: list = [None] * len(key_list)
-        for d in np.unique(dim[var]).tolist():
-            at = np.nonzero(dim[var] == d)[0]
+        for d in np.unique(dvar).tolist():
+            at = np.nonzero(dvar == d)[0]
             for i, block in zip(at.tolist(), solver.covariance_blocks(var[at][:, None], [d])):
                 blocks[i] = block
         for k, block in zip(key_list, blocks):

@@ -363,3 +363,34 @@ def test_bounds_on_a_pose_raise():
         fgopt.optimize(graph, initial, bounds={X: (-1, 1)})
     with pytest.raises(FgoptError, match="constant coordinates on x0"):
         fgopt.optimize(graph, initial, constant={X: [0]})
+
+
+def test_marginals_with_constant_variables():
+    """Marginals of a result with a constant pose: zero for the constant pose, and for the
+    others the covariance of the same chain with that pose pinned by a tight prior
+    (both factorization paths: CHOLMOD solves and the block selected inverse)."""
+    from fgopt import SE2, BetweenFactor, PriorFactor
+    from fgopt.noise import Diagonal
+
+    noise = Diagonal.pose2(x=0.1, y=0.1, theta=0.05)
+    graph, initial = fgopt.FactorGraph(), fgopt.Variables()
+    for i in range(6):
+        graph.add(BetweenFactor(key("x", i), key("x", i + 1), SE2.from_xytheta(1, 0, 0.1),
+                                noise))
+    for i in range(7):
+        initial.add(key("x", i), SE2.from_xytheta(1.05 * i, 0.02 * i, 0.1 * i))
+    pinned = fgopt.FactorGraph()
+    for f in graph.factors:
+        pinned.add(f)
+    pinned.add(PriorFactor(key("x", 2), initial.at(key("x", 2)),
+                           Diagonal.pose2(x=1e-9, y=1e-9, theta=1e-9)))
+    r = fgopt.optimize(graph, initial, constant=[key("x", 2)])
+    ref = fgopt.optimize(pinned, initial)
+    keys = [key("x", i) for i in range(7)]
+    for solver in ("block", "dense"):
+        ours = fgopt.marginals(r, keys, linear_solver=solver)
+        theirs = fgopt.marginals(ref, keys, linear_solver=solver)
+        assert np.array_equal(ours[key("x", 2)], np.zeros((3, 3)))
+        for k in keys:
+            if k != key("x", 2):
+                np.testing.assert_allclose(ours[k], theirs[k], rtol=1e-5, atol=1e-12)
