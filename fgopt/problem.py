@@ -319,6 +319,10 @@ class Problem:
     #: Per row of the initial values' one bulk block, the variable holding it, when
     #: :meth:`_collect_small` saw the values as that block alone (else None): :meth:`values`.
     _bulk_order: list[int] | None = None
+    #: Constant variables / coordinates and bounds (:mod:`fgopt.bounds`), or None.
+    restrictions: Any = None
+    #: Rows of scratch space after H's data and g (constant variables' blocks), or 0.
+    _trash = 0
 
     def __init__(self, graph: Any, values: Variables, ordering: str | None = "amd",
                  build_structure: bool = True, threads: int = 1, backend: str = "auto",
@@ -971,6 +975,8 @@ class Problem:
             keep = (fidx[pi] >= 0) & (fidx[pj] >= 0)
             pi, pj = fidx[pi[keep]], fidx[pj[keep]]
             var_kind, var_dim = var_kind[free], var_dim[free]
+            if eliminated is not None and not (var_kind == eliminated).any():
+                eliminated = None  # every variable of the kind is constant
         Vf = var_kind.shape[0]
         if eliminated is not None:
             order = schur_order(var_kind, eliminated)
