@@ -422,3 +422,35 @@ def test_constant_variables_give_the_free_block_of_h(tmp_path, backend, threads)
     Hp = part.pattern.full(part.H_data).toarray()
     np.testing.assert_allclose(Hp, Hf, rtol=1e-12, atol=1e-9)
     np.testing.assert_allclose(part.g, full.g[idx], rtol=1e-12, atol=1e-9)
+
+
+@fgopt.factor
+def linear_row(x: V3, a: V3, b: V1) -> V1:
+    return V1(a[0] * x[0] + a[1] * x[1] + a[2] * x[2] - b[0])
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_bounded_linear_least_squares_match_bvls(seed):
+    """Random box-constrained linear least squares (badly scaled columns, some sides open):
+    the projected LM reaches scipy's exact BVLS optimum (the active set found, not just
+    approached)."""
+    so = pytest.importorskip("scipy.optimize")
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(12, 3))
+    A[:, 2] *= 10 ** rng.uniform(-2, 2)
+    b = 3.0 * rng.normal(size=12)
+    lo = rng.uniform(-1, 0, 3)
+    hi = lo + rng.uniform(0.1, 1.5, 3)
+    lo[rng.random(3) < 0.2] = -np.inf
+    X = key("x", 0)
+    graph, initial = fgopt.FactorGraph(), fgopt.Variables()
+    for a, bi in zip(A, b):
+        graph.add(linear_row(x=X, a=a, b=np.array([bi])))
+    initial.add(X, np.clip((np.where(np.isfinite(lo), lo, hi - 1) + hi) / 2, lo, hi))
+    r = fgopt.optimize(graph, initial, bounds={X: (lo, hi)}, **TIGHT)
+    ref = so.lsq_linear(A, b, bounds=(lo, hi), method="bvls", tol=1e-14)
+    x = _storage(r.values.at(X))
+    assert np.all(x >= lo) and np.all(x <= hi)
+    c_ref = 0.5 * np.sum((A @ ref.x - b) ** 2)
+    assert r.final_cost == pytest.approx(c_ref, rel=1e-9, abs=1e-12)
+    np.testing.assert_allclose(x, ref.x, atol=1e-6)
