@@ -454,3 +454,29 @@ def test_bounded_linear_least_squares_match_bvls(seed):
     c_ref = 0.5 * np.sum((A @ ref.x - b) ** 2)
     assert r.final_cost == pytest.approx(c_ref, rel=1e-9, abs=1e-12)
     np.testing.assert_allclose(x, ref.x, atol=1e-6)
+
+
+def test_ladybug_bounds_on_camera_intrinsics(ladybug):
+    """Ladybug-49, 5 LM iterations with bounds on every camera's focal length (+-0.5 % of its
+    initial value) and radial distortion: every camera ends inside its box, some bounds end
+    active, the cost decreases; bounds wide enough never to bind give the unbounded run bit for
+    bit (the projection and the active set only act at a bound)."""
+    graph, initial = ladybug
+    cams = [key("c", i) for i in range(49)]
+    tight, wide = {}, {}
+    for k in cams:
+        x = _storage(initial.at(k))
+        lo, hi = np.full(9, -np.inf), np.full(9, np.inf)
+        lo[6], hi[6] = 0.995 * x[6], 1.005 * x[6]
+        lo[7], hi[7] = min(-0.05, x[7]), max(0.05, x[7])
+        tight[k] = (lo, hi)
+        wide[k] = (np.full(9, -1e9), np.full(9, 1e9))
+    r = fgopt.optimize(graph, initial, bounds=tight, max_iterations=5)
+    assert r.final_cost < r.initial_cost
+    assert r.info["at_bounds"]
+    for k in cams:
+        x = _storage(r.values.at(k))
+        assert np.all(x >= tight[k][0]) and np.all(x <= tight[k][1])
+    free = fgopt.optimize(graph, initial, max_iterations=5, initialization="given")
+    loose = fgopt.optimize(graph, initial, bounds=wide, max_iterations=5)
+    assert loose.final_cost == free.final_cost
