@@ -21,6 +21,7 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 from ..errors import FgoptError
+from ._main_guard import check_main_guard
 
 INSTALL_HINT = "pip install 'fgopt[distributed]'"
 
@@ -163,6 +164,7 @@ def run_tasks(task: Callable, items: list, *, client: Any = None, workers: int |
     own_cluster = client is None
     cluster = None
     if own_cluster:
+        check_main_guard(label)
         cluster = local_cluster(workers)
         client = Client(cluster)
     futures: list = []
