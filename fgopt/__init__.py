@@ -42,6 +42,7 @@ from .key import key as key
 # symbolic derivation first needs them (measured in benchmarks/startup.py).
 _ATTRS = {
     "noise": (".noise", None),
+    "symbol_shorthand": (".symbol_shorthand", None),
     "BetweenFactor": (".factors", "BetweenFactor"),
     "Factor": (".factors", "Factor"),
     "NumericalFactor": (".factors", "NumericalFactor"),

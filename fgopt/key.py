@@ -71,3 +71,4 @@ def as_key(k: object) -> Key:
     except ImportError:  # pragma: no cover
         pass
     raise FgoptError(f"{k!r} is not a key: use fgopt.key('x', 1) or a non-negative int")
+

@@ -62,6 +62,33 @@ class SO3(LieGroup):
         return cls.exp(axis / np.linalg.norm(axis) * as_float(angle, "SO3 angle"))
 
     @classmethod
+    def rz_ry_rx(cls, x: float, y: float, z: float) -> SO3:
+        """``Rz(z) Ry(y) Rx(x)`` (angles in radians, about the fixed axes: first ``x`` about X,
+        then ``y`` about Y, then ``z`` about Z), as GTSAM's ``Rot3.RzRyRx``.
+
+        >>> SO3.rz_ry_rx(0.1, 0.2, 0.3)
+        """
+        e = np.eye(3)
+        return (cls.exp(e[2] * as_float(z, "SO3 z angle"))
+                * cls.exp(e[1] * as_float(y, "SO3 y angle"))
+                * cls.exp(e[0] * as_float(x, "SO3 x angle")))
+
+    @classmethod
+    def ypr(cls, yaw: float, pitch: float, roll: float) -> SO3:
+        """From yaw (about Z), pitch (about Y), roll (about X), radians: ``Rz(yaw) Ry(pitch)
+        Rx(roll)``, as GTSAM's ``Rot3.Ypr`` (navigation frame to body: yaw first).
+
+        >>> SO3.ypr(0.3, 0.2, 0.1)  # == SO3.rz_ry_rx(0.1, 0.2, 0.3)
+        """
+        return cls.rz_ry_rx(roll, pitch, yaw)
+
+    @classmethod
+    def rodrigues(cls, w: Any) -> SO3:
+        """``Exp(w)``: rotation by ``|w|`` radians about ``w / |w|`` (GTSAM's
+        ``Rot3.Rodrigues``)."""
+        return cls.exp(as_float_vector(w, 3, "SO3.rodrigues"))
+
+    @classmethod
     def random(cls, rng: Any = None) -> SO3:
         """Uniformly distributed rotation."""
         return cls(cls._rng(rng).normal(size=4))
