@@ -87,28 +87,42 @@ class _Reader:
         self.groups: dict[str, _Group] = {}
         self.skipped: dict[str, int] = {}
         hashes, first, inverse = np.unique(sc.tag_hash, return_index=True, return_inverse=True)
+        groups = []
+        bad: tuple | None = None  # (line, message) of the first bad line of the file
         for u, r0 in enumerate(first.tolist()):
             tag = sc.tag(r0)
             rec = np.nonzero(inverse == u)[0]
             spec = SPECS.get(tag)
             if spec is None:
                 if not skip_unknown:
-                    raise sc.error(
-                        f"unknown record {tag!r}; fgopt reads {', '.join(SPECS)} "
-                        "(pass skip_unknown=True to skip unknown lines)", sc.line[r0])
+                    found = (int(sc.line[r0]), f"unknown record {tag!r}; fgopt reads "
+                             f"{', '.join(SPECS)} (pass skip_unknown=True to skip unknown lines)")
+                    bad = found if bad is None or found[0] < bad[0] else bad
                 self.skipped[tag] = rec.shape[0]
                 continue
+            found = self._count_error(tag, spec, rec)
+            if found is not None:
+                bad = found if bad is None or found[0] < bad[0] else bad
+            groups.append((tag, spec, rec))
+        if bad is not None:  # tags come in hash order: report the earliest line, not the first seen
+            raise sc.error(bad[1], bad[0])
+        for tag, spec, rec in groups:
             self.groups[tag] = self._numbers(tag, spec, rec)
+
+    def _count_error(self, tag: str, spec: _Spec, rec: np.ndarray) -> tuple | None:
+        """``(line, message)`` of the first record of ``rec`` with a wrong number count."""
+        sc = self.sc
+        cnt = sc.count[rec]
+        ok = np.isin(cnt, spec.counts) if spec.counts else cnt >= 1
+        if ok.all():
+            return None
+        r = int(rec[np.nonzero(~ok)[0][0]])
+        want = " or ".join(map(str, spec.counts)) if spec.counts else "at least 1"
+        return int(sc.line[r]), f"{tag} needs {want} numbers after the tag, found {sc.count[r]}"
 
     def _numbers(self, tag: str, spec: _Spec, rec: np.ndarray) -> _Group:
         sc = self.sc
         cnt = sc.count[rec]
-        ok = np.isin(cnt, spec.counts) if spec.counts else cnt >= 1
-        if not ok.all():
-            r = int(rec[np.nonzero(~ok)[0][0]])
-            want = " or ".join(map(str, spec.counts)) if spec.counts else "at least 1"
-            raise sc.error(f"{tag} needs {want} numbers after the tag, found {sc.count[r]}",
-                           sc.line[r])
         width = int(cnt.max())
         if not np.all(cnt == width):  # variable-length records (FIX, TRACKXYZ with param id)
             data = np.full((rec.shape[0], width), np.nan)

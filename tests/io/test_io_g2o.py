@@ -295,3 +295,21 @@ def test_every_edge_with_the_same_bad_information_is_named_and_repaired(tmp_path
     assert "repaired 3 of 3 information matrices" in caplog.text
     R = graph.batches[0].sqrt_information
     assert np.linalg.eigvalsh(np.einsum("nki,nkj->nij", R, R)).min() > 0
+
+
+def test_first_bad_line_is_reported_whatever_the_tags(tmp_path):
+    """A text that is no g2o file (the project README) reports its first bad line, not the first
+    tag in hash order; an unknown tag before a short record, and after it, both report the
+    earlier line."""
+    import pathlib
+
+    readme = pathlib.Path(__file__).resolve().parents[2] / "README.md"
+    lines = readme.read_text().splitlines()
+    first = next(i + 1 for i, ln in enumerate(lines)
+                 if ln.strip() and not ln.lstrip().startswith("#"))
+    with pytest.raises(FileFormatError, match=rf"README.md:{first}: "):
+        read(str(readme), format="g2o")
+    with pytest.raises(FileFormatError, match=r":2: unknown record 'ZZZ'"):
+        read_g2o(_write(tmp_path, V0 + "ZZZ 1\nAAA 2\nVERTEX_SE2 1 0 0\n"))
+    with pytest.raises(FileFormatError, match=r":2: VERTEX_SE2 needs 4"):
+        read_g2o(_write(tmp_path, V0 + "VERTEX_SE2 1 0 0\nZZZ 1\nAAA 2\n"))
