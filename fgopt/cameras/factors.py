@@ -1,13 +1,13 @@
 """Projection and stereo factors, batched by hand-written numba kernels.
 
-* ``ProjectionFactor(pose, point, measured, noise, calibration)``: ``e = uv - measured`` with
+* ``ProjectionFactor(pose, point, measured, loss, calibration)``: ``e = uv - measured`` with
   ``uv = PinholeCamera(pose, K).project(point)`` (GTSAM's ``GenericProjectionFactor`` when the
   calibration is a constant, ``GeneralSFMFactor2`` when it is a key: self-calibration, then
   ``model=`` names the calibration class). Every calibration model of :mod:`.calibration`.
-* ``GeneralSFMFactor(camera, point, measured, noise, model=...)``: the same residual with one
+* ``GeneralSFMFactor(camera, point, measured, loss, model=...)``: the same residual with one
   :class:`~fgopt.cameras.PinholeCamera` variable holding pose and calibration (GTSAM's
   ``GeneralSFMFactor``; the form BAL / Bundler problems are solved in).
-* ``StereoFactor(pose, point, measured, noise, calibration)``: ``e = (uL, uR, v) - measured``
+* ``StereoFactor(pose, point, measured, loss, calibration)``: ``e = (uL, uR, v) - measured``
   with a ``Cal3_S2Stereo`` (GTSAM's ``GenericStereoFactor<Pose3, Point3>``).
 
 Kernels: one :class:`~fgopt.factors.kernel.FactorKernel` per (model, calibration constant or
@@ -44,6 +44,7 @@ from ..factors import FactorKernel, KernelFactor
 from ..key import as_key, key_str
 from ..manifolds import SE3
 from ..manifolds.base import vector_kind
+from ..noise._keyword import UNSET, loss_argument
 from ..symbolic.runtime import kernel_array
 from . import _projection_kernels as PK
 from ._checks import float_array
@@ -261,32 +262,34 @@ class CameraKernelFactor(KernelFactor):
 
 
 class ProjectionFactor(CameraKernelFactor):
-    """``ProjectionFactor(pose, point, measured, noise, calibration)``: a pixel ``measured`` of
+    """``ProjectionFactor(pose, point, measured, loss, calibration)``: a pixel ``measured`` of
     world point ``point`` seen by the camera at ``pose`` (``world_T_camera``, z forward).
 
     Args:
         pose, point: keys of an :class:`~fgopt.manifolds.SE3` and an R^3 point.
         measured: the pixel ``(u, v)``.
-        noise: a 2-D noise model or robust loss (``None``: unit).
+        loss: a 2-D noise model or robust loss (``None``: unit); ``noise=`` is a deprecated
+            alias.
         calibration: a :class:`~fgopt.cameras.Calibration` (constant) or a key (variable;
             then ``model`` names its class).
         cheirality: ``"reject"`` or ``"allow"`` (see the module docstring).
     """
 
-    def __init__(self, pose: int, point: int, measured: Any, noise: Any = None,
+    def __init__(self, pose: int, point: int, measured: Any, loss: Any = None,
                  calibration: Any = None, *, model: type[Calibration] | None = None,
-                 cheirality: str = "reject"):
+                 cheirality: str = "reject", noise: Any = UNSET):
         where = _where("ProjectionFactor", pose, point)
+        loss = loss_argument(loss, noise, where)
         m = _measurement(measured, 2, "the measured pixel", where)
         model, K, kkey = _calibration_args(calibration, model, where, Calibration)
         self.measured = m
         self.calibration = K if K is not None else kkey
         if K is not None:
             super().__init__(projection_kernel(model, False, cheirality), [pose, point],
-                             np.concatenate([m, K._data]), noise)
+                             np.concatenate([m, K._data]), loss)
         else:
             super().__init__(projection_kernel(model, True, cheirality), [pose, point, kkey], m,
-                             noise)
+                             loss)
 
     def describe(self) -> str:
         keys = ", ".join(key_str(k) for k in self.keys) if hasattr(self, "keys") else "?"
@@ -294,14 +297,16 @@ class ProjectionFactor(CameraKernelFactor):
 
 
 class GeneralSFMFactor(CameraKernelFactor):
-    """``GeneralSFMFactor(camera, point, measured, noise)``: a pixel of ``point`` seen by a
+    """``GeneralSFMFactor(camera, point, measured, loss)``: a pixel of ``point`` seen by a
     :class:`~fgopt.cameras.PinholeCamera` *variable* (pose and calibration in one, GTSAM's
     ``GeneralSFMFactor``; the BAL / Bundler camera form). ``model`` names the calibration class
     of the camera variable. ``cheirality`` as ProjectionFactor's."""
 
-    def __init__(self, camera: int, point: int, measured: Any, noise: Any = None, *,
-                 model: type[Calibration] | None = None, cheirality: str = "reject"):
+    def __init__(self, camera: int, point: int, measured: Any, loss: Any = None, *,
+                 model: type[Calibration] | None = None, cheirality: str = "reject",
+                 noise: Any = UNSET):
         where = _where("GeneralSFMFactor", camera, point)
+        loss = loss_argument(loss, noise, where)
         m = _measurement(measured, 2, "the measured pixel", where)
         if model is None:
             raise FgoptError(f"{where}: pass model=<the camera variable's calibration class> "
@@ -309,7 +314,7 @@ class GeneralSFMFactor(CameraKernelFactor):
         if not (isinstance(model, type) and issubclass(model, Calibration)):
             raise FgoptError(f"{where}: model must be a Calibration class, got {model!r}")
         self.measured = m
-        super().__init__(camera_projection_kernel(model, cheirality), [camera, point], m, noise)
+        super().__init__(camera_projection_kernel(model, cheirality), [camera, point], m, loss)
 
     def describe(self) -> str:
         keys = ", ".join(key_str(k) for k in self.keys) if hasattr(self, "keys") else "?"
@@ -317,22 +322,23 @@ class GeneralSFMFactor(CameraKernelFactor):
 
 
 class StereoFactor(CameraKernelFactor):
-    """``StereoFactor(pose, point, measured, noise, calibration)``: a rectified stereo
+    """``StereoFactor(pose, point, measured, loss, calibration)``: a rectified stereo
     measurement ``(uL, uR, v)`` of ``point`` from the left camera at ``pose``; ``calibration``
     a :class:`~fgopt.cameras.Cal3_S2Stereo` or a key. ``cheirality`` as ProjectionFactor's."""
 
-    def __init__(self, pose: int, point: int, measured: Any, noise: Any = None,
-                 calibration: Any = None, *, cheirality: str = "reject"):
+    def __init__(self, pose: int, point: int, measured: Any, loss: Any = None,
+                 calibration: Any = None, *, cheirality: str = "reject", noise: Any = UNSET):
         where = _where("StereoFactor", pose, point)
+        loss = loss_argument(loss, noise, where)
         m = _measurement(measured, 3, "the measurement (uL, uR, v)", where)
         _, K, kkey = _calibration_args(calibration, None, where, Cal3_S2Stereo)
         self.measured = m
         self.calibration = K if K is not None else kkey
         if K is not None:
             super().__init__(stereo_kernel(False, cheirality), [pose, point],
-                             np.concatenate([m, K._data]), noise)
+                             np.concatenate([m, K._data]), loss)
         else:
-            super().__init__(stereo_kernel(True, cheirality), [pose, point, kkey], m, noise)
+            super().__init__(stereo_kernel(True, cheirality), [pose, point, kkey], m, loss)
 
     def describe(self) -> str:
         keys = ", ".join(key_str(k) for k in self.keys) if hasattr(self, "keys") else "?"

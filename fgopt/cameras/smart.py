@@ -1,4 +1,4 @@
-"""``SmartProjectionFactor(pose_keys, measurements, calibration, noise)``: a landmark track whose
+"""``SmartProjectionFactor(pose_keys, measurements, calibration, loss)``: a landmark track whose
 point is eliminated inside the factor (GTSAM's ``SmartProjectionPoseFactor``).
 
 The factor's variables are only the poses (``world_T_camera``, z forward) that saw the landmark;
@@ -41,6 +41,7 @@ from ..factors import FactorKernel
 from ..factors.kernel import CompiledCall
 from ..noise import NoiseModel, RobustLoss, Unit
 from ..key import as_key, key_str
+from ..noise._keyword import UNSET, loss_argument
 from ..manifolds import SE3
 from . import _smart_kernels as SK
 from ._checks import float_array, is_positive
@@ -105,15 +106,15 @@ class SmartProjectionFactor(CameraKernelFactor):
         pose_keys: keys of the ``m >= 2`` SE3 poses that observed the landmark.
         measurements: ``(m, 2)`` pixels, one per pose.
         calibration: the shared constant :class:`~fgopt.cameras.Calibration`.
-        noise: a 2-D noise model per pixel (``None``: unit).
+        loss: a 2-D noise model per pixel (``None``: unit); ``noise=`` is a deprecated alias.
         triangulation: ``"dlt"`` (GTSAM's default) or ``"nonlinear"``.
         degenerate: ``"reject"`` or ``"zero"``.
         rank_tol: DLT rank tolerance (GTSAM's smart-factor default 1.0, in pixels), > 0.
     """
 
     def __init__(self, pose_keys: Sequence[int], measurements: Any, calibration: Calibration,
-                 noise: NoiseModel | None = None, *, triangulation: str = "dlt",
-                 degenerate: str = "reject", rank_tol: float = 1.0):
+                 loss: NoiseModel | None = None, *, triangulation: str = "dlt",
+                 degenerate: str = "reject", rank_tol: float = 1.0, noise: Any = UNSET):
         if isinstance(pose_keys, (str, bytes)) or not hasattr(pose_keys, "__iter__"):
             raise FgoptError(f"SmartProjectionFactor: pose_keys must be a list of pose keys, got "
                              f"{pose_keys!r}")
@@ -133,11 +134,12 @@ class SmartProjectionFactor(CameraKernelFactor):
         if not isinstance(calibration, Calibration):
             raise FgoptError(f"{where}: calibration must be a constant Calibration, got "
                              f"{type(calibration).__name__}")
+        noise = loss_argument(loss, noise, where)
         if isinstance(noise, RobustLoss):
             raise FgoptError(f"{where}: robust losses are not supported on smart factors")
         noise = Unit(2) if noise is None else noise
         if not isinstance(noise, NoiseModel) or noise.dim != 2:
-            raise DimensionMismatchError(f"{where}: noise must be a 2-D noise model (per pixel)")
+            raise DimensionMismatchError(f"{where}: loss must be a 2-D noise model (per pixel)")
         # with 0 the rounding noise of a zero-baseline track counts toward the DLT's rank
         if not is_positive(rank_tol):
             raise FgoptError(f"{where}: rank_tol must be a finite number > 0, got {rank_tol!r}")

@@ -41,8 +41,9 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import DimensionMismatchError, FgoptError
+from ..errors import DimensionMismatchError, FgoptError, NonFiniteError
 from ..key import Key
+from ..noise._keyword import unknown_keyword_hint
 from ..symbolic import cache as _cache
 from ..symbolic.codegen import RESERVED_NAMES
 from ..symbolic.declare.twin import DeclaredManifold
@@ -198,7 +199,8 @@ class SymbolicFactorType:
             i = self._index.get(k)
             if i is None:
                 raise FgoptError(f"{self.name}: unknown argument '{k}' "
-                                 f"(arguments: {', '.join(p for p, _ in self.params)})")
+                                 f"(arguments: {', '.join(p for p, _ in self.params)}"
+                                 f"{unknown_keyword_hint(k)})")
             if values[i] is not _MISSING:
                 raise FgoptError(f"{self.name}: argument '{k}' given twice")
             values[i] = v
@@ -225,7 +227,15 @@ class SymbolicFactorType:
             c = consts[0]
         else:
             c = np.concatenate(consts) if len(consts) > 0 else _NO_CONSTANTS
-        return SymbolicFactor(self, kernel, keys, c, loss)
+        try:
+            return SymbolicFactor(self, kernel, keys, c, loss)
+        except NonFiniteError:  # (checked once, on all constants): name the argument
+            for i, arr in zip((i for i in range(n) if not pattern[i]), consts):
+                if not np.all(np.isfinite(arr)):
+                    raise NonFiniteError(
+                        f"{self.name}: argument '{self.params[i][0]}' has a NaN or inf: "
+                        f"{arr}") from None
+            raise
 
     def _constant(self, i: int, value: Any) -> np.ndarray:
         s = self._storage_dims[i]

@@ -17,12 +17,14 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import DimensionMismatchError, FgoptError, ManifoldError, NotPositiveDefiniteError
+from ..errors import (DimensionMismatchError, FgoptError, ManifoldError, NonFiniteError,
+                      NotPositiveDefiniteError)
 from ..factors import FactorKernel, KernelFactor
 from ..key import Key, key_str
 from ..manifolds import SE3
 from ..manifolds.base import vector_kind
 from ..noise import Gaussian
+from ..noise._keyword import UNSET, loss_argument
 from ..symbolic.runtime import kernel_array
 from . import _imu_kernels as IK
 from .bias import ImuBias
@@ -198,12 +200,16 @@ class CombinedImuFactor(ImuFactor):
 
 
 class GpsFactor(KernelFactor):
-    """``GpsFactor(pose, position, noise, lever_arm=None)``: a position fix of the antenna at
+    """``GpsFactor(pose, position, loss, lever_arm=None)``: a position fix of the antenna at
     ``lever_arm`` (body frame; default the body origin), GTSAM's ``GPSFactor`` /
     ``GPSFactorArm``: residual ``t + R lever_arm - position`` (3 rows, world frame)."""
 
-    def __init__(self, pose: int, position: Any, noise: Any, lever_arm: Any = None):
-        super().__init__(gps_kernel(), (pose,), self._constants(position, lever_arm), noise)
+    def __init__(self, pose: int, position: Any, loss: Any = None, lever_arm: Any = None, *,
+                 noise: Any = UNSET):
+        loss = loss_argument(loss, noise, "GpsFactor")
+        if loss is None:
+            raise FgoptError("GpsFactor: pass the position's noise model as loss= (3-D)")
+        super().__init__(gps_kernel(), (pose,), self._constants(position, lever_arm), loss)
 
     @staticmethod
     def _constants(position: Any, lever_arm: Any) -> np.ndarray:
@@ -211,12 +217,16 @@ class GpsFactor(KernelFactor):
         m = np.asarray(position, dtype=float).reshape(-1)
         if m.shape[0] != 3:
             raise DimensionMismatchError(f"GpsFactor: position needs 3 numbers, got {m.shape[0]}")
+        if not np.all(np.isfinite(m)):
+            raise NonFiniteError(f"GpsFactor: position has a NaN or inf: {m}")
         c[:3] = m
         if lever_arm is not None:
             arm = np.asarray(lever_arm, dtype=float).reshape(-1)
             if arm.shape[0] != 3:
                 raise DimensionMismatchError(f"GpsFactor: lever_arm needs 3 numbers, got "
                                              f"{arm.shape[0]}")
+            if not np.all(np.isfinite(arm)):
+                raise NonFiniteError(f"GpsFactor: lever_arm has a NaN or inf: {arm}")
             c[3:] = arm
         return c
 
