@@ -16,8 +16,9 @@
 Modules: ``navstate`` (the NavState manifold; kernels in ``_navstate_kernels``), ``bias``
 (ImuBias), ``params`` (PreintegrationParams), ``preintegration`` (PreintegratedImu,
 PreintegratedCombinedImu; loops in ``_preint_kernels``), ``factors`` (ImuFactor,
-CombinedImuFactor, GpsFactor; kernels in ``_imu_kernels``). The symbolic twin of NavState for
-``@fgopt.factor`` is :class:`fgopt.symbolic.NavState`.
+CombinedImuFactor, GpsFactor; kernels in ``_imu_kernels``), ``scenario`` (true trajectories and
+noisy IMU samples: ConstantTwistScenario, AcceleratingScenario, ScenarioRunner). The symbolic
+twin of NavState for ``@fgopt.factor`` is :class:`fgopt.symbolic.NavState`.
 """
 
 from .bias import ImuBias as ImuBias
@@ -28,3 +29,6 @@ from .navstate import NavState as NavState
 from .params import PreintegrationParams as PreintegrationParams
 from .preintegration import PreintegratedCombinedImu as PreintegratedCombinedImu
 from .preintegration import PreintegratedImu as PreintegratedImu
+from .scenario import AcceleratingScenario as AcceleratingScenario
+from .scenario import ConstantTwistScenario as ConstantTwistScenario
+from .scenario import ScenarioRunner as ScenarioRunner

@@ -6,14 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import fgopt
 from fgopt import key
 from fgopt.cameras import Cal3_S2, Cal3_S2Stereo, ProjectionFactor, StereoFactor
 from fgopt.cameras.smart import SmartProjectionFactor
 from fgopt.errors import FgoptError, NonFiniteError
 from fgopt.navigation import GpsFactor
 from fgopt.noise import Isotropic
-from fgopt.symbolic import V2, Pose2, Scalar
 
 from .test_decorator import pose_prior_xy, range_bearing
 
