@@ -148,6 +148,11 @@ def optimize_auto(graph: Any, initial: Any, params: Any,
         f"({first.iterations}); kept the {'chordal' if better else 'given'} start")
     best.info["initialization_costs"] = {"given": first.final_cost,
                                          "chordal": second.final_cost}
+    best.info["restart"] = {"why": why, "given_initial_cost": first.initial_cost,
+                            "given_final_cost": first.final_cost,
+                            "chordal_initial_cost": second.initial_cost,
+                            "chordal_final_cost": second.final_cost,
+                            "kept": best.info["initialization"]}
     best.info["iterations_all_starts"] = first.iterations + second.iterations
     best.timing = dict(best.timing)
     best.timing["other_start"] = other.timing.get("total", 0.0)

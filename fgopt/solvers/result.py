@@ -257,6 +257,20 @@ class _MadeOnRead:
         obj.__dict__["_problem"] = value
 
 
+def _restart_lines(r: dict, final_cost: float) -> list[str]:
+    """The cost lines of a result of ``initialization="auto"`` that also ran from the chordal
+    relaxation: the caller's start cost first, then why and where it restarted."""
+    given = f"{r['given_initial_cost']:.6g} -> {r['given_final_cost']:.6g}"
+    chordal = f"{r['chordal_initial_cost']:.6g} -> {r['chordal_final_cost']:.6g}"
+    if r["kept"] == "chordal":
+        return [f"  cost: {r['given_initial_cost']:.6g} at the given values -> "
+                f"{final_cost:.6g}, restarted from the chordal relaxation",
+                f"  restart: {r['why']}; from the given values {given}, from the chordal "
+                f"relaxation {chordal} (kept)"]
+    return [f"  cost: {given} (given values kept)",
+            f"  restart: {r['why']}; from the chordal relaxation {chordal} (higher, dropped)"]
+
+
 @dataclass
 class Result:
     """What an optimizer returns. ``values`` are built on first access from the final state."""
@@ -346,6 +360,9 @@ class Result:
             f"{self.iterations} iterations — {self.message})",
             f"  cost: {self.initial_cost:.6g} -> {self.final_cost:.6g}",
         ]
+        restart = self.info.get("restart")
+        if restart is not None:  # initialization="auto" also ran from the chordal relaxation
+            lines[1:] = _restart_lines(restart, self.final_cost)
         if self.num_clamped > 0:
             lines.append(f"  clamped: {self.num_clamped} factor(s) end outside a clamped "
                          f"function's domain, e.g. {self.clamps[0]}")

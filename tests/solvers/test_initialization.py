@@ -166,3 +166,17 @@ def test_auto_keeps_a_run_cut_short_by_its_iteration_limit():
     full = fgopt.optimize(graph, initial)  # converges: the test applies (and may restart)
     assert full.status is fgopt.Status.CONVERGED
     assert "no second start" not in full.info["initialization_reason"]
+
+
+def test_repr_of_a_restarted_result_shows_the_given_start_and_why():
+    """``print(result)`` after "auto" restarted from the chordal relaxation shows the cost of the
+    caller's values (not only the chordal start's), that it restarted, and why."""
+    d = manhattan_2d(200, seed=0)
+    bad = _scrambled(d.initial, 0)
+    given = fgopt.optimize(d.graph, bad, initialization="given")
+    r = fgopt.optimize(d.graph, bad)
+    assert r.info["initialization"] == "chordal"
+    text = repr(r)
+    assert f"{given.initial_cost:.6g} at the given values" in text
+    assert "restarted from the chordal relaxation" in text and "chi-square" in text
+    assert f"{r.initial_cost:.6g} -> {r.final_cost:.6g} (kept)" in text
