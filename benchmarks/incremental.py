@@ -15,7 +15,9 @@ Per library: the loop's total time, the median and 99th percentile of ``update``
 whole step (the estimate queries that initialize new variables, then ``update``: GTSAM does its
 back-substitution lazily inside ``calculateEstimate``, fgopt likewise, so only whole steps
 compare the same work), CPU time of this thread (``time.thread_time``; the machine is shared)
-and wall time. Final cost: ``0.5 sum |r|^2`` of the whole graph at each library's last
+and wall time. The *full estimate per update* rows repeat the replay reading the whole estimate
+after every update (fgopt ``estimate()``, GTSAM ``calculateEstimate()``), as GTSAM's
+VisualISAM2Example does. Final cost: ``0.5 sum |r|^2`` of the whole graph at each library's last
 estimate, evaluated by fgopt for both (one yardstick; GTSAM's own ``error`` is checked equal),
 against the batch optimum (fgopt LM from the last estimate to convergence).
 
@@ -161,6 +163,9 @@ class FgoptAdapter:
         fs = [self.factors[i] if i != "prior" else self.prior for i in ids]
         return self.isam.update(fs, values)
 
+    def full_estimate(self):
+        return self.isam.estimate()
+
     def final(self):
         return self.isam.estimate()
 
@@ -244,6 +249,9 @@ class GtsamAdapter:
             v.insert(k, x)
         return self.isam.update(graph, v)
 
+    def full_estimate(self):
+        return self.isam.calculateEstimate()
+
     def final(self, best: bool = False):
         """The estimate as fgopt Variables (for the common cost yardstick); ``best``:
         ``calculateBestEstimate`` (a full back-substitution instead of the wildfire delta)."""
@@ -262,8 +270,9 @@ class GtsamAdapter:
 
 
 # ------------------------------------------------------------------ the online loop
-def play(lib, s: Stream, limit: int | None = None) -> dict:
-    """Run the stream through ``lib``; per-step CPU / wall times of update and whole steps."""
+def play(lib, s: Stream, limit: int | None = None, full: bool = False) -> dict:
+    """Run the stream through ``lib``; per-step CPU / wall times of update and whole steps.
+    ``full``: read the whole estimate after every update (timed within the step)."""
     known: set = set()
     upd_cpu, upd_wall, step_cpu, step_wall = [], [], [], []
     tc, tw = time.thread_time, time.perf_counter
@@ -312,6 +321,9 @@ def play(lib, s: Stream, limit: int | None = None) -> dict:
         c1, w1 = tc(), tw()
         lib.update(ids, values)
         c2, w2 = tc(), tw()
+        if full:
+            lib.full_estimate()
+            c2, w2 = tc(), tw()
         first = False
         upd_cpu.append(c2 - c1)
         upd_wall.append(w2 - w1)
@@ -373,6 +385,26 @@ def run_dataset(name: str, threshold: float, skip: int, warm: int) -> dict:
     return out
 
 
+def run_full_estimate(spec: str, threshold: float, skip: int, warm: int) -> dict:
+    """The replay of ``spec`` (``name`` or ``name:steps``, the first steps only) reading the
+    whole estimate after every update, both libraries (costs O(poses) per step: O(n^2) in all)."""
+    name, _, steps = spec.partition(":")
+    s = load_stream(name)
+    limit = int(steps) if steps else None
+    label = f"{name} (first {limit} poses)" if limit else name
+    out = {"dataset": label, "steps": limit or len(s.steps), "load_start": loadavg()}
+    for cls in (FgoptAdapter, GtsamAdapter):
+        play(cls(s, threshold, skip), s, limit=min(warm, limit or warm), full=True)
+    for cls in (GtsamAdapter, FgoptAdapter):
+        lib = cls(s, threshold, skip)
+        try:
+            out[lib.name + " full"] = play(lib, s, limit=limit, full=True)
+        except Exception as e:  # a library failing is a result, not a crash of the benchmark
+            out[lib.name + " full"] = {"error": f"{type(e).__name__}: {e}".splitlines()[0]}
+    out["load_end"] = loadavg()
+    return out
+
+
 def summary(r: dict) -> dict:
     """Numbers of one library run for the table."""
     if "error" in r:
@@ -411,6 +443,14 @@ def table(results: list[dict]) -> str:
                 f"| {res['dataset']} | {lib} | {s['total_cpu']:.2f} ({s['total_wall']:.2f}) | "
                 f"{s['update_median_ms']:.3f} / {s['update_p99_ms']:.2f} | "
                 f"{s['step_median_ms']:.3f} / {s['step_p99_ms']:.2f} | {cost} | {rel} |")
+        g, f = res.get("GTSAM full"), res.get("fgopt full")
+        if g and f and "error" not in g and "error" not in f:
+            sg, sf = summary(g), summary(f)
+            rows.append(f"| {res['dataset']} | full estimate per update: fgopt / GTSAM | "
+                        f"{sf['total_cpu']:.2f} / {sg['total_cpu']:.2f} = "
+                        f"{sf['total_cpu'] / sg['total_cpu']:.2f} | "
+                        f"{sf['update_median_ms']:.3f} / {sg['update_median_ms']:.3f} | "
+                        f"{sf['step_median_ms']:.3f} / {sg['step_median_ms']:.3f} | | |")
         g, f = res.get("GTSAM"), res.get("fgopt")
         if g and f and "error" not in g and "error" not in f:
             sg, sf = summary(g), summary(f)
@@ -439,6 +479,9 @@ def main(argv=None):
     ap.add_argument("--threshold", type=float, default=0.1)
     ap.add_argument("--skip", type=int, default=10)
     ap.add_argument("--warm", type=int, default=300, help="untimed warm-up steps per library")
+    ap.add_argument("--full-estimate", default="m3500:434,m3500,sphere2500",
+                    help="replays reading the whole estimate after every update ('name' or "
+                         "'name:steps'; '' for none)")
     ap.add_argument("--fixed-lag", type=float, default=0.0,
                     help="also run fgopt's FixedLagSmoother on w20000 with this lag (poses)")
     ap.add_argument("--out", default=None, help="write the table (.md) and numbers (.json)")
@@ -446,6 +489,10 @@ def main(argv=None):
     results = []
     for name in args.datasets.split(","):
         r = run_dataset(name.strip(), args.threshold, args.skip, args.warm)
+        results.append(r)
+        print(table([r]), flush=True)
+    for spec in filter(None, args.full_estimate.split(",")):
+        r = run_full_estimate(spec.strip(), args.threshold, args.skip, args.warm)
         results.append(r)
         print(table([r]), flush=True)
     text = table(results)

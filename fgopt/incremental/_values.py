@@ -19,7 +19,7 @@ import numpy as np
 from ..errors import FgoptError, KeyNotFoundError
 from ..key import Key, key_char, key_str
 from ..manifolds.base import BatchKind, ops_for
-from ..variables import Variables
+from ..variables import Variables, _Rows
 from ._state import TreeState
 
 
@@ -215,22 +215,36 @@ class VariableStore:
         return out, objects
 
     def estimate(self, delta: np.ndarray) -> Variables:
-        storages, objects = self.estimate_storages(delta)
+        """``theta (+) delta`` of every live variable, as a Variables the caller may keep.
+
+        Values of kinds with ``wrap`` (Lie groups, vectors) go in as one bulk block of fresh,
+        read-only storage rows per kind (``Variables.add_rows``'s form): no Python per variable
+        until the caller reads values, and later updates cannot change them. Order: kinds in
+        order of first use, slots ascending within a kind, duck-typed values last.
+        """
         out = Variables()
-        values = out._values
         live = self.live_slots()
         kinds = self.kind_of[live]
-        keys = self.key_of
+        one = len(self.kinds) == 1 and not self.objects
         for kid, kind in enumerate(self.kinds):
-            make = kind.wrap if kind.wrap is not None else kind.from_storage
-            rows = live[kinds == kid]
-            S = storages[kid][rows]
-            S.flags.writeable = False
-            for v, row in zip(rows.tolist(), S):
-                values[Key(int(keys[v]))] = make(row) if kind.wrap is not None else \
-                    kind.from_storage(row)
-        for v, x in objects.items():
-            values[Key(int(keys[v]))] = x
+            rows = live if one else live[kinds == kid]
+            if rows.shape[0] == 0:
+                continue
+            est = kind.retract(self.theta[kid][rows], delta[rows, :kind.dim])
+            keys = self.key_of[rows]
+            if kind.wrap is not None:
+                est.flags.writeable = False
+                out._pending.append(_Rows(keys, kind, est))
+                continue
+            values = out._values  # (turns earlier blocks into values: keeps the order)
+            for k, row in zip(keys.tolist(), est):
+                values[Key(k)] = kind.from_storage(row)
+        if self.objects:
+            values = out._values
+            for v in live[kinds < 0].tolist():
+                x = self.objects[v]
+                values[Key(int(self.key_of[v]))] = ops_for(x).retract(
+                    x, delta[v, :self.tree.var_dim[v]].copy())
         return out
 
     # ------------------------------------------------------------------ relinearization
