@@ -131,7 +131,9 @@ class IncrementalSmoother:
         The estimate is ``theta (+) delta``. One key reads iSAM2's ``delta``, kept up to date by
         wildfire back-substitution (subtrees whose separators moved less than
         ``wildfire_threshold`` are not re-solved). All keys cost O(n) anyway, so they are
-        back-substituted exactly: the Gauss-Newton step of the current linearization.
+        back-substituted exactly: the Gauss-Newton step of the current linearization. The
+        Variables holds one read-only array per kind (value objects are made when read) and is
+        the caller's: later updates do not change it.
         """
         if key is None:
             return self._vars.estimate(self._exact_delta())
