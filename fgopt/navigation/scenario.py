@@ -124,7 +124,7 @@ class ScenarioRunner:
         self._gyro_L = np.linalg.cholesky(np.asarray(params.gyroscope_covariance) / self.dt)
         self._acc_L = np.linalg.cholesky(np.asarray(params.accelerometer_covariance) / self.dt)
 
-    # the true signals, then the measured ones (bias, and noise when asked)
+    # the true signals, then the measured ones (bias and noise added)
     def actual_angular_velocity(self, t: float) -> np.ndarray:
         return self.scenario.omega_b(t)
 
@@ -133,24 +133,30 @@ class ScenarioRunner:
         R = self.scenario.rotation(t).matrix()
         return R.T @ (self.scenario.acceleration_n(t) - np.asarray(self.params.n_gravity))
 
-    def measured_angular_velocity(self, t: float, corrupted: bool = True) -> np.ndarray:
+    def measured_angular_velocity(self, t: float) -> np.ndarray:
+        """The true rate plus the gyroscope bias and a noise sample."""
         w = self.actual_angular_velocity(t) + self.bias.gyroscope
-        return w + self._gyro_L @ self._rng.standard_normal(3) if corrupted else w
+        return w + self._gyro_L @ self._rng.standard_normal(3)
 
-    def measured_specific_force(self, t: float, corrupted: bool = True) -> np.ndarray:
+    def measured_specific_force(self, t: float) -> np.ndarray:
+        """The true specific force plus the accelerometer bias and a noise sample."""
         a = self.actual_specific_force(t) + self.bias.accelerometer
-        return a + self._acc_L @ self._rng.standard_normal(3) if corrupted else a
+        return a + self._acc_L @ self._rng.standard_normal(3)
 
     def samples(self, duration: float, start: float = 0.0, corrupted: bool = True
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(times (n,), accel (n, 3), gyro (n, 3))`` at ``start + i dt`` for ``n =
         round(duration / dt)`` samples, each held for ``dt`` (what ``integrate`` takes);
-        ``corrupted=False``: bias only, no noise."""
+        ``corrupted=False``: the true signals (no bias, no noise), as GTSAM's runner."""
         n = int(round(float(duration) / self.dt))
         times = float(start) + self.dt * np.arange(n)
-        acc = np.array([self.measured_specific_force(t, corrupted) for t in times])
-        gyro = np.array([self.measured_angular_velocity(t, corrupted) for t in times])
-        return times, acc.reshape(n, 3), gyro.reshape(n, 3)
+        if corrupted:
+            acc = [self.measured_specific_force(t) for t in times]
+            gyro = [self.measured_angular_velocity(t) for t in times]
+        else:
+            acc = [self.actual_specific_force(t) for t in times]
+            gyro = [self.actual_angular_velocity(t) for t in times]
+        return times, np.array(acc).reshape(n, 3), np.array(gyro).reshape(n, 3)
 
     def integrate(self, duration: float, bias_estimate: ImuBias | None = None,
                   corrupted: bool = True, start: float = 0.0) -> PreintegratedImu:

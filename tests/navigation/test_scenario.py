@@ -71,13 +71,14 @@ def test_runner_signals_and_prediction_match_gtsam(i):
         assert np.allclose(run.actual_specific_force(t), g_run.actualSpecificForce(t), atol=1e-12)
         assert np.allclose(run.actual_angular_velocity(t), g_run.actualAngularVelocity(t),
                            atol=1e-12)
-    pim = run.integrate(2.0, bias, corrupted=False)
-    g_pim = g_run.integrate(2.0, g_bias, False)
-    ours_pred, theirs_pred = run.predict(pim, bias), g_run.predict(g_pim, g_bias)
-    assert np.allclose(ours_pred.pose().matrix(), theirs_pred.pose().matrix(), atol=1e-9)
-    assert np.allclose(ours_pred.velocity(), theirs_pred.velocity(), atol=1e-9)
-    truth = ours.nav_state(2.0)
-    assert np.linalg.norm(ours_pred.position() - truth.position()) < 0.05
+    for est, g_est in ((bias, g_bias), (ImuBias(), gtsam.imuBias.ConstantBias())):
+        pim = run.integrate(2.0, est, corrupted=False)   # true signals, as GTSAM's runner
+        g_pim = g_run.integrate(2.0, g_est, False)
+        ours_pred, theirs_pred = run.predict(pim, est), g_run.predict(g_pim, g_est)
+        assert np.allclose(ours_pred.pose().matrix(), theirs_pred.pose().matrix(), atol=1e-9)
+        assert np.allclose(ours_pred.velocity(), theirs_pred.velocity(), atol=1e-9)
+    truth = ours.nav_state(2.0)  # (the last prediction: true signals at the true zero bias)
+    assert np.linalg.norm(ours_pred.position() - truth.position()) < 0.01
 
 
 def test_noise_has_the_params_density():
@@ -92,7 +93,8 @@ def test_noise_has_the_params_density():
 def test_imu_factors_over_noisy_samples_recover_the_trajectory():
     """A circle driven for 10 s: ImuFactors between keyframes every second (noisy samples, a
     true bias), a prior at the start, three GPS fixes; LM from dead-reckoned-and-perturbed values
-    recovers the true poses to a few cm and the velocities to a few cm/s."""
+    recovers the true positions and velocities to a few cm (/s) and the attitudes to ~1 degree
+    (gyro noise 2e-3 rad/s/sqrt(Hz) over 10 s: ~6e-3 rad of random walk)."""
     scenario = ConstantTwistScenario([0.0, 0.0, 0.3], [3.0, 0.0, 0.0])
     bias = ImuBias([0.02, -0.01, 0.03], [1e-3, -2e-3, 5e-4])
     params = _params()
@@ -121,5 +123,5 @@ def test_imu_factors_over_noisy_samples_recover_the_trajectory():
         truth = scenario.nav_state(float(k))
         est = r.values.at(X(k))
         assert np.linalg.norm(est.translation() - truth.position()) < 0.05
-        assert np.linalg.norm(est.rotation().local(truth.attitude())) < 0.01
+        assert np.linalg.norm(est.rotation().local(truth.attitude())) < 0.02
         assert np.linalg.norm(r.values.at(V(k)) - truth.velocity()) < 0.05
