@@ -92,12 +92,14 @@ def test_noise_has_the_params_density():
 
 def test_imu_factors_over_noisy_samples_recover_the_trajectory():
     """A circle driven for 10 s: ImuFactors between keyframes every second (noisy samples, a
-    true bias), a prior at the start, three GPS fixes; LM from dead-reckoned-and-perturbed values
-    recovers the true positions and velocities to a few cm (/s) and the attitudes to ~1 degree
-    (gyro noise 2e-3 rad/s/sqrt(Hz) over 10 s: ~6e-3 rad of random walk)."""
+    true bias), a prior at the start, a GPS fix every second; LM from dead-reckoned-and-perturbed
+    values (dead reckoning alone drifts ~1.5 m with the accelerometer bias) recovers the true
+    positions and velocities to a few cm (/s) and the attitudes to ~1 degree (yaw is the weakly
+    observed part: only the 0.9 m/s^2 centripetal acceleration turns with it)."""
     scenario = ConstantTwistScenario([0.0, 0.0, 0.3], [3.0, 0.0, 0.0])
     bias = ImuBias([0.02, -0.01, 0.03], [1e-3, -2e-3, 5e-4])
-    params = _params()
+    params = PreintegrationParams.make_u(9.81, accel_sigma=0.02, gyro_sigma=5e-4,
+                                         integration_sigma=1e-4)
     run = ScenarioRunner(scenario, params, dt=0.01, bias=bias, rng=7)
     graph, values = fgopt.FactorGraph(), Variables()
     s0 = scenario.nav_state(0.0)
@@ -114,7 +116,7 @@ def test_imu_factors_over_noisy_samples_recover_the_trajectory():
             state = pim.predict(state, ImuBias())
         values.add(X(k), state.pose().retract(0.05 * rng.normal(size=6)))
         values.add(V(k), state.velocity() + 0.05 * rng.normal(size=3))
-        if k in (4, 7, 10):
+        if k > 0:
             graph.add(GpsFactor(X(k), scenario.pose(float(k)).translation(),
                                 loss=Isotropic.sigma(3, 0.02)))
     r = fgopt.optimize(graph, values)
