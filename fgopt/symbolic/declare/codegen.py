@@ -33,7 +33,7 @@ from ..cse import Program, optimize, total_ops
 from .derive import Programs
 
 #: Bump when the layout of generated manifold modules changes (part of every declaration key).
-DECLARE_CODEGEN_VERSION = "2"  # 2: deferred numba (fgopt._jit), NumPy twins
+DECLARE_CODEGEN_VERSION = "3"  # 2: deferred numba, NumPy twins; 3: bodies as LLVM IR
 
 
 def _program(exprs: list) -> Program:
@@ -51,20 +51,12 @@ def _used(prog: Program) -> set:
 
 def _kernel(name: str, prog: Program, inputs: Sequence[tuple[str, list]], out: str,
             index: Any, doc: str) -> str:
-    from ..printer import to_source
+    from .._ir import kernel_source
 
-    used = _used(prog)
-    params = ", ".join([arr for arr, _ in inputs] + [out])
-    lines = ['@njit(cache=True, fastmath=False, error_model="numpy", nogil=True)',
-             f"def {name}({params}):", f'    """{doc}"""',
-             f"    # total ops: {total_ops(prog)}",
-             f"    for _i in range({out}.shape[0]):"]
-    for arr, syms in inputs:
-        lines += [f"        {s.name} = {arr}[_i, {k}]" for k, s in enumerate(syms) if s in used]
-    lines += [f"        {s.name} = {to_source(e)}" for s, e in prog.stmts]
-    lines += [f"        {out}[_i, {index(k)}] = {to_source(e)}"
-              for k, e in enumerate(prog.outputs["out"])]
-    return "\n".join(lines) + "\n"
+    params = [arr for arr, _ in inputs] + [out]
+    loads = {s: (j, (k,)) for j, (_, syms) in enumerate(inputs) for k, s in enumerate(syms)}
+    stores = {"out": (len(inputs), lambda k: tuple(int(x) for x in str(index(k)).split(",")))}
+    return kernel_source(name, prog, params, loads, stores, doc, total_ops(prog))
 
 
 def _numpy_twin(name: str, prog: Program, inputs: Sequence[tuple[str, list]], out: str,
@@ -183,6 +175,7 @@ def module_source(cls: type, progs: Programs, origin: str) -> tuple[str, str, di
         "from time import perf_counter",
         "",
         "from fgopt._jit import njit",
+        "from fgopt.symbolic._ir import Body",
         "from fgopt.symbolic.declare.runtime import as_rows",
         "from fgopt.symbolic.runtime import charge_numpy, use_numpy",
         "",
