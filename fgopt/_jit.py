@@ -133,6 +133,9 @@ class LazyKernel:
                 if d is None:
                     import numba
 
+                    from ._first_use import watch_numba
+
+                    watch_numba()  # one line if compiling on first use takes long
                     g = self.py_func.__globals__
                     if g.get("prange") is _numba_prange:
                         g["prange"] = numba.prange

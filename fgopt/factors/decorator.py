@@ -331,9 +331,11 @@ class SymbolicFactorType:
             if source is not None:
                 _cache.STATS["shipped"] += 1
                 return _cache.store(self.name, key, source)
+        from .._first_use import preparing
         from ..symbolic.derive import derive_source
 
-        source = derive_source(self, pattern)
+        with preparing(f"deriving the kernels of {self.name} (SymPy)"):
+            source = derive_source(self, pattern)
         _cache.STATS["derived"] += 1
         if key is None:
             import hashlib

@@ -247,8 +247,11 @@ def _module(twin: type, use_cache: bool):
     from .codegen import module_source
     from .derive import derive_programs
 
+    from ..._first_use import preparing
+
     try:
-        progs = derive_programs(twin)
+        with preparing(f"deriving the manifold {twin.__name__} (SymPy)"):
+            progs = derive_programs(twin)
     except FgoptError:
         raise
     except Exception as exc:  # noqa: BLE001 - the user's methods failed on symbolic input
