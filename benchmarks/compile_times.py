@@ -19,6 +19,7 @@ Scenarios (``--only`` takes a comma-separated subset):
 
     python -m benchmarks.compile_times                   # all scenarios, table on stdout
     python -m benchmarks.compile_times --only custom-factor --top 15 --json out.json
+    python -m benchmarks.compile_times --compare before.json after.json   # two checkouts
 
 Children run with ``FGOPT_NUMPY_BUDGET=0`` and no background compile process, so every kernel
 a solve uses is compiled in the process that is timed (a small problem takes the general path).
@@ -241,13 +242,53 @@ def table(results: dict, top: int) -> str:
     return "\n".join(lines)
 
 
+def compare(before: dict, after: dict, top: int) -> str:
+    """Markdown: per scenario in both runs, compile CPU before / after; then the functions by
+    their largest cold self time before, with the same function's time after."""
+    lines = ["| scenario | compile CPU s before | after | functions compiled before | after |",
+             "|---|---:|---:|---:|---:|"]
+    rows: dict[str, list] = {}
+    for name in before:
+        if name not in after:
+            continue
+        b, a = before[name]["cold"]["rows"], after[name]["cold"]["rows"]
+        lines.append(f"| {name} | {sum(v['self'] for v in b.values()):.2f} | "
+                     f"{sum(v['self'] for v in a.values()):.2f} | "
+                     f"{sum(v['compiles'] for v in b.values())} | "
+                     f"{sum(v['compiles'] for v in a.values())} |")
+        for fn, v in b.items():
+            r = rows.setdefault(_generic(fn), [0.0, 0.0])
+            r[0] = max(r[0], v["self"])
+        for fn, v in a.items():
+            r = rows.setdefault(_generic(fn), [0.0, 0.0])
+            r[1] = max(r[1], v["self"])
+    lines += ["", "| function | cold compile CPU s before | after |", "|---|---:|---:|"]
+    for fn, (b, a) in sorted(rows.items(), key=lambda kv: -max(kv[1]))[:top]:
+        lines.append(f"| `{fn}` | {b:.2f} | {a:.2f} |")
+    return "\n".join(lines)
+
+
+def _generic(fn: str) -> str:
+    """A generated kernel's name without its cache key (the key changes with the generator)."""
+    head, _, tail = fn.partition(".")
+    if head.startswith("fgk_"):
+        return head.rsplit("_", 1)[0] + "." + tail
+    return fn
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--only", default=",".join(SCENARIOS))
     ap.add_argument("--top", type=int, default=25)
     ap.add_argument("--json", default=None)
     ap.add_argument("--table", default=None, help="only print the table of this --json file")
+    ap.add_argument("--compare", nargs=2, metavar=("BEFORE", "AFTER"), default=None,
+                    help="only print the before/after table of two --json files")
     args = ap.parse_args()
+    if args.compare:
+        b, a = (json.loads(Path(f).read_text()) for f in args.compare)
+        print(compare(b, a, args.top))
+        return
     if args.table:
         print(table(json.loads(Path(args.table).read_text()), args.top))
         return
