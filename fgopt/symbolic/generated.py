@@ -202,11 +202,9 @@ class GeneratedFunction:
             module = _cache.load(modname, key)
             if module is not None:
                 return module
-        from .._first_use import preparing
         from ._generate_source import derive_source
 
-        with preparing(f"deriving {self.name} and its Jacobians (SymPy)"):
-            source = derive_source(self)
+        source = derive_source(self)
         _cache.STATS["derived"] += 1
         if key is None:
             key = "nocache_" + hashlib.sha256(source.encode()).hexdigest()[:16]
