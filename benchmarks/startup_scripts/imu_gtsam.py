@@ -66,4 +66,4 @@ def run():
 if __name__ == "__main__":
     np.set_printoptions(precision=6, suppress=True)
     for name, value in run().items():
-        print(f"{name}: {np.round(value, 6)}")
+        print(f"{name}: {np.round(value, 6) + 0.0}")  # + 0.0: no "-0."
