@@ -14,13 +14,21 @@ median of ``--repeats`` (5), fgopt and GTSAM interleaved so both see the same ma
   install (``--cold-repeats``, 1: each costs a cold compile). GTSAM has no cache: its figure is
   its (only) solve of the same file (for the demo: the demo's generated graph written as g2o);
 * ``custom factor``: ``startup_scripts/custom_factor.py`` (range-bearing, a Pose3 between-like
-  factor): definition to first optimized result with an empty kernel cache (cold; fgopt's own
-  kernels warm in numba's cache), warm (same definition, new process), edited (the body changed,
-  built-ins cached); GTSAM: the same factor as a ``CustomFactor`` with numerical Jacobians.
+  factor): definition to first optimized result with an empty ``FGOPT_CACHE_DIR`` (cold), warm
+  (same definition, new process), edited (the body changed, built-ins cached); GTSAM: the same
+  factor as a ``CustomFactor`` with numerical Jacobians;
+* ``ports`` and ``first`` (issue 41): five ports of GTSAM's examples vs GTSAM's scripts (warm),
+  and first use on a fresh install (empty caches, a copy of the package) vs the warm run of
+  the same job: see :mod:`benchmarks.startup_ports`.
+
+"Warm caches" are the run's own: every process gets ``FGOPT_CACHE_DIR`` and ``NUMBA_CACHE_DIR``
+in one folder made for the run, warmed by an untimed first run of each job (a cache shared
+with other checkouts of fgopt would be rebuilt whenever their sources differ).
 
     python -m benchmarks.startup                      # everything (~15-30 min on 2 cores)
     python -m benchmarks.startup --only import,tiny   # a subset
     python -m benchmarks.startup --repeats 3 --cold-repeats 1
+    python -m benchmarks.startup --only first --first-jobs imu,manifold   # some first uses
 
 Results: ``benchmarks/results/startup-<date>.json`` and ``.md``. Child processes run without
 ``PYTHONDONTWRITEBYTECODE`` (an installed package has its bytecode; without it every fgopt module
@@ -39,6 +47,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from . import startup_ports as ports
+
 REPO = Path(__file__).resolve().parents[1]
 SCRIPTS = REPO / "benchmarks" / "startup_scripts"
 DATA = Path(os.environ.get("FGOPT_DATA", REPO.parent / "shared" / "data"))
@@ -50,7 +60,9 @@ FILES = {
     "Ladybug-49": DATA / "bal" / "problem-49-7776-pre.txt",
 }
 PY = sys.executable
-SECTIONS = ("import", "tiny", "solve", "overheads", "cold", "custom")
+SECTIONS = ("import", "tiny", "ports", "solve", "overheads", "cold", "custom", "first")
+#: the run's warm cache folder (set by main; see the module docstring)
+WARM: dict[str, str] = {}
 
 
 def _env(**extra: str) -> dict:
@@ -61,6 +73,7 @@ def _env(**extra: str) -> dict:
     for var in ("OMP_NUM_THREADS", "OMP_THREAD_LIMIT", "OPENBLAS_NUM_THREADS",
                 "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
         env.setdefault(var, "1")
+    env.update(WARM)
     env.update(extra)
     return env
 
@@ -126,6 +139,7 @@ def section_overheads(results: dict, args) -> None:
         if not path.is_file():
             continue
         row = {}
+        run([PY, str(SCRIPTS / "overheads_fgopt.py"), str(path)], _env())  # warm the caches
         for lib in ("fgopt", "gtsam"):
             per = []
             for _ in range(args.overhead_repeats):
@@ -187,12 +201,15 @@ def section_custom(results: dict, args) -> None:
 def render(results: dict, meta: dict) -> str:
     """The run's markdown: the README's two start-up tables (the one renderer of
     :mod:`benchmarks.render_misc`, so the results file and the README read alike)."""
-    from .render_misc import startup, startup_overheads
+    from .render_misc import startup, startup_first_use, startup_overheads
 
     doc = {"results": {"meta": meta, "results": results}}
-    lines = [f"# Start-up benchmark ({meta['date']})", "",
+    lines = [f"# Start-up benchmark ({meta['date']}, commit `{meta['commit']}`)", "",
              f"`{meta['command']}`; {meta['machine']}; load average at start {meta['load']}.",
              "Seconds, wall clock of new processes, median of the samples.", "", startup(doc)]
+    if any(k.startswith("first use ") for k in results):
+        lines += ["", "First use on a fresh install (empty caches) vs the warm run:", "",
+                  startup_first_use(doc)]
     if any(k.startswith("overheads ") for k in results):
         lines += ["", "Per-process overheads (inside one process):", "", startup_overheads(doc)]
     if "import" in results:
@@ -211,6 +228,17 @@ TABLE_PROTOCOL = {
 }
 
 
+def _commit() -> str:
+    """This checkout's short HEAD, ``+dirty`` when fgopt's or the benchmark's files differ."""
+    git = ["git", "-C", str(REPO)]
+    head = subprocess.run(git + ["rev-parse", "--short", "HEAD"], capture_output=True,
+                          text=True).stdout.strip()
+    dirty = subprocess.run(git + ["status", "--porcelain", "--", "fgopt", "benchmarks",
+                                  ":(exclude)benchmarks/results"], capture_output=True,
+                           text=True).stdout.strip()
+    return head + ("+dirty" if dirty else "")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--only", default=",".join(SECTIONS), help=f"sections: {','.join(SECTIONS)}")
@@ -218,15 +246,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ba-repeats", type=int, default=3)
     ap.add_argument("--cold-repeats", type=int, default=1)
     ap.add_argument("--overhead-repeats", type=int, default=3)
+    ap.add_argument("--first-jobs", default="",
+                    help="first-use jobs whose name contains one of these (comma list)")
     ap.add_argument("--out", default=str(REPO / "benchmarks" / "results"))
     args = ap.parse_args(argv)
     only = set(args.only.split(","))
     results: dict = {}
-    meta = {"date": time.strftime("%Y-%m-%d %H:%M"), "command": "python -m benchmarks.startup "
+    meta = {"date": time.strftime("%Y-%m-%d %H:%M"), "commit": _commit(), "command": "python -m benchmarks.startup "
             + " ".join(argv if argv is not None else sys.argv[1:]),
             "machine": f"{os.cpu_count()} cores", "load": os.getloadavg()}
     with tempfile.TemporaryDirectory(prefix="fgopt-startup-") as tmp:
         out_dir = Path(tmp)
+        WARM.update(FGOPT_CACHE_DIR=str(out_dir / "warm-cache" / "fgopt"),
+                    NUMBA_CACHE_DIR=str(out_dir / "warm-cache" / "numba"))
         for name in SECTIONS:
             if name not in only:
                 continue
@@ -236,7 +268,9 @@ def main(argv: list[str] | None = None) -> int:
              "solve": lambda: section_solve(results, args, out_dir),
              "overheads": lambda: section_overheads(results, args),
              "cold": lambda: section_cold(results, args, out_dir),
-             "custom": lambda: section_custom(results, args)}[name]()
+             "custom": lambda: section_custom(results, args),
+             "ports": lambda: ports.section_ports(results, args, interleaved, _env),
+             "first": lambda: ports.section_first_use(results, args, FILES, out_dir)}[name]()
             print(f"[{name}: {time.perf_counter() - t:.0f} s]", file=sys.stderr, flush=True)
     meta["load_end"] = os.getloadavg()
     md = render(results, meta)
