@@ -252,9 +252,14 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     only = set(args.only.split(","))
     results: dict = {}
-    meta = {"date": time.strftime("%Y-%m-%d %H:%M"), "commit": _commit(), "command": "python -m benchmarks.startup "
+    meta = {"date": time.strftime("%Y-%m-%d %H:%M"), "commit": _commit(),
+            "command": "python -m benchmarks.startup "
             + " ".join(argv if argv is not None else sys.argv[1:]),
             "machine": f"{os.cpu_count()} cores", "load": os.getloadavg()}
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    stem = out / f"startup-{time.strftime('%Y-%m-%d-%H%M')}"
+    partial = stem.with_name(stem.name + "-partial.json")
     with tempfile.TemporaryDirectory(prefix="fgopt-startup-") as tmp:
         out_dir = Path(tmp)
         WARM.update(FGOPT_CACHE_DIR=str(out_dir / "warm-cache" / "fgopt"),
@@ -272,14 +277,14 @@ def main(argv: list[str] | None = None) -> int:
              "ports": lambda: ports.section_ports(results, args, interleaved, _env),
              "first": lambda: ports.section_first_use(results, args, FILES, out_dir)}[name]()
             print(f"[{name}: {time.perf_counter() - t:.0f} s]", file=sys.stderr, flush=True)
+            # sections can take many minutes (cold compiles): keep what is measured so far
+            partial.write_text(json.dumps({"meta": meta, "results": results}, indent=1))
     meta["load_end"] = os.getloadavg()
     md = render(results, meta)
     print(md)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    stem = out / f"startup-{time.strftime('%Y-%m-%d-%H%M')}"
     stem.with_suffix(".json").write_text(json.dumps({"meta": meta, "results": results}, indent=1))
     stem.with_suffix(".md").write_text(md)
+    partial.unlink(missing_ok=True)  # the glob startup-*.json must find the full document
     return 0
 
 
