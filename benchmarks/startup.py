@@ -246,6 +246,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ba-repeats", type=int, default=3)
     ap.add_argument("--cold-repeats", type=int, default=1)
     ap.add_argument("--overhead-repeats", type=int, default=3)
+    ap.add_argument("--warm-cache", default="",
+                    help="folder of the warm caches (default: a new one, warmed by this run)")
     ap.add_argument("--first-jobs", default="",
                     help="first-use jobs whose name contains one of these (comma list)")
     ap.add_argument("--out", default=str(REPO / "benchmarks" / "results"))
@@ -262,8 +264,8 @@ def main(argv: list[str] | None = None) -> int:
     partial = stem.with_name(stem.name + "-partial.json")
     with tempfile.TemporaryDirectory(prefix="fgopt-startup-") as tmp:
         out_dir = Path(tmp)
-        WARM.update(FGOPT_CACHE_DIR=str(out_dir / "warm-cache" / "fgopt"),
-                    NUMBA_CACHE_DIR=str(out_dir / "warm-cache" / "numba"))
+        warm = Path(args.warm_cache) if args.warm_cache else out_dir / "warm-cache"
+        WARM.update(FGOPT_CACHE_DIR=str(warm / "fgopt"), NUMBA_CACHE_DIR=str(warm / "numba"))
         for name in SECTIONS:
             if name not in only:
                 continue
