@@ -104,6 +104,8 @@ def startup(doc: dict) -> str:
 def startup_first_use(doc: dict) -> str:
     """First use on a fresh install (empty caches) vs the warm run of the same job (issue 41, 1)."""
     res = doc["results"]["results"]
+    if not any(k.startswith("first use ") for k in res):
+        return "(Not measured in this run: `python -m benchmarks.startup --only first`.)"
     lines = _head(["first use", "cold s", "warm s", "cold - warm s",
                    f"<= {FIRST_USE_EXTRA_S:g} s [41.1]", "first line on stderr (cold)"])
     missed = []
