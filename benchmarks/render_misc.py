@@ -36,7 +36,8 @@ def _solve_note(r: dict) -> str:
 def startup(doc: dict) -> str:
     """Targets of the start-up benchmark: new processes, fgopt vs GTSAM."""
     res = doc["results"]["results"]
-    lines = _head(["target", "fgopt s", "GTSAM s", "fgopt / GTSAM", "target met", "stopping"])
+    lines = _head(["target", "fgopt s", "GTSAM s", "fgopt / GTSAM", "target met",
+                   "stopping; CPU s (fgopt / GTSAM)"])
     losses, missed = Losses(), []
 
     def row(label, fg, gt, ok, comparable=True, stop=""):
@@ -60,8 +61,10 @@ def startup(doc: dict) -> str:
     for k in [k for k in res if k.startswith("port ")]:
         r = res[k]
         fg, gt = r["fgopt"]["median"], r["gtsam"]["median"]
+        cpu = (f"CPU s: {r['fgopt']['cpu']:.2f} / {r['gtsam']['cpu']:.2f} = "
+               f"{r['fgopt']['cpu'] / r['gtsam']['cpu']:.2f}" if "cpu" in r["fgopt"] else "")
         row(f"port of {PORTS.get(k[5:], k[5:])} <= {PORT_RATIO}x GTSAM's script, warm caches "
-            "[41.2]", fg, gt, fg <= PORT_RATIO * gt)
+            "[41.2]", fg, gt, fg <= PORT_RATIO * gt, stop=cpu)
     for k in [k for k in res if k.startswith("solve ")]:
         r = res[k]
         tag = " [41.2]" if k[6:] in ("M3500", "sphere2500") else ""
@@ -107,7 +110,8 @@ def startup_first_use(doc: dict) -> str:
     if not any(k.startswith("first use ") for k in res):
         return "(Not measured in this run: `python -m benchmarks.startup --only first`.)"
     lines = _head(["first use", "cold s", "warm s", "cold - warm s",
-                   f"<= {FIRST_USE_EXTRA_S:g} s [41.1]", "first line on stderr (cold)"])
+                   f"<= {FIRST_USE_EXTRA_S:g} s [41.1]", "cold - warm CPU s",
+                   "first line on stderr (cold)"])
     missed = []
     for k in [k for k in res if k.startswith("first use ")]:
         r = res[k]
@@ -116,8 +120,9 @@ def startup_first_use(doc: dict) -> str:
         said = next((ln.strip() for ln in r.get("cold stderr", "").splitlines() if ln.strip()),
                     "")
         said = (said[:70] + "…") if len(said) > 70 else said
+        cpu = f"{r['cold cpu'] - r['warm cpu']:.2f}" if "cold cpu" in r else "—"
         lines.append(_row([k[10:], f"{r['cold']:.2f}", f"{r['warm']:.2f}", f"{extra:.2f}",
-                           "yes" if ok else "**no**", f"`{said}`" if said else "—"]))
+                           "yes" if ok else "**no**", cpu, f"`{said}`" if said else "—"]))
         if not ok:
             missed.append(k[10:])
     lines += ["", ("Fresh install: a copy of the package, byte-compiled, numba's cache files "

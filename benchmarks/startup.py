@@ -40,6 +40,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -78,27 +79,42 @@ def _env(**extra: str) -> dict:
     return env
 
 
+def _children_cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+#: CPU seconds (user + system) of the last process :func:`run` waited for: on a loaded machine
+#: a process's wall time is mostly waiting for a core, its CPU time is not
+LAST_CPU = [0.0]
+
+
 def run(cmd: list[str], env: dict, cwd: Path | None = None) -> tuple[float, str]:
     """Wall seconds of one new process, and its stdout (raises on failure)."""
-    t = time.perf_counter()
+    cpu, t = _children_cpu(), time.perf_counter()
     p = subprocess.run(cmd, env=env, cwd=cwd or REPO, capture_output=True, text=True)
     dt = time.perf_counter() - t
+    LAST_CPU[0] = _children_cpu() - cpu
     if p.returncode not in (0, 1):  # fgopt solve exits 1 when not converged: still a result
-        raise RuntimeError(f"{' '.join(map(str, cmd))} failed:\n{p.stdout[-2000:]}\n{p.stderr[-3000:]}")
+        raise RuntimeError(f"{' '.join(map(str, cmd))} failed:\n{p.stdout[-2000:]}\n"
+                           f"{p.stderr[-3000:]}")
     return dt, p.stdout
 
 
 def interleaved(cmds: dict[str, tuple[list[str], dict]], repeats: int) -> dict[str, dict]:
-    """Run every command ``repeats`` times, round robin; median and samples per name."""
+    """Run every command ``repeats`` times, round robin; median and samples per name (wall
+    seconds; ``cpu``: the CPU seconds of the same processes)."""
     samples: dict[str, list[float]] = {k: [] for k in cmds}
+    cpu: dict[str, list[float]] = {k: [] for k in cmds}
     outs: dict[str, str] = {}
     for _ in range(repeats):
         for name, (cmd, env) in cmds.items():
             dt, out = run(cmd, env)
             samples[name].append(dt)
+            cpu[name].append(LAST_CPU[0])
             outs[name] = out
-    return {k: {"median": statistics.median(v), "samples": v, "stdout": outs[k][-400:]}
-            for k, v in samples.items()}
+    return {k: {"median": statistics.median(v), "samples": v, "cpu": statistics.median(cpu[k]),
+                "cpu samples": cpu[k], "stdout": outs[k][-400:]} for k, v in samples.items()}
 
 
 def section_import(results: dict, args) -> None:

@@ -19,6 +19,7 @@ from __future__ import annotations
 import compileall
 import json
 import os
+import resource
 import shutil
 import statistics
 import subprocess
@@ -67,14 +68,19 @@ def fresh_install(base: Path | None = None) -> tuple[Path, dict]:
     return root, env
 
 
+def _children_cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
 def _timed(cmd: list[str], env: dict, cwd: Path) -> dict:
-    t = time.perf_counter()
-    p = subprocess.run(cmd, env=env, cwd=cwd, capture_output=True, text=True)
-    dt = time.perf_counter() - t
+    cpu, t = _children_cpu(), time.perf_counter()
+    p = subprocess.run(cmd, env=env, cwd=cwd, capture_output=True, text=True, check=False)
+    dt, cpu = time.perf_counter() - t, _children_cpu() - cpu
     if p.returncode not in (0, 1):  # fgopt solve exits 1 when not converged: still a result
         raise RuntimeError(f"{' '.join(map(str, cmd))} failed:\n{p.stdout[-2000:]}\n"
                            f"{p.stderr[-3000:]}")
-    return {"wall": dt, "stdout": p.stdout[-600:], "stderr": p.stderr[-600:]}
+    return {"wall": dt, "cpu": cpu, "stdout": p.stdout[-600:], "stderr": p.stderr[-600:]}
 
 
 def first_use_jobs(files: dict[str, Path], out_dir: Path) -> dict[str, list[str]]:
@@ -108,6 +114,8 @@ def section_first_use(results: dict, args, files: dict[str, Path], out_dir: Path
         row = {"cold": statistics.median(r["wall"] for r in cold),
                "warm": statistics.median(r["wall"] for r in warm),
                "cold samples": [r["wall"] for r in cold], "warm samples": [r["wall"] for r in warm],
+               "cold cpu": statistics.median(r["cpu"] for r in cold),
+               "warm cpu": statistics.median(r["cpu"] for r in warm),
                "cold stderr": cold[0]["stderr"], "cold stdout": cold[0]["stdout"]}
         if name.startswith("custom factor"):
             row["definition to result"] = {
