@@ -262,6 +262,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ba-repeats", type=int, default=3)
     ap.add_argument("--cold-repeats", type=int, default=1)
     ap.add_argument("--overhead-repeats", type=int, default=3)
+    ap.add_argument("--files", default="",
+                    help=f"solve and first-use files (default all: {','.join(FILES)})")
     ap.add_argument("--warm-cache", default="",
                     help="folder of the warm caches (default: a new one, warmed by this run)")
     ap.add_argument("--first-jobs", default="",
@@ -269,6 +271,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=str(REPO / "benchmarks" / "results"))
     args = ap.parse_args(argv)
     only = set(args.only.split(","))
+    if args.files:
+        for name in set(FILES) - set(args.files.split(",")):
+            del FILES[name]
     results: dict = {}
     meta = {"date": time.strftime("%Y-%m-%d %H:%M"), "commit": _commit(),
             "command": "python -m benchmarks.startup "
@@ -293,7 +298,10 @@ def main(argv: list[str] | None = None) -> int:
              "cold": lambda: section_cold(results, args, out_dir),
              "custom": lambda: section_custom(results, args),
              "ports": lambda: ports.section_ports(results, args, interleaved, _env),
-             "first": lambda: ports.section_first_use(results, args, FILES, out_dir)}[name]()
+             "first": lambda: ports.section_first_use(
+                 results, args, FILES, out_dir,
+                 lambda: partial.write_text(json.dumps({"meta": meta, "results": results})))
+             }[name]()
             print(f"[{name}: {time.perf_counter() - t:.0f} s]", file=sys.stderr, flush=True)
             # sections can take many minutes (cold compiles): keep what is measured so far
             partial.write_text(json.dumps({"meta": meta, "results": results}, indent=1))

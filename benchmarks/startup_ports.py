@@ -84,21 +84,25 @@ def _timed(cmd: list[str], env: dict, cwd: Path) -> dict:
 
 
 def first_use_jobs(files: dict[str, Path], out_dir: Path) -> dict[str, list[str]]:
-    """Job name -> command (run in the fresh install's folder)."""
-    jobs = {f"port {p}": [PY, str(SCRIPTS / f"{p}_fgopt.py")] for p in PORTS}
+    """Job name -> command (run in the fresh install's folder); the quicker first uses first,
+    so an interrupted run has the most rows."""
+    jobs = {"custom manifold (@fgopt.manifold)": [PY, str(SCRIPTS / "custom_manifold.py")],
+            "custom factor (20 Pose3 factors)": [PY, str(SCRIPTS / "custom_factor.py"),
+                                                 "pose3_between", "1"]}
     for name, label in (("M3500", "g2o solve M3500"), ("Ladybug-49", "BAL solve Ladybug-49")):
-        if files[name].is_file():
+        if name in files and files[name].is_file():
             suffix = "".join(files[name].suffixes)
             jobs[label] = [PY, "-m", "fgopt.cli", "solve", str(files[name]), "--out",
                            str(out_dir / f"first_{name}{suffix}"), "--quiet"]
-    jobs["custom factor (20 Pose3 factors)"] = [PY, str(SCRIPTS / "custom_factor.py"),
-                                                "pose3_between", "1"]
-    jobs["custom manifold (@fgopt.manifold)"] = [PY, str(SCRIPTS / "custom_manifold.py")]
+    for p in ("pose2_isam2", "sfm_smart", "sfm", "visual_isam2", "imu"):
+        jobs[f"port {p}"] = [PY, str(SCRIPTS / f"{p}_fgopt.py")]
     return jobs
 
 
-def section_first_use(results: dict, args, files: dict[str, Path], out_dir: Path) -> None:
-    """Each job: ``--cold-repeats`` fresh installs, a cold run then ``--repeats`` warm runs."""
+def section_first_use(results: dict, args, files: dict[str, Path], out_dir: Path,
+                      save=lambda: None) -> None:
+    """Each job: ``--cold-repeats`` fresh installs, a cold run then ``--repeats`` warm runs
+    (``save()`` after each job: a job can take minutes)."""
     only = set(args.first_jobs.split(",")) if getattr(args, "first_jobs", "") else None
     for name, cmd in first_use_jobs(files, out_dir).items():
         if only and not any(o in name for o in only):
@@ -126,6 +130,7 @@ def section_first_use(results: dict, args, files: dict[str, Path], out_dir: Path
         results[f"first use {name}"] = row
         print(f"  first use {name}: cold {row['cold']:.1f} s, warm {row['warm']:.2f} s",
               file=sys.stderr, flush=True)
+        save()
 
 
 def section_ports(results: dict, args, interleaved, env_of) -> None:
