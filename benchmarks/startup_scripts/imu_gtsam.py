@@ -1,9 +1,9 @@
-"""GTSAM's ImuFactorExample (its own scenario and runner; the IMU noise drawn by numpy), without plots, seeded: the reference
-for ``imu_fgopt.py``. Prints the optimized last state, the bias and the errors."""
-
-import numpy as np
+"""GTSAM's ImuFactorExample (its own scenario and runner; the IMU noise drawn by numpy), without
+plots, seeded: the reference for ``imu_fgopt.py``. Prints the optimized last state, the bias and
+the errors."""
 
 import gtsam
+import numpy as np
 from gtsam.symbol_shorthand import B, V, X
 
 SEED, SECONDS, DT = 7, 12, 0.01
@@ -13,7 +13,7 @@ GRAVITY = 9.81
 
 def run():
     rng = np.random.default_rng(SEED)
-    per_second = int(round(1 / DT))
+    per_second = round(1 / DT)
     imu_noise = NOISE * rng.standard_normal((SECONDS * per_second, 6))
     omega, velocity = np.radians([30.0, -30.0, 0.0]), np.array([2.0, 0.0, 0.0])
     bias = gtsam.imuBias.ConstantBias(np.array([-0.3, 0.1, 0.2]), np.array([0.1, 0.3, -0.1]))

@@ -5,9 +5,8 @@ marginal covariances."""
 
 import math
 
-import numpy as np
-
 import gtsam
+import numpy as np
 from gtsam.symbol_shorthand import X
 
 SEED = 5

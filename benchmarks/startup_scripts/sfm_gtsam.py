@@ -1,9 +1,8 @@
 """GTSAM's SFMExample without plots and prints of the graph, seeded: the reference for
 ``sfm_fgopt.py``. Prints the optimized cameras, corners and the errors."""
 
-import numpy as np
-
 import gtsam
+import numpy as np
 from gtsam.symbol_shorthand import L, X
 
 SEED = 11

@@ -2,9 +2,8 @@
 prints of the graph: the reference for ``sfm_smart_fgopt.py``. Prints the optimized cameras,
 the corners triangulated at the optimum and the errors."""
 
-import numpy as np
-
 import gtsam
+import numpy as np
 from gtsam.symbol_shorthand import X
 
 

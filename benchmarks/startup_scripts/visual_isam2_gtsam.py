@@ -1,9 +1,8 @@
 """GTSAM's VisualISAM2Example without plots and per-frame prints: the reference for
 ``visual_isam2_fgopt.py``. Prints the last frame's estimate of every camera and corner."""
 
-import numpy as np
-
 import gtsam
+import numpy as np
 from gtsam.symbol_shorthand import L, X
 
 
