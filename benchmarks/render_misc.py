@@ -33,6 +33,14 @@ def _solve_note(r: dict) -> str:
     return "; ".join(out)
 
 
+def _cpu(r: dict) -> str:
+    """CPU seconds of the same processes, fgopt / GTSAM (runs that recorded them)."""
+    if "cpu" not in r["fgopt"] or not r["gtsam"].get("cpu"):
+        return ""
+    fg, gt = r["fgopt"]["cpu"], r["gtsam"]["cpu"]
+    return f"CPU s: {fg:.2f} / {gt:.2f} = {fg / gt:.2f}"
+
+
 def startup(doc: dict) -> str:
     """Targets of the start-up benchmark: new processes, fgopt vs GTSAM."""
     res = doc["results"]["results"]
@@ -42,7 +50,8 @@ def startup(doc: dict) -> str:
 
     def row(label, fg, gt, ok, comparable=True, stop=""):
         q = fg / gt if comparable and gt > 0 else None
-        lines.append(_row([label, f"{fg:.2f}", f"{gt:.2f}" + ("" if comparable else " ⁽ˢ⁾"),
+        gt_cell = "—" if gt != gt else f"{gt:.2f}" + ("" if comparable else " ⁽ˢ⁾")  # nan: none
+        lines.append(_row([label, f"{fg:.2f}", gt_cell,
                            fmt_ratio(q), "yes" if ok else "**no**", stop]))
         losses.check("GTSAM", label, q)
         if not ok:
@@ -51,8 +60,7 @@ def startup(doc: dict) -> str:
     if "import" in res:
         r = res["import"]
         row("`import fgopt` <= `import gtsam` [41.2]", r["fgopt"]["median"],
-            r["gtsam"]["median"],
-            r["fgopt"]["median"] <= r["gtsam"]["median"])
+            r["gtsam"]["median"], r["fgopt"]["median"] <= r["gtsam"]["median"], stop=_cpu(r))
     for dim in ("2d", "3d"):
         r = res.get(f"tiny {dim}")
         if r:
@@ -61,16 +69,14 @@ def startup(doc: dict) -> str:
     for k in [k for k in res if k.startswith("port ")]:
         r = res[k]
         fg, gt = r["fgopt"]["median"], r["gtsam"]["median"]
-        cpu = (f"CPU s: {r['fgopt']['cpu']:.2f} / {r['gtsam']['cpu']:.2f} = "
-               f"{r['fgopt']['cpu'] / r['gtsam']['cpu']:.2f}" if "cpu" in r["fgopt"] else "")
         row(f"port of {PORTS.get(k[5:], k[5:])} <= {PORT_RATIO}x GTSAM's script, warm caches "
-            "[41.2]", fg, gt, fg <= PORT_RATIO * gt, stop=cpu)
+            "[41.2]", fg, gt, fg <= PORT_RATIO * gt, stop=_cpu(r))
     for k in [k for k in res if k.startswith("solve ")]:
         r = res[k]
         tag = " [41.2]" if k[6:] in ("M3500", "sphere2500") else ""
         row(f"`fgopt solve` {k[6:]} `--out`, warm caches{tag}", r["fgopt"]["median"],
             r["gtsam"]["median"], r["fgopt"]["median"] <= r["gtsam"]["median"],
-            stop=_solve_note(r))
+            stop="; ".join(s for s in (_solve_note(r), _cpu(r)) if s))
     for name in ("M3500", "sphere2500", "demo"):
         r = res.get(f"empty caches {name}")
         if r:
