@@ -14,13 +14,21 @@ median of ``--repeats`` (5), fgopt and GTSAM interleaved so both see the same ma
   install (``--cold-repeats``, 1: each costs a cold compile). GTSAM has no cache: its figure is
   its (only) solve of the same file (for the demo: the demo's generated graph written as g2o);
 * ``custom factor``: ``startup_scripts/custom_factor.py`` (range-bearing, a Pose3 between-like
-  factor): definition to first optimized result with an empty kernel cache (cold; fgopt's own
-  kernels warm in numba's cache), warm (same definition, new process), edited (the body changed,
-  built-ins cached); GTSAM: the same factor as a ``CustomFactor`` with numerical Jacobians.
+  factor): definition to first optimized result with an empty ``FGOPT_CACHE_DIR`` (cold), warm
+  (same definition, new process), edited (the body changed, built-ins cached); GTSAM: the same
+  factor as a ``CustomFactor`` with numerical Jacobians;
+* ``ports`` and ``first`` (issue 41): five ports of GTSAM's examples vs GTSAM's scripts (warm),
+  and first use on a fresh install (empty caches, a copy of the package) vs the warm run of
+  the same job: see :mod:`benchmarks.startup_ports`.
+
+"Warm caches" are the run's own: every process gets ``FGOPT_CACHE_DIR`` and ``NUMBA_CACHE_DIR``
+in one folder made for the run, warmed by an untimed first run of each job (a cache shared
+with other checkouts of fgopt would be rebuilt whenever their sources differ).
 
     python -m benchmarks.startup                      # everything (~15-30 min on 2 cores)
     python -m benchmarks.startup --only import,tiny   # a subset
     python -m benchmarks.startup --repeats 3 --cold-repeats 1
+    python -m benchmarks.startup --only first --first-jobs imu,manifold   # some first uses
 
 Results: ``benchmarks/results/startup-<date>.json`` and ``.md``. Child processes run without
 ``PYTHONDONTWRITEBYTECODE`` (an installed package has its bytecode; without it every fgopt module
@@ -32,12 +40,15 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from . import startup_ports as ports
 
 REPO = Path(__file__).resolve().parents[1]
 SCRIPTS = REPO / "benchmarks" / "startup_scripts"
@@ -50,7 +61,9 @@ FILES = {
     "Ladybug-49": DATA / "bal" / "problem-49-7776-pre.txt",
 }
 PY = sys.executable
-SECTIONS = ("import", "tiny", "solve", "overheads", "cold", "custom")
+SECTIONS = ("import", "tiny", "ports", "solve", "overheads", "cold", "custom", "first")
+#: the run's warm cache folder (set by main; see the module docstring)
+WARM: dict[str, str] = {}
 
 
 def _env(**extra: str) -> dict:
@@ -61,31 +74,47 @@ def _env(**extra: str) -> dict:
     for var in ("OMP_NUM_THREADS", "OMP_THREAD_LIMIT", "OPENBLAS_NUM_THREADS",
                 "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
         env.setdefault(var, "1")
+    env.update(WARM)
     env.update(extra)
     return env
 
 
+def _children_cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+#: CPU seconds (user + system) of the last process :func:`run` waited for: on a loaded machine
+#: a process's wall time is mostly waiting for a core, its CPU time is not
+LAST_CPU = [0.0]
+
+
 def run(cmd: list[str], env: dict, cwd: Path | None = None) -> tuple[float, str]:
     """Wall seconds of one new process, and its stdout (raises on failure)."""
-    t = time.perf_counter()
+    cpu, t = _children_cpu(), time.perf_counter()
     p = subprocess.run(cmd, env=env, cwd=cwd or REPO, capture_output=True, text=True)
     dt = time.perf_counter() - t
+    LAST_CPU[0] = _children_cpu() - cpu
     if p.returncode not in (0, 1):  # fgopt solve exits 1 when not converged: still a result
-        raise RuntimeError(f"{' '.join(map(str, cmd))} failed:\n{p.stdout[-2000:]}\n{p.stderr[-3000:]}")
+        raise RuntimeError(f"{' '.join(map(str, cmd))} failed:\n{p.stdout[-2000:]}\n"
+                           f"{p.stderr[-3000:]}")
     return dt, p.stdout
 
 
 def interleaved(cmds: dict[str, tuple[list[str], dict]], repeats: int) -> dict[str, dict]:
-    """Run every command ``repeats`` times, round robin; median and samples per name."""
+    """Run every command ``repeats`` times, round robin; median and samples per name (wall
+    seconds; ``cpu``: the CPU seconds of the same processes)."""
     samples: dict[str, list[float]] = {k: [] for k in cmds}
+    cpu: dict[str, list[float]] = {k: [] for k in cmds}
     outs: dict[str, str] = {}
     for _ in range(repeats):
         for name, (cmd, env) in cmds.items():
             dt, out = run(cmd, env)
             samples[name].append(dt)
+            cpu[name].append(LAST_CPU[0])
             outs[name] = out
-    return {k: {"median": statistics.median(v), "samples": v, "stdout": outs[k][-400:]}
-            for k, v in samples.items()}
+    return {k: {"median": statistics.median(v), "samples": v, "cpu": statistics.median(cpu[k]),
+                "cpu samples": cpu[k], "stdout": outs[k][-400:]} for k, v in samples.items()}
 
 
 def section_import(results: dict, args) -> None:
@@ -126,6 +155,7 @@ def section_overheads(results: dict, args) -> None:
         if not path.is_file():
             continue
         row = {}
+        run([PY, str(SCRIPTS / "overheads_fgopt.py"), str(path)], _env())  # warm the caches
         for lib in ("fgopt", "gtsam"):
             per = []
             for _ in range(args.overhead_repeats):
@@ -187,12 +217,15 @@ def section_custom(results: dict, args) -> None:
 def render(results: dict, meta: dict) -> str:
     """The run's markdown: the README's two start-up tables (the one renderer of
     :mod:`benchmarks.render_misc`, so the results file and the README read alike)."""
-    from .render_misc import startup, startup_overheads
+    from .render_misc import startup, startup_first_use, startup_overheads
 
     doc = {"results": {"meta": meta, "results": results}}
-    lines = [f"# Start-up benchmark ({meta['date']})", "",
+    lines = [f"# Start-up benchmark ({meta['date']}, commit `{meta['commit']}`)", "",
              f"`{meta['command']}`; {meta['machine']}; load average at start {meta['load']}.",
              "Seconds, wall clock of new processes, median of the samples.", "", startup(doc)]
+    if any(k.startswith("first use ") for k in results):
+        lines += ["", "First use on a fresh install (empty caches) vs the warm run:", "",
+                  startup_first_use(doc)]
     if any(k.startswith("overheads ") for k in results):
         lines += ["", "Per-process overheads (inside one process):", "", startup_overheads(doc)]
     if "import" in results:
@@ -211,6 +244,17 @@ TABLE_PROTOCOL = {
 }
 
 
+def _commit() -> str:
+    """This checkout's short HEAD, ``+dirty`` when fgopt's or the benchmark's files differ."""
+    git = ["git", "-C", str(REPO)]
+    head = subprocess.run(git + ["rev-parse", "--short", "HEAD"], capture_output=True,
+                          text=True).stdout.strip()
+    dirty = subprocess.run(git + ["status", "--porcelain", "--", "fgopt", "benchmarks",
+                                  ":(exclude)benchmarks/results"], capture_output=True,
+                           text=True).stdout.strip()
+    return head + ("+dirty" if dirty else "")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--only", default=",".join(SECTIONS), help=f"sections: {','.join(SECTIONS)}")
@@ -218,15 +262,31 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ba-repeats", type=int, default=3)
     ap.add_argument("--cold-repeats", type=int, default=1)
     ap.add_argument("--overhead-repeats", type=int, default=3)
+    ap.add_argument("--files", default="",
+                    help=f"solve and first-use files (default all: {','.join(FILES)})")
+    ap.add_argument("--warm-cache", default="",
+                    help="folder of the warm caches (default: a new one, warmed by this run)")
+    ap.add_argument("--first-jobs", default="",
+                    help="first-use jobs whose name contains one of these (comma list)")
     ap.add_argument("--out", default=str(REPO / "benchmarks" / "results"))
     args = ap.parse_args(argv)
     only = set(args.only.split(","))
+    if args.files:
+        for name in set(FILES) - set(args.files.split(",")):
+            del FILES[name]
     results: dict = {}
-    meta = {"date": time.strftime("%Y-%m-%d %H:%M"), "command": "python -m benchmarks.startup "
+    meta = {"date": time.strftime("%Y-%m-%d %H:%M"), "commit": _commit(),
+            "command": "python -m benchmarks.startup "
             + " ".join(argv if argv is not None else sys.argv[1:]),
             "machine": f"{os.cpu_count()} cores", "load": os.getloadavg()}
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    stem = out / f"startup-{time.strftime('%Y-%m-%d-%H%M')}"
+    partial = stem.with_name(stem.name + "-partial.json")
     with tempfile.TemporaryDirectory(prefix="fgopt-startup-") as tmp:
         out_dir = Path(tmp)
+        warm = Path(args.warm_cache) if args.warm_cache else out_dir / "warm-cache"
+        WARM.update(FGOPT_CACHE_DIR=str(warm / "fgopt"), NUMBA_CACHE_DIR=str(warm / "numba"))
         for name in SECTIONS:
             if name not in only:
                 continue
@@ -236,16 +296,21 @@ def main(argv: list[str] | None = None) -> int:
              "solve": lambda: section_solve(results, args, out_dir),
              "overheads": lambda: section_overheads(results, args),
              "cold": lambda: section_cold(results, args, out_dir),
-             "custom": lambda: section_custom(results, args)}[name]()
+             "custom": lambda: section_custom(results, args),
+             "ports": lambda: ports.section_ports(results, args, interleaved, _env),
+             "first": lambda: ports.section_first_use(
+                 results, args, FILES, out_dir,
+                 lambda: partial.write_text(json.dumps({"meta": meta, "results": results})))
+             }[name]()
             print(f"[{name}: {time.perf_counter() - t:.0f} s]", file=sys.stderr, flush=True)
+            # sections can take many minutes (cold compiles): keep what is measured so far
+            partial.write_text(json.dumps({"meta": meta, "results": results}, indent=1))
     meta["load_end"] = os.getloadavg()
     md = render(results, meta)
     print(md)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    stem = out / f"startup-{time.strftime('%Y-%m-%d-%H%M')}"
     stem.with_suffix(".json").write_text(json.dumps({"meta": meta, "results": results}, indent=1))
     stem.with_suffix(".md").write_text(md)
+    partial.unlink(missing_ok=True)  # the glob startup-*.json must find the full document
     return 0
 
 

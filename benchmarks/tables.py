@@ -62,8 +62,8 @@ BENCHES: dict[str, Bench] = {
         "--peers", "gtsam,ceres_cpp", "--repeats", "3"), ("--out", "{dir}/peers.json"),
         "peers.json", 15),
     "startup": Bench("benchmarks.startup", (
-        "--repeats", "5", "--ba-repeats", "1", "--overhead-repeats", "1", "--cold-repeats", "3"),
-        ("--out", "{dir}"), "startup-*.json", 4),
+        "--repeats", "5", "--ba-repeats", "1", "--overhead-repeats", "1", "--cold-repeats", "1"),
+        ("--out", "{dir}"), "startup-*.json", 40),
     "navigation": Bench("benchmarks.navigation", (), ("--out", "{dir}/navigation"),
                         "navigation.json", 1.5),
     "numpy-backend": Bench("benchmarks.numpy_backend", ("--repeats", "3"), ("--out", "{dir}"),
@@ -89,6 +89,7 @@ TABLES: dict[str, Table] = {
     "peers": Table("peers", render_peers.render),
     "startup": Table("startup", render_misc.startup),
     "startup-overheads": Table("startup", render_misc.startup_overheads),
+    "startup-first-use": Table("startup", render_misc.startup_first_use),
     "navigation": Table("navigation", render_misc.navigation),
     "numpy-backend": Table("numpy-backend", render_misc.numpy_backend),
     "incremental": Table("incremental", render_misc.incremental),
