@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from .._threads import blas_threads
 from ..errors import NotPositiveDefiniteError
 from ..manifolds.base import is_vector_kind
 from ..variables import Variables
@@ -109,14 +110,16 @@ class LevenbergMarquardt:
             result = small.optimize_small(problem, self.params, t0, graph, initial)
             if result is not None:
                 return result
-        return self.iterate(Run(graph, initial, self.params, "lm", callback, self.linear_solver,
-                                compiled=problem))
+        with blas_threads(problem.size, problem.threads):
+            return self.iterate(Run(graph, initial, self.params, "lm", callback,
+                                    self.linear_solver, compiled=problem))
 
     def optimize_problem(self, problem: Any, state: Any = None, solver: Any = None,
                          callback: Callback | None = None) -> Result:
         """Continue on a compiled problem (from ``state``; reusing an analyzed ``solver``)."""
-        return self.iterate(Run(None, None, self.params, "lm", callback, self.linear_solver,
-                                problem=problem, state=state, solver=solver))
+        with blas_threads(problem.size, problem.threads):
+            return self.iterate(Run(None, None, self.params, "lm", callback, self.linear_solver,
+                                    problem=problem, state=state, solver=solver))
 
     def iterate(self, run: Run) -> Result:
         p = self.params
