@@ -136,19 +136,6 @@ def fgopt_run(graph, values, config: str, mode: str, target: float | None = None
     return out
 
 
-#: Problems up to this many observations also run the fixed formulation (one generated
-#: whole-problem linearization, dense LM; SymForce paper Sec. VIII-C).
-FIXED_MAX_OBSERVATIONS = 200
-
-
-def fgopt_fixed_run(fixed_problem, mode: str) -> dict:
-    t0 = _clock()
-    r = fixed_problem.optimize(params=fgopt_params(mode))
-    wall, cpu = _since(t0)
-    return {"wall": wall, "cpu": cpu, "iterations": r.iterations, "final": r.final_cost,
-            "status": r.status.value}
-
-
 # ------------------------------------------------------------------------------------ Ceres
 def _ceres_cpp_once(path: Path, mode: str, repeats: int) -> tuple[dict, float]:
     import resource
@@ -355,12 +342,6 @@ def run_problem(name: str, peers: list[str], rounds: int, kernel: str, configs: 
     # warm-up (JIT, caches) and the target cost
     for c in configs:
         fgopt_run(graph, values, c, "5it")
-    fixed = None
-    if len(bal.obs) <= FIXED_MAX_OBSERVATIONS:
-        from fgopt.solvers.fixed import compile_fixed
-
-        fixed = compile_fixed(graph, values)  # generated once, then cached on disk
-        fgopt_fixed_run(fixed, "5it")
     target_src, target = None, None
     if "ceres_cpp" in peers and CERES_BIN.exists():
         rec = ceres_cpp_run(path, "converge")
@@ -379,9 +360,6 @@ def run_problem(name: str, peers: list[str], rounds: int, kernel: str, configs: 
                     add(f"fgopt {c} trace", fgopt_run(graph, values, c, "trace", target))
         add("fgopt schur_dense converge (fgopt defaults)",
             fgopt_run(graph, values, "schur_dense", "converge", defaults=True))
-        if fixed is not None:
-            add("fgopt fixed 5it", fgopt_fixed_run(fixed, "5it"))
-            add("fgopt fixed converge", fgopt_fixed_run(fixed, "converge"))
         if "ceres_cpp" in peers:
             add("ceres_cpp SPARSE_SCHUR 5it", ceres_cpp_run(path, "5it"))
             add("ceres_cpp SPARSE_SCHUR converge", ceres_cpp_run(path, "converge"))

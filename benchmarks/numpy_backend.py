@@ -72,7 +72,7 @@ def per_iteration(path: Path, repeats: int) -> dict:
 def end_to_end(path: Path, repeats: int, out_dir: Path) -> dict:
     cmds = {b: [PY, "-m", "fgopt.cli", "solve", str(path), "--out",
                 str(out_dir / f"{b}.g2o"), "--quiet", "--backend", b] for b in ("numba", "numpy")}
-    env = _env(FGOPT_BACKGROUND_WARMUP="0")
+    env = _env()
     for cmd in cmds.values():
         run(cmd, env)
     samples: dict[str, list] = {b: [] for b in cmds}

@@ -351,7 +351,7 @@ def small_graphs(doc: dict) -> str:
     = fgopt / peer, as in the peers table (above 1: fgopt slower, bold)."""
     recs = doc["results"]["records"]
     lines = _head(["graph", "poses", "fgopt", "C++ Ceres", "GTSAM", "iterations (fgopt, Ceres, "
-                   "GTSAM)", "fgopt's path", "fgopt fixed formulation (×Ceres, ×GTSAM)"])
+                   "GTSAM)", "fgopt's path"])
     slower: dict[str, list[str]] = {"C++ Ceres": [], "GTSAM": []}
     for r in recs:
         f = r["fgopt"]
@@ -371,19 +371,12 @@ def small_graphs(doc: dict) -> str:
             return f"{peer['cpu_s'] * 1e3:.3g} " + (f"**×{ratio:.2f}**" if ratio > 1
                                                       else f"×{ratio:.2f}") + note
 
-        fx = r.get("fgopt_fixed", {})
-        if "error" in fx or not fx:
-            fixed = fx.get("error", "—")
-        else:
-            fixed = f"{fx['cpu_s'] * 1e3:.3g} (" + ", ".join(
-                f"×{fx['cpu_s'] / p['cpu_s']:.2f}" if "error" not in p else "—"
-                for p in (r["ceres_cpp"], r["gtsam"])) + ")"
         path = "dense driver" if "small-problem driver" in f.get("path", "") else "sparse"
         its = ", ".join(str(p.get("iterations", "—")) if "error" not in p else "—"
                         for p in (f, r["ceres_cpp"], r["gtsam"]))
         lines.append(_row([r["file"], f["poses"], f"{f['cpu_s'] * 1e3:.3g}",
                            cell(r["ceres_cpp"], "C++ Ceres"), cell(r["gtsam"], "GTSAM"), its,
-                           path, fixed]))
+                           path]))
     summary = []
     for name, files in slower.items():
         summary.append(f"fgopt is slower than {name} on {len(files)} of {len(recs)} graphs"
@@ -397,10 +390,7 @@ def small_graphs(doc: dict) -> str:
               "counted); where Ceres stopped before fgopt (its gradient test fires even at "
               "tolerance 0 once the projected gradient rounds to exactly 0: a file whose guess "
               "is the optimum), ×Ceres compares with fgopt timed for as many iterations. "
-              "The fixed formulation (`formulation=\"fixed\"`, a user's choice for small "
-              "problems of fixed structure: one generated function linearizes the whole graph, "
-              "graphs of at most 50 poses) is timed with the same inclusions; its generated "
-              "module, made once per graph structure, is not. Generated summary: "
+              "Generated summary: "
               + "; ".join(summary) + "."]
     return "\n".join(lines)
 

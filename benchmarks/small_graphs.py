@@ -120,35 +120,6 @@ def fgopt_runner(path: Path, iterations: int = 5) -> tuple:
                    "iterations": r.iterations, "status": r.status.name}
 
 
-#: Graphs up to this many poses are also solved by the fixed formulation (one generated function
-#: for the whole problem, dense LM): its generated code grows with the graph.
-FIXED_MAX_POSES = 50
-
-
-def fixed_runner(path: Path) -> tuple:
-    """As :func:`fgopt_runner` with ``formulation="fixed"`` (the user's choice for small problems
-    of fixed structure): every solve collects the graph and runs the generated module's LM; the
-    module itself is made once per structure (timed separately: ``first_s``)."""
-    import fgopt
-    from fgopt.solvers import LMParams
-    from fgopt.solvers.fixed import optimize_fixed
-
-    graph, initial = fgopt.io.read(str(path), add_prior=True)
-    if len(initial) > FIXED_MAX_POSES:
-        return None, {"error": f"> {FIXED_MAX_POSES} poses"}
-    params = LMParams(**LM5)
-
-    def solve():
-        r = optimize_fixed(graph, initial, params=params)
-        r.values
-        return r
-
-    t = time.perf_counter()
-    first = solve()  # derives (SymPy + numba) or loads the structure's module
-    return solve, {"first_s": time.perf_counter() - t,
-                   "module": first.problem.generation.get("source", "?")}
-
-
 def gtsam_runner(path: Path) -> tuple:
     """``(solve, facts)`` for GTSAM's LM on the file, the first pose fixed by a prior."""
     try:
@@ -239,18 +210,6 @@ def interleaved(path: Path, repeats: int, budget: float, rounds: int) -> dict:
     return out
 
 
-def fixed_cpu(path: Path, repeats: int, budget: float) -> dict:
-    """The fixed formulation's least CPU time on the file. Timed after every graph's main
-    comparison: a process that has loaded the fixed formulation's generated modules ran both
-    fgopt's default path and GTSAM ~1.3x slower (noisyToyGraph: 0.080 -> 0.106-0.115 ms and
-    0.081 -> 0.116 ms, measured in turn in one process), and Ceres runs apart."""
-    solve, facts = fixed_runner(path)
-    if solve is None:
-        return facts
-    best, r, n = _min_cpu(solve, repeats, budget)
-    return dict(facts, cpu_s=best, solves=n, cost=r.final_cost)
-
-
 def ceres_cpu(path: Path, repeats: int) -> dict:
     from .peers.ceres_cpp_runner import BINARY
 
@@ -316,7 +275,6 @@ def main() -> None:
     load0 = os.getloadavg()[0]
     from .render_misc import small_graphs as render
 
-    notes = []
     records = []
     with tempfile.TemporaryDirectory() as tmp:
         sizes = [int(s) for s in args.sizes.split(",") if s]
@@ -327,19 +285,10 @@ def main() -> None:
                             "ceres_cpp": res["ceres_cpp"], "gtsam": res["gtsam"]})
             print(path.name, {k: v.get("cpu_s", v.get("error")) for k, v in res.items()},
                   flush=True)
-        for path, rec in zip(files, records):  # then the fixed formulation (see fixed_cpu)
-            rec["fgopt_fixed"] = fixed_cpu(path, args.repeats, args.budget)
-    # the README's table (render_misc.small_graphs: ratios fgopt / peer), then per graph the
-    # fixed formulation's cost and where its generated module came from
-    for rec in records:
-        fx = rec["fgopt_fixed"]
-        if "error" not in fx:
-            notes.append(f"{rec['file']}, fixed formulation: cost {fx['cost']:.10g} (default "
-                         f"path {rec['fgopt']['cost']:.10g}); the first solve of this run took "
-                         f"{fx['first_s']:.2f} s, its generated module from: {fx['module']}")
+    # the README's table (render_misc.small_graphs: ratios fgopt / peer)
     lines = [f"# 5 LM iterations on pose graphs, CPU ms (commit {commit}, {dt.date.today()}, "
              f"load average at the start {load0:.1f})", "",
-             render({"results": {"records": records}}), ""] + [f"- {n}" for n in notes]
+             render({"results": {"records": records}}), ""]
     md = "\n".join(lines) + "\n"
     if args.out:
         Path(args.out).write_text(md)

@@ -9,27 +9,6 @@
 
 from ._version import __version__ as __version__
 
-import os as _os
-
-# fgopt is single-threaded unless asked (``threads=``): a BLAS that spins threads beside numba
-# kernels made LM on Ladybug-49 5.5x slower on a 2-core machine (12.7 s vs 2.3 s). Only a
-# default: set the variables yourself (before numpy is imported) to override.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    _os.environ.setdefault(_var, "1")
-
-# numba picks where to cache a function when it is decorated: route fgopt's functions (and the
-# generated kernels) to the private cache root before any fgopt module decorates one (an import
-# hook; numba itself is not imported here).
-from . import _cache_root
-
-_cache_root.route_numba_cache()
-
-# scipy's numpy namespace (imported by scipy.sparse) touches numpy.f2py / testing / ma, ~60 ms
-# of every sparse solve's start: they stay unloaded until something uses them (an import hook).
-from . import _lazy_numpy
-
-_lazy_numpy.install()
-
 # ``fgopt.key`` is both a submodule and the function: import it eagerly (it is tiny) so the
 # function, not the module the import system binds, is what ``fgopt.key`` names.
 from .errors import FgoptError as FgoptError

@@ -14,14 +14,12 @@ cache index is a pickle), so the root must be private: it is created with mode 0
 :class:`~fgopt.errors.FgoptError` naming it. The key is 32 random bytes in ``key``, mode 0600;
 someone who cannot read it cannot forge a kernel entry's signature.
 
-numba picks a cache location when a function is *decorated* (``@njit(cache=True)``), so
-:func:`route_numba_cache` runs from ``fgopt/__init__.py`` before any fgopt module decorates one.
-It adds a cache locator, in front of numba's own, that claims only fgopt's files (the package and
-the generated kernels) and puts their cache under ``<root>/numba``; a user's own numba functions
-keep numba's usual locations. If numba is not imported yet, the locator is added right after
-``numba.core.caching`` loads (an import hook), so importing fgopt does not import numba. An
-entry's stamp covers every fgopt module with numba code, not only the function's own file
-(numba's rule): a kernel compiled against an older version of a kernel it calls is recompiled.
+numba's machine code for fgopt's own kernels (:func:`fgopt._jit.njit` with ``cache=True``) and
+for generated kernels goes under ``<root>/numba``: :func:`cache_in_root` gives such a dispatcher a
+cache of its own before its first compile (one dispatcher at a time: numba's global list of
+cache locators, and so a user's own numba functions, are left alone). An entry's stamp covers
+every fgopt module with numba code, not only the function's own file (numba's rule): a kernel
+compiled against an older version of a kernel it calls is recompiled.
 """
 
 from __future__ import annotations
@@ -228,16 +226,18 @@ def _is_fgopt_file(py_file: str) -> bool:
         return False
 
 
-def _install_locator(caching: Any) -> None:
-    """Put a locator for fgopt's files in front of numba's locators (once)."""
-    impl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl")
-    if any(getattr(c, "_fgopt", False) for c in impl._locator_classes):
-        return
+_CACHE_CLASS: list = []
+
+
+def _root_cache_class() -> Any:
+    """numba's ``FunctionCache`` with one locator: ``<root>/numba``, stamped with the package's
+    numba sources (built on first use: numba is imported by then)."""
+    if _CACHE_CLASS:
+        return _CACHE_CLASS[0]
+    from numba.core import caching
 
     class FgoptCacheLocator(caching._SourceFileBackedLocatorMixin, caching._CacheLocator):
         """numba cache of fgopt's code and generated kernels: ``<fgopt cache root>/numba``."""
-
-        _fgopt = True
 
         def __init__(self, py_func: Any, py_file: str):
             self._py_file = py_file
@@ -260,20 +260,29 @@ def _install_locator(caching: Any) -> None:
                 return None
             return super().from_function(py_func, py_file)
 
-    impl._locator_classes.insert(0, FgoptCacheLocator)
+    class Impl(caching.CompileResultCacheImpl):
+        _locator_classes = [FgoptCacheLocator, *caching.CompileResultCacheImpl._locator_classes]
+
+    class RootCache(caching.FunctionCache):
+        _impl_class = Impl
+
+    _CACHE_CLASS.append(RootCache)
+    return RootCache
 
 
-def route_numba_cache() -> None:
-    """numba's cache of fgopt's functions goes under the root (see the module docstring)."""
-    caching = sys.modules.get("numba.core.caching")
-    if caching is not None:
-        _install_locator(caching)
-    else:  # as soon as numba.core.caching has executed
-        from ._import_hook import on_import
-
-        on_import("numba.core.caching", _then_install_locator)
+def cache_in_root(dispatcher: Any) -> Any:
+    """Give ``dispatcher`` (a numba dispatcher of fgopt's code or of a generated kernel, not
+    compiled yet) its cache under ``<root>/numba``; returns it."""
+    dispatcher._cache = _root_cache_class()(dispatcher.py_func)
+    return dispatcher
 
 
-def _then_install_locator(run, module: Any) -> None:
-    run()
-    _install_locator(module)
+def cache_module_in_root(module: Any) -> None:
+    """:func:`cache_in_root` for every caching dispatcher defined in ``module`` (a generated
+    kernel module, right after it executed)."""
+    from numba.core.caching import NullCache
+    from numba.core.dispatcher import Dispatcher
+
+    for value in list(vars(module).values()):
+        if isinstance(value, Dispatcher) and not isinstance(value._cache, NullCache):
+            cache_in_root(value)

@@ -139,7 +139,13 @@ class LazyKernel:
                     g = self.py_func.__globals__
                     if g.get("prange") is _numba_prange:
                         g["prange"] = numba.prange
-                    d = numba.njit(**self.options)(self.py_func)
+                    options = dict(self.options)
+                    cache = options.pop("cache", False)
+                    d = numba.njit(**options)(self.py_func)
+                    if cache:  # under fgopt's cache root, not beside the package's sources
+                        from ._cache_root import cache_in_root
+
+                        cache_in_root(d)
                     self._dispatcher = d
         return d
 

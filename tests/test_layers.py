@@ -21,8 +21,6 @@ MARK = "layer-exception:"
 
 #: Modules allowed past ~500 lines, each one algorithm that reads better whole.
 LONG_MODULES = {
-    "fgopt/solvers/fixed/_codegen.py": "one code template: the whole-problem linearization and "
-                                       "the dense LM emitted into a standalone module",
     "fgopt/problem.py": "the compiled problem: collection, batching and the per-iteration "
                         "linearize/assemble/cost/retract share one state",
 }

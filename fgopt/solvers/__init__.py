@@ -57,7 +57,7 @@ _METHODS = {"lm": (LevenbergMarquardt, LMParams), "gn": (GaussNewton, GaussNewto
 
 def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = "auto",
              max_iterations: int | None = None, verbose: bool | None = None, callback: Any = None,
-             params: Any = None, formulation: str = "dynamic", initialization: str = "auto",
+             params: Any = None, initialization: str = "auto",
              constraint_params: Any = None, constant: Any = None, bounds: Any = None,
              **options: Any) -> Result:
     """Minimize ``graph.error`` from ``initial``; returns a :class:`Result` (``initial`` untouched).
@@ -74,11 +74,6 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
         callback: ``f(record: IterationRecord)``; return True to stop.
         params: a parameter dataclass (``LMParams`` ...) overriding the defaults; other keyword
             ``options`` (e.g. ``relative_tolerance=1e-8``) replace its fields.
-        formulation: ``"dynamic"`` (batched kernels over a sparse H, any graph) or ``"fixed"``
-            (LM only: one generated function linearizes the whole problem into a dense H, the
-            SymForce paper's fixed formulation, for small problems of symbolic/built-in
-            factors; see :mod:`fgopt.solvers.fixed`. The default's small-problem driver is
-            faster on the shared tiny files: README, "Small pose graphs").
         initialization: where to start (:mod:`fgopt.solvers.initialization`). ``"auto"``
             (default): from ``initial``; then, if the final cost is above what the noise models
             allow at an optimum (a chi-square test) and ``graph`` is a pose graph, also from
@@ -139,27 +134,26 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
     check_initialization(initialization)
     restrict = {}
     if constant is not None or bounds is not None:
-        if formulation != "dynamic" or method == "gnc" or initialization == "chordal":
-            raise FgoptError("constant / bounds work with formulation='dynamic', methods 'lm', "
-                             "'gn' and 'dogleg', and initialization 'given' or 'auto'")
+        if method == "gnc" or initialization == "chordal":
+            raise FgoptError("constant / bounds work with methods 'lm', 'gn' and 'dogleg', and "
+                             "initialization 'given' or 'auto'")
         if len(getattr(graph, "constraints", ())) > 0:
             raise FgoptError("constant / bounds on a graph holding constraints are not "
                              "supported yet: write a constant as an equality constraint")
         restrict = {"constant": constant, "bounds": bounds}
         initialization = "given"  # a chordal start would move the constant variables
     if len(getattr(graph, "constraints", ())) > 0:
-        if method != "lm" or formulation != "dynamic":
+        if method != "lm":
             raise FgoptError(f"a graph with constraints is solved by method='lm' (an augmented-"
-                             f"Lagrangian loop around LM), formulation='dynamic'; got "
-                             f"method={method!r}, formulation={formulation!r}")
+                             f"Lagrangian loop around LM); got method={method!r}")
         from .constrained import inner_schedule, optimize_constrained
 
         return optimize_constrained(graph, initial, inner_schedule(params, set(options), constraint_params),
                                     constraint_params, solver_obj, callback)
 
     def run(start: Any, run_params: Any) -> Result:
-        return _optimize_from(graph, start, cls, run_params, solver_obj, formulation, method,
-                              callback, **restrict)
+        return _optimize_from(graph, start, cls, run_params, solver_obj, method, callback,
+                              **restrict)
 
     if method == "gnc" or initialization == "given":
         result = run(initial, params)
@@ -198,16 +192,7 @@ def _differs(a: Any, b: Any) -> bool:
 
 
 def _optimize_from(graph: Any, initial: Any, cls: Any, params: Any, solver_obj: Any,
-                   formulation: str, method: str, callback: Any, **restrict: Any) -> Result:
-    if formulation == "fixed":
-        if method != "lm" or callback is not None or solver_obj is not None:
-            raise FgoptError("formulation='fixed' supports method='lm' without callback or "
-                             "linear-solver objects")
-        from .fixed import optimize_fixed
-
-        return optimize_fixed(graph, initial, params=params)
-    if formulation != "dynamic":
-        raise FgoptError(f"unknown formulation {formulation!r}: 'dynamic' or 'fixed'")
+                   method: str, callback: Any, **restrict: Any) -> Result:
     if method == "gnc":
         if solver_obj is not None:
             raise FgoptError("method='gnc' takes linear_solver by name")

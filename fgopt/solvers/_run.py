@@ -24,10 +24,6 @@ Callback = Callable[[IterationRecord], "bool | None"]
 #: import and cache loads then pay for themselves (torus3D, 73 iterations: 5.2 s on numba vs
 #: 11.5 s on NumPy; sphere2500, 5 iterations: equal).
 SWITCH_AFTER_SECONDS = 1.0
-#: A NumPy-backend solve longer than this, whose kernels are not in numba's cache, starts a
-#: background process that puts them there (for the next process: see ``SWITCH_AFTER_SECONDS``).
-WARMUP_AFTER_SECONDS = 3.0
-
 
 def _needs_numba(pattern: Any) -> bool:
     """BA-shaped problems (many small point blocks): their solver is the numba Schur complement."""
@@ -91,7 +87,6 @@ class Run:
         #: True when this run compiled its own problem (a user's call, not a GNC round): only
         #: then does it warn about unused keys and clamp hits.
         self.top_level = problem is None
-        self._graph, self._initial = graph, initial
         self._may_switch = False
         if problem is None:
             backend = getattr(params, "backend", "auto")
@@ -282,16 +277,9 @@ class Run:
         return result
 
     def _after(self, total: float) -> None:
-        """numba's cache bookkeeping (:mod:`fgopt.solvers._warmup`): a numba-backend solve marks
-        the problem's kernels warm; a long NumPy one whose kernels are cold warms them in a
-        background process, for the next process."""
-        from . import _warmup
+        """A numba-backend solve marks the problem's kernels warm in numba's cache
+        (:mod:`fgopt.solvers._warmup`): a later process's long NumPy solve of them may switch."""
+        if self.problem.backend == "numba" and not self._warm:
+            from . import _warmup
 
-        if self.problem.backend == "numba":
-            if self._warm is None or not self._warm:
-                _warmup.mark_warm(self.problem)
-        elif total > WARMUP_AFTER_SECONDS and self._graph is not None:
-            if self._warm is None:
-                self._warm = _warmup.is_warm(self.problem)
-            if not self._warm:
-                _warmup.warm_in_background(self._graph, self._initial, self.problem)
+            _warmup.mark_warm(self.problem)

@@ -1,4 +1,4 @@
-"""Is numba's cache warm for a problem's kernels? And warming it in a background process.
+"""Is numba's cache warm for a problem's kernels?
 
 A solve on the NumPy backend (:meth:`fgopt.problem.Problem.choose_backend`) needs no numba, but
 its iterations are slower (sphere2500: ~0.2 s vs ~0.07 s). A long solve therefore switches to
@@ -7,25 +7,19 @@ cache already holds the kernels this problem needs: loading them costs ~0.7 s, c
 20-60 s, which the NumPy path never pays.
 
 "Warm" is a marker file ``<cache root>/numba/warm-<key>``, written after a solve of the problem's
-kind has run on the numba backend (in this process, or in the background process started by
-:func:`warm_in_background` after a long NumPy solve). The key hashes what numba's cache entries
-depend on: the kernel names and manifold kinds of the problem, the Python version, numba's
-installed files, and the size and mtime of every fgopt source file (numba invalidates an entry
-when its source changes; so does the key). ``fgopt cache clear`` removes the markers with
+kind has run on the numba backend (fgopt starts no process to do it). The key hashes what
+numba's cache entries depend on: the kernel names and manifold kinds of the problem, the Python
+version, numba's installed files, and the size and mtime of every fgopt source file (numba
+invalidates an entry when its source changes; so does the key). ``fgopt cache clear`` removes the markers with
 numba's cache. A stale marker costs time (numba compiles in the foreground), never a wrong
 result.
-
-``FGOPT_BACKGROUND_WARMUP=0`` disables the background process.
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
-import pickle
-import subprocess
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -101,80 +95,3 @@ def mark_warm(problem: Any) -> None:
     except Exception:  # noqa: BLE001, S110 - best effort
         return
     _MARKED[shape] = ([b.kernel for b in problem.batches], list(problem.kinds))
-
-
-#: A warm-up lock older than this is taken to be left by a process that died.
-LOCK_SECONDS = 600.0
-
-
-def _take_lock(path: Path) -> bool:
-    import time
-
-    try:
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-    except FileExistsError:
-        try:
-            if time.time() - path.stat().st_mtime < LOCK_SECONDS:
-                return False
-            path.unlink()
-            fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-        except OSError:
-            return False
-    except OSError:
-        return False
-    os.close(fd)
-    return True
-
-
-def warm_in_background(graph: Any, initial: Any, problem: Any,
-                       small: bool = False) -> subprocess.Popen | None:
-    """Start a detached low-priority process that solves ``graph`` for one iteration on the
-    numba backend (compiling or loading every kernel, then writing ``problem``'s marker; with
-    ``small``, compiling the small-problem driver of its kernels: :mod:`fgopt.solvers.small`);
-    ``None`` when disabled (``FGOPT_BACKGROUND_WARMUP=0``), when another process is warming the
-    same kernels (a ``.lock`` beside the marker), or when the graph cannot be pickled."""
-    if os.environ.get("FGOPT_BACKGROUND_WARMUP", "1") == "0":
-        return None
-    try:
-        lock = marker(problem).with_suffix(".small.lock" if small else ".lock")
-    except Exception:  # noqa: BLE001 - an unusable cache root
-        return None
-    if not _take_lock(lock):
-        return None
-    try:
-        fd, path = tempfile.mkstemp(prefix="fgopt-warmup-", suffix=".pkl")
-        with os.fdopen(fd, "wb") as f:
-            pickle.dump((graph, initial), f, protocol=pickle.HIGHEST_PROTOCOL)
-    except Exception:  # noqa: BLE001 - e.g. a factor without a pickling recipe
-        lock.unlink(missing_ok=True)
-        return None
-    env = dict(os.environ)
-    if small:
-        env["FGOPT_SMALL_COMPILE"] = "1"
-    pkg_parent = str(Path(__file__).resolve().parents[2])
-    env["PYTHONPATH"] = pkg_parent + os.pathsep + env.get("PYTHONPATH", "")
-    return subprocess.Popen([sys.executable, "-m", "fgopt.solvers._warmup", path, str(lock)],
-                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL, start_new_session=True, env=env)
-
-
-def _main(path: str, lock: str) -> int:
-    try:
-        os.nice(10)
-    except OSError:
-        pass
-    try:
-        with open(path, "rb") as f:
-            graph, initial = pickle.load(f)
-        os.unlink(path)
-        from . import optimize
-
-        optimize(graph, initial, max_iterations=1, backend="numba")  # marks the cache warm
-        graph.error(initial)  # numba is loaded now: the cost kernels of the numba backend
-    finally:
-        Path(lock).unlink(missing_ok=True)
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(_main(sys.argv[1], sys.argv[2]))

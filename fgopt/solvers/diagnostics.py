@@ -78,35 +78,6 @@ def clamp_hits(problem: Any, state: Any) -> tuple[list[ClampHit], int]:
     return out, count[0]
 
 
-def fixed_clamp_hits(fp: Any, x: np.ndarray) -> tuple[list[ClampHit], int]:
-    """The same for a :class:`~fgopt.solvers.fixed.FixedProblem` at storage ``x``: factors of the
-    types its generated module lists in ``META["clamp_types"]``, through each type's kernel."""
-    from .fixed.formulation import _fingerprint
-
-    types = set(fp.module.META.get("clamp_types", ()))
-    out: list[ClampHit] = []
-    count = [0]
-    if len(types) == 0:
-        return out, 0
-    groups: dict = {}
-    for spec, f in zip(fp._col.factors, fp._col.sources):
-        if _fingerprint(spec.ftype) in types:
-            groups.setdefault((id(spec.ftype), spec.pattern), []).append((spec, f))
-    variables = fp._col.variables
-    for members in groups.values():
-        spec0 = members[0][0]
-        kernel = spec0.ftype.kernel(spec0.pattern)
-        args = []
-        for j in range(len(spec0.var_idx)):
-            vs = [variables[s.var_idx[j]] for s, _ in members]
-            args.append(np.array([x[v.storage_off:v.storage_off + v.storage_dim] for v in vs]))
-        consts = np.array([fp._consts[s.const_off:s.const_off + s.num_consts]
-                           for s, _ in members]).reshape(len(members), -1)
-        vals = kernel.clamp_arguments(tuple(args), consts)
-        _hits(kernel, vals, lambda row, m=members: m[row][1].describe(), out, count)
-    return out, count[0]
-
-
 def _warn(message: str) -> None:
     """A FgoptWarning attributed to the first caller outside the fgopt package."""
     pkg = os.path.dirname(os.path.dirname(os.path.abspath(__file__))) + os.sep

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from .._threads import blas_threads
 from ..errors import NotPositiveDefiniteError
 from ..variables import Variables
 from ._run import Callback, Run, refuse_constraints, require_no_bounds
@@ -62,6 +63,11 @@ class Dogleg:
         p = self.params
         require_no_bounds(bounds, "dogleg")
         run = Run(graph, initial, p, "dogleg", callback, self.linear_solver, constant=constant)
+        with blas_threads(run.problem.size, run.problem.threads):
+            return self.iterate(run)
+
+    def iterate(self, run: Run) -> Result:
+        p = self.params
         problem = run.problem
         pattern = problem.pattern
         radius = p.initial_radius

@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from .._threads import blas_threads
 from ..errors import NotPositiveDefiniteError
 from ..variables import Variables
 from ._run import Callback, Run, refuse_constraints, require_no_bounds
@@ -34,6 +35,11 @@ class GaussNewton:
         p = self.params
         require_no_bounds(bounds, "gn")
         run = Run(graph, initial, p, "gn", callback, self.linear_solver, constant=constant)
+        with blas_threads(run.problem.size, run.problem.threads):
+            return self.iterate(run)
+
+    def iterate(self, run: Run) -> Result:
+        p = self.params
         problem = run.problem
         msg = run.converged_by_gradient()
         if msg is not None:

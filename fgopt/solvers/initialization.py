@@ -58,7 +58,7 @@ def cost_bound(problem: Any) -> tuple[float, int] | None:
     """``(bound, dof)``: the largest cost the noise models make plausible at the optimum, or
     ``None`` when the test does not apply (robust losses, GNC weights, no redundancy)."""
     if not hasattr(problem, "batches") or not hasattr(problem, "_slow"):
-        return None  # another problem class (the fixed formulation): no test
+        return None  # not a compiled Problem: no test
     m = 0
     for b in problem.batches:
         if b.source.loss_code != 0:

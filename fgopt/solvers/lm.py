@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from .._threads import blas_threads
 from ..errors import NotPositiveDefiniteError
 from ..manifolds.base import is_vector_kind
 from ..variables import Variables
@@ -102,21 +103,28 @@ class LevenbergMarquardt:
         choice = self.linear_solver if self.linear_solver is not None else self.params.linear_solver
         problem = compile_problem(graph, initial, self.params, choice, build_structure=False,
                                   constant=constant, bounds=bounds)
-        if (problem.restrictions is None and callback is None and self.linear_solver is None
-                and small.qualifies(problem, self.params)):
-            # a small problem in one compiled call (same iteration, dense; None: the initial
-            # linearization is not finite, and the general path names the factor)
-            result = small.optimize_small(problem, self.params, t0, graph, initial)
+        driver = (problem.restrictions is None and callback is None
+                  and self.linear_solver is None and small.qualifies(problem, self.params))
+        if driver:
+            # a small problem in one compiled call (same iteration, dense; None: the driver is
+            # not compiled yet, or the initial linearization is not finite and the general path
+            # names the factor)
+            result = small.optimize_small(problem, self.params, t0)
             if result is not None:
                 return result
-        return self.iterate(Run(graph, initial, self.params, "lm", callback, self.linear_solver,
-                                compiled=problem))
+        with blas_threads(problem.size, problem.threads):
+            result = self.iterate(Run(graph, initial, self.params, "lm", callback,
+                                      self.linear_solver, compiled=problem))
+        if driver:
+            small.charge_general(problem, time.perf_counter() - t0)
+        return result
 
     def optimize_problem(self, problem: Any, state: Any = None, solver: Any = None,
                          callback: Callback | None = None) -> Result:
         """Continue on a compiled problem (from ``state``; reusing an analyzed ``solver``)."""
-        return self.iterate(Run(None, None, self.params, "lm", callback, self.linear_solver,
-                                problem=problem, state=state, solver=solver))
+        with blas_threads(problem.size, problem.threads):
+            return self.iterate(Run(None, None, self.params, "lm", callback, self.linear_solver,
+                                    problem=problem, state=state, solver=solver))
 
     def iterate(self, run: Run) -> Result:
         p = self.params

@@ -54,7 +54,9 @@ class LMParams(TerminationParams):
     CHOLMOD's or SuperLU's MMD on NumPy) | mmd | cholmod_amd | metis | nesdis | colamd |
     natural."""
     threads: int = 1
-    """Threads for linearization (numba prange + nogil kernels); 1 = serial (the default)."""
+    """Threads for linearization (numba prange + nogil kernels); 1 = serial (the default).
+    The BLAS libraries loaded in the process use this many threads during the solve (restored
+    after it; ``fgopt._threads.blas_threads``)."""
     backend: str = "auto"
     """``"numba"``: numba kernels for batches above 1000 factors; ``"numpy"``: NumPy twins,
     NumPy assembly and retracts and a no-numba linear solver (CHOLMOD / qdldl) for every batch;

@@ -122,7 +122,7 @@ _COMPILED_STATUS = {0: Status.CONVERGED, 1: Status.MAX_ITERATIONS, 2: Status.FAI
 def compiled_history(hist: np.ndarray, its: int, status: int, message: str,
                      cost: float) -> tuple[_HistoryRows, Status, str]:
     """Iteration records, status and message of a compiled LM loop (the dense template of
-    :mod:`fgopt.solvers.fixed._codegen`): ``hist[:its]`` rows are (cost, candidate cost,
+    :mod:`fgopt.solvers.small._lm_template`): ``hist[:its]`` rows are (cost, candidate cost,
     relative decrease, lambda, step norm, gradient norm, accepted, predicted decrease), a
     ``status`` of 0 / 1 / 2 is converged / max iterations / failed, and a converged run whose
     trailing steps were all rejected becomes :func:`stall_status`'s STALLED. The records (pass

@@ -260,6 +260,8 @@ def _exec(path: Path, modname: str, data: bytes) -> types.ModuleType:
     sys.modules[modname] = module
     try:
         exec(code, module.__dict__)
+        if "numba" in sys.modules:  # its @numba.njit(cache=True) kernels: cached under the root
+            _cache_root.cache_module_in_root(module)
     except BaseException:
         del sys.modules[modname]
         raise

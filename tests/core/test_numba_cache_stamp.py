@@ -30,20 +30,20 @@ def test_digest_follows_every_module_with_numba_code_and_no_other(tmp_path):
     _cache_root._DIGESTS.clear()
 
 
-def test_fgopt_kernels_stamp_includes_the_package_digest():
-    """The locator numba uses for an fgopt kernel stamps it with its own file's hash and the
-    package's numba-sources digest (the locator is installed once numba's caching loads)."""
+def test_fgopt_kernels_cache_under_the_root_stamped_with_the_package_digest():
+    """An fgopt kernel's numba cache (given to its dispatcher when it is built, numba's own
+    locator list untouched) lives under ``<root>/numba`` and stamps each entry with its own
+    file's hash and the package's numba-sources digest."""
     pytest.importorskip("numba")
     from numba.core import caching
 
     from fgopt.manifolds._kernels import dispatch
 
-    _cache_root.route_numba_cache()
-    fn = dispatch.batch_retract.py_func
-    impl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl")
-    locator = next(c for c in impl._locator_classes if getattr(c, "_fgopt", False))
-    loc = locator.from_function(fn, fn.__code__.co_filename)
-    assert loc is not None
+    locators = list(caching.CacheImpl._locator_classes)
+    impl = dispatch.batch_retract.dispatcher._cache._impl
+    assert caching.CacheImpl._locator_classes == locators
+    loc = impl.locator
+    assert loc.get_cache_path().startswith(str(_cache_root.root() / _cache_root.NUMBA))
     own, digest = loc.get_source_stamp()
     assert digest == _cache_root.numba_sources_digest()
     assert isinstance(own, bytes) and len(own) == 32

@@ -1,6 +1,6 @@
 """Clamped symbolic functions are reported (issue 10): a start outside ``sqrt``'s domain used to
 "converge after 0 iterations" silently; the result (and a warning) now name the factor, the
-clamped call's file:line and the argument, in every method and the fixed formulation."""
+clamped call's file:line and the argument, in every method and the small-problem driver."""
 
 from __future__ import annotations
 
@@ -53,11 +53,10 @@ def _run(kind, g, v):
             small.COMPILE_IN_FOREGROUND = before
         assert r.linear_solver == "dense cholesky (small-problem driver)"
         return r
-    kw = {"formulation": "fixed"} if kind == "fixed" else {"method": kind}
-    return fgopt.optimize(g, v, **kw)
+    return fgopt.optimize(g, v, method=kind)
 
 
-@pytest.mark.parametrize("kind", ["lm", "lm driver", "gn", "dogleg", "gnc", "fixed"])
+@pytest.mark.parametrize("kind", ["lm", "lm driver", "gn", "dogleg", "gnc"])
 def test_start_outside_sqrt_domain_is_reported(kind):
     """|q - p|^2 - 1 = -0.75 < 0 at the start: gradient zero, "converged" at once; the result
     lists the factor, the sqrt's file:line and the argument, the repr says so, and a
@@ -73,7 +72,7 @@ def test_start_outside_sqrt_domain_is_reported(kind):
     assert "clamped: 1 factor(s)" in repr(r) and SQRT_LINE in repr(r)
 
 
-@pytest.mark.parametrize("kind", ["lm", "fixed"])
+@pytest.mark.parametrize("kind", ["lm", "lm driver"])
 def test_start_inside_the_domain_reports_nothing(kind):
     """From inside the domain the solve converges to |q - p| = sqrt(5) with no report."""
     g, v = graph([3.0, 0.0])
@@ -100,7 +99,7 @@ def test_log_and_acos_bounds_and_factors_without_clamps():
     assert no_clamp(key("p", 0), np.zeros(2)).kernel.clamp_arguments is None
 
 
-@pytest.mark.parametrize("kind", ["lm", "fixed"])
+@pytest.mark.parametrize("kind", ["lm", "gn"])
 def test_nonfinite_start_at_a_clamp_says_which_clamp(kind):
     """acos's clamp keeps the value finite but not its Jacobian (-1/sqrt(1 - 1) times 0): from
     acos(1.5) the start is non-finite; the NonFiniteError names the factor and the clamp."""

@@ -1,5 +1,5 @@
 """Declared manifolds (``@fgopt.manifold``) through the solvers: batched LM, the Python slow
-path, marginals, GNC, the fixed formulation, pickling and plots."""
+path, marginals, GNC, pickling and plots."""
 
 from __future__ import annotations
 
@@ -150,21 +150,6 @@ def test_gnc_rejects_wrong_directions():
     assert r.success, r.message
     assert r.info["outliers"] == len(bad)
     assert max_angle(r.values, truth) < 0.05 < max_angle(plain.values, truth)
-
-
-def test_fixed_formulation_equals_sparse_lm():
-    """The fixed formulation (one generated program, the declared retract inlined) reaches the
-    sparse LM's result on a small Unit3 graph."""
-    from fgopt.solvers.fixed import optimize_fixed
-
-    graph, initial, truth, _ = direction_graph(6, seed=2)
-    sparse = fgopt.optimize(graph, initial)
-    fixed = optimize_fixed(graph, initial)
-    assert fixed.success and np.isclose(fixed.final_cost, sparse.final_cost, rtol=1e-8)
-    assert fixed.iterations == sparse.iterations
-    assert "math.cos" in fixed.problem.source  # Unit3's retract, inlined in the module
-    for k in initial.keys():
-        assert fixed.values.at(k).equals(sparse.values.at(k), 1e-8)
 
 
 def test_pickling_values_and_variables():

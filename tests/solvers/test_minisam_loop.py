@@ -86,15 +86,3 @@ def test_result_repr_and_records():
     assert "converged" in text and "cost" in text
     assert "iter" in r.table() and "<table>" in r._repr_html_()
     assert r.iterations == len(r.iteration_records)
-
-
-def test_fixed_formulation_reaches_the_same_optimum():
-    """``formulation="fixed"`` (one generated whole-problem linearization, dense LM) agrees with
-    the batched sparse path."""
-    g, v = minisam_loop()
-    dynamic = fgopt.optimize(g, v)
-    fixed = fgopt.optimize(g, v, formulation="fixed")
-    assert fixed.success, fixed.message
-    assert np.isclose(fixed.final_cost, dynamic.final_cost, atol=1e-12)
-    for k in v.keys():
-        assert fixed.values.at(k).equals(dynamic.values.at(k), 1e-8)

@@ -1,6 +1,6 @@
 """Non-finite values in every solver and every factor path (issue 10).
 
-The matrix is method (LM, Gauss-Newton, Dogleg, GNC, the fixed formulation) x path (a batched
+The matrix is method (LM, Gauss-Newton, Dogleg, GNC) x path (a batched
 kernel written by hand, an ``@fgopt.factor`` generated kernel, a Python ``Factor``) x scenario:
 
 * ``nan_residual``: the first full step lands where the residual is NaN (``sqrt(1 - x)`` beyond
@@ -12,8 +12,7 @@ kernel written by hand, an ``@fgopt.factor`` generated kernel, a Python ``Factor
 * ``nan_initial``: non-finite at the initial values raises a NonFiniteError naming the factor.
 
 Every run checks that the result holds only finite values and the caller's Variables are
-untouched. The fixed formulation takes only symbolic / built-in factors: on the hand-written
-kernel and the Python factor it raises an FgoptError saying so.
+untouched.
 """
 
 from __future__ import annotations
@@ -25,7 +24,7 @@ from hypothesis import strategies as st
 
 import fgopt
 from fgopt import FactorGraph, Variables, key
-from fgopt.errors import FgoptError, NonFiniteError
+from fgopt.errors import NonFiniteError
 from fgopt.factors import Factor, KernelFactor
 from fgopt.factors.kernel import FactorKernel
 from fgopt.manifolds.base import SCALAR_KIND
@@ -122,7 +121,7 @@ def python_factor(which):
 
 PATHS = {"hand": hand_factor, "generated": generated_factor, "python": python_factor}
 NAMES = {("hand", "a"): "hand_a", ("generated", "a"): "gen_a", ("python", "a"): "PyA"}
-METHODS = ["lm", "gn", "dogleg", "gnc", "fixed"]
+METHODS = ["lm", "gn", "dogleg", "gnc"]
 
 
 def problem(path, scenario):
@@ -135,17 +134,11 @@ TIGHT = {"absolute_tolerance": 1e-14, "relative_tolerance": 1e-12}
 
 
 def run(method, graph, v):
-    if method == "fixed":
-        return fgopt.optimize(graph, v, formulation="fixed", max_iterations=100, **TIGHT)
     if method == "gnc":
         return fgopt.optimize(graph, v, method="gnc",
                               params=GNCParams(lm=LMParams(**TIGHT), max_iterations=100))
     options = {"initial_radius": 10.0} if method == "dogleg" else {}  # full Gauss-Newton step first
     return fgopt.optimize(graph, v, method=method, max_iterations=100, **TIGHT, **options)
-
-
-def _fixed_refuses(method, path):
-    return method == "fixed" and path != "generated"
 
 
 @pytest.mark.parametrize("scenario", ["nan_residual", "nan_jacobian"])
@@ -156,10 +149,6 @@ def test_nonfinite_trial_is_a_rejected_step(method, path, scenario):
     result is finite and the caller's Variables are untouched."""
     graph, v = problem(path, scenario)
     before = v.copy()
-    if _fixed_refuses(method, path):
-        with pytest.raises(FgoptError, match="not supported"):
-            run(method, graph, v)
-        return
     r = run(method, graph, v)
     x = float(r.values.at(X))
     assert v == before
@@ -174,16 +163,12 @@ def test_nonfinite_trial_is_a_rejected_step(method, path, scenario):
 @pytest.mark.parametrize("path", list(PATHS))
 @pytest.mark.parametrize("method", METHODS)
 def test_nonfinite_initial_point_names_the_factor(method, path):
-    """NaN at the initial values raises a NonFiniteError naming the factor (FgoptError for the
-    fixed formulation's unsupported paths); the caller's Variables are untouched."""
+    """NaN at the initial values raises a NonFiniteError naming the factor; the caller's
+    Variables are untouched."""
     graph, v = problem(path, "nan_initial")
     before = v.copy()
-    if _fixed_refuses(method, path):
-        with pytest.raises(FgoptError, match="not supported"):
-            run(method, graph, v)
-    else:
-        with pytest.raises(NonFiniteError, match=NAMES[path, "a"]):
-            run(method, graph, v)
+    with pytest.raises(NonFiniteError, match=NAMES[path, "a"]):
+        run(method, graph, v)
     assert v == before
 
 

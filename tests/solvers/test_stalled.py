@@ -8,6 +8,8 @@ hand-written Jacobian (``[[1, 0, 0], [0, 1, 0]]``: miniSAM's SE(2) tangent order
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -55,15 +57,25 @@ def edge(x: Scalar) -> Scalar:
     return Scalar(sqrt(1 - x, epsilon=0) + 0.1)
 
 
-def test_dynamic_and_fixed_lm_report_the_same_stall():
+def test_general_path_and_small_driver_report_the_same_stall(monkeypatch):
     """LM walks to the edge of the residual's domain, where every longer step is NaN: with
-    step_tolerance 1e-7 the step test fires right after rejected (NaN) steps. Both the sparse
-    and the fixed formulation report STALLED, from the same iteration, with finite values."""
+    step_tolerance 1e-7 the step test fires right after rejected (NaN) steps. Both the general
+    path and the small-problem driver report STALLED, from the same iteration, with finite
+    values."""
+    from fgopt.solvers import LevenbergMarquardt, LMParams, small
+
     g = FactorGraph([edge(x=key("x", 0))])
     v = Variables().add(key("x", 0), 0.0)
     opts = {"absolute_tolerance": 0.0, "relative_tolerance": 0.0, "step_tolerance": 1e-7}
+    monkeypatch.setattr(small, "COMPILE_IN_FOREGROUND", False)
+    monkeypatch.setattr(small, "COMPILE_AFTER_SECONDS", float("inf"))
+    monkeypatch.setattr(small, "_PLANS", {})
+    monkeypatch.setattr(small._Plan, "marker", lambda self: Path("/nonexistent/x.ready"))
     rd = fgopt.optimize(g, v, **opts)
-    rf = fgopt.optimize(g, v, formulation="fixed", **opts)
+    monkeypatch.setattr(small, "COMPILE_IN_FOREGROUND", True)
+    monkeypatch.setattr(small, "_PLANS", {})
+    rf = LevenbergMarquardt(LMParams(backend="numba", **opts)).optimize(g, v)
+    assert "driver" not in rd.linear_solver and "driver" in rf.linear_solver
     for r in (rd, rf):
         assert r.status is Status.STALLED, r
         assert not r.iteration_records[-1].accepted

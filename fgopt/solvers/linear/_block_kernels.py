@@ -377,3 +377,14 @@ def solve_multi_inplace(L, X, nrhs, pstart, width, rows, col0, rix_ptr, rix, buf
             inv = 1.0 / L[cc + cu]
             for t in range(k):
                 X[xc + t] = acc[t] * inv
+
+
+def _cache_under_root() -> None:
+    import sys
+
+    from ..._cache_root import cache_module_in_root
+
+    cache_module_in_root(sys.modules[__name__])  # numba's cache of these: fgopt's cache root
+
+
+_cache_under_root()

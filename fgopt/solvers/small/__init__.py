@@ -7,7 +7,7 @@ per iteration the Python around kernels that take a few microseconds (a 2-pose g
 tangent dimension at most :data:`SMALL_DENSE_SIZE` (or up to :data:`SMALL_MAX_SIZE` when H's
 envelope keeps the work within :data:`SMALL_MAX_WORK`) whose kernels have a
 :class:`~fgopt.factors.kernel.CompiledCall`: one generated driver per *set of kernels* (not per
-structure, unlike :mod:`fgopt.solvers.fixed`) takes the problem's layout as arrays, linearizes
+structure) takes the problem's layout as arrays, linearizes
 every batch with the kernels' own numba functions into a dense H (smart factors add their Schur
 complements themselves: a ``hessian`` :class:`~fgopt.factors.kernel.CompiledCall`) and runs
 :class:`~fgopt.solvers.lm.LevenbergMarquardt`'s iteration (same damping, gain ratio, lambda
@@ -18,9 +18,10 @@ Cholesky. Its result is the general path's up to rounding; iteration records car
 ``LevenbergMarquardt.optimize`` takes this path by itself when the problem qualifies and the
 run needs nothing only the general path gives (a callback, ``verbose``, a chosen
 ``linear_solver``, robust losses, Python factors or manifolds, the NumPy backend of a process
-that has not loaded numba). A driver is generated and compiled the first time its set of kernels
-is seen on a machine (14-16 s measured), in a background process while that solve takes the
-general path (:data:`COMPILE_IN_FOREGROUND`), then loaded from fgopt's cache. A file's tiny
+that has not loaded numba). A driver is generated and compiled once per machine and set of
+kernels (14-16 s measured), in the foreground with a one-line notice, once the process has spent
+about that long on the general path for its problems (:data:`COMPILE_AFTER_SECONDS`); then it is
+loaded from fgopt's cache. A file's tiny
 graph (a reader's batches over one bulk block of values) goes to its driver without a compiled
 :class:`~fgopt.problem.Problem` at all: :func:`optimize_file` (:mod:`._file`).
 """
@@ -95,10 +96,12 @@ def envelope_work(problem: Any) -> float:
     return 0.5 * float(width @ width)
 
 
-#: Compile a kernel set's driver in this process when fgopt's cache does not hold it yet (a few
-#: seconds per set of kernels). Off by default: a cold driver means the general path for now and
-#: a background process (:func:`fgopt.solvers._warmup.warm_in_background`) that compiles it for
-#: later solves; on in that process (and with ``FGOPT_SMALL_COMPILE=1``).
+#: Seconds a process spends on the general path solving problems a set of kernels' driver could
+#: take, before it compiles that driver (once per machine; about what the compile takes: 14-16 s
+#: measured). Rent-or-buy: a script that solves a few small problems never waits for it, a loop
+#: of many small solves pays at most twice what knowing the future would have cost. A driver
+#: already in fgopt's cache is used at once; ``FGOPT_SMALL_COMPILE=1`` compiles at first sight.
+COMPILE_AFTER_SECONDS = 15.0
 COMPILE_IN_FOREGROUND = os.environ.get("FGOPT_SMALL_COMPILE", "0") == "1"
 
 
@@ -120,7 +123,8 @@ class _Plan:
         self.clamps = any(k.clamp_arguments is not None and len(k.clamps) for k in kernels)
         self.module: Any = None
         self.compiled = False  # machine code known to be in numba's cache (the marker exists)
-        self.warming = False
+        #: Seconds this process spent on the general path on problems this driver could take.
+        self.general_seconds = 0.0
 
     def marker(self) -> Path:
         from ...symbolic import cache as _cache
@@ -128,9 +132,9 @@ class _Plan:
         return _cache.module_path(self.name, self.key).with_suffix(".ready")
 
     def ready(self) -> bool:
-        """Whether the driver can run now without compiling (else, with
-        :data:`COMPILE_IN_FOREGROUND`, it is made here)."""
-        if self.module is not None and (self.compiled or COMPILE_IN_FOREGROUND):
+        """Whether the driver runs now: loaded, known to be in numba's cache (its marker), or
+        worth compiling here (:data:`COMPILE_AFTER_SECONDS`, :data:`COMPILE_IN_FOREGROUND`)."""
+        if self.module is not None:
             return True
         from ...symbolic import cache as _cache
 
@@ -138,17 +142,23 @@ class _Plan:
             self.compiled = self.compiled or self.marker().exists()
         except OSError:
             return False
-        if not (self.compiled or COMPILE_IN_FOREGROUND):
+        buy = COMPILE_IN_FOREGROUND or self.general_seconds >= COMPILE_AFTER_SECONDS
+        if not (self.compiled or buy):
             return False
         m = _cache.load(self.name, self.key, required=_driver.REQUIRED)
         if m is not None:
             STATS["loaded"] += 1
-        elif COMPILE_IN_FOREGROUND:
+        elif buy:
             m = _cache.store(self.name, self.key,
                              _driver.module_source(self.signatures, self.names))
             STATS["generated"] += 1
         else:
             return False
+        if not self.compiled:
+            import sys
+
+            print(f"fgopt: compiling the small-problem LM driver for {', '.join(self.names)} "
+                  "(once per machine, ~15 s)", file=sys.stderr, flush=True)
         self.module = m
         return True
 
@@ -285,23 +295,23 @@ _MESSAGES = {
 _lm_module: Any = None  # fgopt.solvers.lm, once optimize_small has run
 
 
-def optimize_small(problem: Any, params: Any, t0: float, graph: Any = None,
-                   initial: Any = None) -> Result | None:
+def charge_general(problem: Any, seconds: float) -> None:
+    """Count ``seconds`` of a general-path solve of ``problem`` (one the driver could take)
+    towards compiling its driver (:data:`COMPILE_AFTER_SECONDS`)."""
+    _plan(problem.batches).general_seconds += seconds
+
+
+def optimize_small(problem: Any, params: Any, t0: float) -> Result | None:
     """LM on ``problem`` (a :class:`~fgopt.problem.Problem`, structure not needed) in one call of
-    its kernel set's driver. ``None``: the driver is not compiled yet (a background process
-    compiles it from ``graph`` and ``initial``), or the initial linearization is not finite
-    (the general path then names the factor). ``t0``: when the solve started
+    its kernel set's driver. ``None``: the driver is not compiled yet (see
+    :data:`COMPILE_AFTER_SECONDS`), or the initial linearization is not finite (the general
+    path then names the factor). ``t0``: when the solve started
     (``perf_counter``)."""
     global _lm_module
     if _lm_module is None:
         from .. import lm as _lm_module
     plan = _plan(problem.batches)
     if not plan.ready():
-        if not plan.warming and graph is not None:
-            from .. import _warmup
-
-            plan.warming = True  # once per process and set of kernels
-            _warmup.warm_in_background(graph, initial, problem, small=True)
         return None
     inputs = _inputs(problem, plan)
     cls = _kind_tables(problem.kinds)[4] or _lm_module.problem_class_for(

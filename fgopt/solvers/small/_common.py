@@ -6,7 +6,8 @@ Storage and tangent layout: the problem's variables in its order, variable ``v``
 
 Those that take arrays and return none are compiled without numba's reference counting
 (``_nrt=False``): the driver calls them on views of its arenas, and counting would add an atomic
-increment and decrement per array per call (see :func:`fgopt.solvers.fixed._codegen.lm_source`).
+increment and decrement per array per call (see
+:func:`fgopt.solvers.small._lm_template.lm_source`).
 """
 
 from __future__ import annotations
