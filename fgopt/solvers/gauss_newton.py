@@ -17,6 +17,7 @@ import numpy as np
 from ..errors import NotPositiveDefiniteError
 from ..variables import Variables
 from ._run import Callback, Run, refuse_constraints, require_no_bounds
+from .linear.base import describe_indefinite
 from .params import GaussNewtonParams
 from .result import Result, Status
 
@@ -44,9 +45,10 @@ class GaussNewton:
             if delta is None:
                 try:
                     delta = run.solve_damped(None, -problem.g)
-                except NotPositiveDefiniteError:
-                    return run.finish(Status.FAILED, "H is not positive definite: add a prior to "
-                                      "fix the gauge, or use method='lm'")
+                except NotPositiveDefiniteError as exc:
+                    return run.finish(Status.FAILED, str(describe_indefinite(
+                        exc, problem.var_keys, "Gauss-Newton",
+                        "add a prior to fix the gauge, or use method='lm'")))
                 if not np.all(np.isfinite(delta)):
                     return run.finish(Status.FAILED, "the Gauss-Newton step is not finite")
             step_norm = float(np.linalg.norm(delta))

@@ -31,13 +31,16 @@ from __future__ import annotations
 
 import numpy as np
 from ..._jit import njit
+from .base import PIVOT_TOLERANCE
 
 _FM = {"contract"}  # let LLVM fuse multiply-adds (no reassociation)
 
 
 @njit(cache=True, fastmath=_FM)
 def _chol_inverse(C, d, L, out):
-    """``out = C^-1`` for a symmetric ``d x d`` block (lower triangle read); False if not PD.
+    """``out = C^-1`` for a symmetric ``d x d`` block (lower triangle read); False if not PD
+    (a pivot not above ``PIVOT_TOLERANCE`` times its diagonal entry, as in every Cholesky of
+    :mod:`fgopt.solvers.linear`: a point seen once has no depth, whatever sign rounding gives).
 
     ``L`` is a work array of at least ``d x d`` (overwritten).
     """
@@ -45,7 +48,7 @@ def _chol_inverse(C, d, L, out):
         s = C[j, j]
         for k in range(j):
             s -= L[j, k] * L[j, k]
-        if not s > 0.0:
+        if not s > PIVOT_TOLERANCE * C[j, j]:
             return False
         ljj = np.sqrt(s)
         L[j, j] = ljj
