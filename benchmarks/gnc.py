@@ -42,30 +42,18 @@ import numpy as np  # noqa: E402
 
 import fgopt  # noqa: E402
 from fgopt import SE2, SE3, BetweenFactor  # noqa: E402
-from fgopt.noise import Isotropic  # noqa: E402
+from fgopt.datasets import gross_error, random_loop_closures  # noqa: E402
 from fgopt.solvers import GNCParams  # noqa: E402
 
 DATA = os.environ.get("FGOPT_DATA", os.path.join(os.path.dirname(__file__), "..", "..", "shared",
                                                   "data"))
 FILES = {"m3500": "pose2d/input_M3500_g2o.g2o", "sphere2500": "pose3d/sphere2500.g2o"}
 GENERATORS = ("random", "file", "perturbed")
-CHI2_999 = {3: 16.266, 6: 22.458}
 
 
 def _gross_error(rng, is3d: bool, sigma_of, max_rot=0.5, max_trans=5.0):
-    """A relative-pose error (rotation up to ``max_rot`` rad, translation up to ``max_trans`` m
-    per axis) whose whitened norm under ``sigma_of(err)`` exceeds the chi-square 0.999 quantile."""
-    dim = 6 if is3d else 3
-    while True:
-        if is3d:
-            axis = rng.normal(size=3)
-            rot = axis / np.linalg.norm(axis) * rng.uniform(0, max_rot)
-            err = SE3.exp(np.concatenate([rot, rng.uniform(-max_trans, max_trans, 3)]))
-        else:
-            err = SE2.from_xytheta(*rng.uniform(-max_trans, max_trans, 2),
-                                   rng.uniform(-max_rot, max_rot))
-        if sigma_of(err) > CHI2_999[dim]:
-            return err
+    """:func:`fgopt.datasets.gross_error` (the generators share it)."""
+    return gross_error(rng, is3d, sigma_of, max_rot, max_trans)
 
 
 def _pose_pair(rng, n: int) -> tuple[int, int]:
@@ -85,12 +73,7 @@ def corrupt(graph, reference, generator: str, fraction: float, seed: int = 0):
     n = int(round(fraction * len(edges)))
     out = fgopt.FactorGraph(list(graph))
     if generator == "random":
-        noise = Isotropic.sigma(dim, 0.1)
-        for _ in range(n):
-            i, j = _pose_pair(rng, len(keys))
-            err = _gross_error(rng, is3d, lambda e: float(np.sum(e.log() ** 2)) / 0.01)
-            true = reference.at(keys[i]).between(reference.at(keys[j]))
-            out.add(BetweenFactor(keys[i], keys[j], true * err, noise))
+        return random_loop_closures(graph, reference, fraction, seed)
     elif generator == "file":
         noise = edges[len(edges) // 2].loss
         for _ in range(n):
