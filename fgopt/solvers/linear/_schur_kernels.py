@@ -38,12 +38,8 @@ _FM = {"contract"}  # let LLVM fuse multiply-adds (no reassociation)
 
 @njit(cache=True, fastmath=_FM)
 def _chol_inverse(C, d, L, out):
-    """``out = C^-1`` for a symmetric ``d x d`` block (lower triangle read); False if not PD
-    (a pivot not above ``PIVOT_TOLERANCE`` times its diagonal entry, as in every Cholesky of
-    :mod:`fgopt.solvers.linear`: a point seen once has no depth, whatever sign rounding gives).
-
-    ``L`` is a work array of at least ``d x d`` (overwritten).
-    """
+    """``out = C^-1`` for a symmetric ``d x d`` block (lower triangle read); False if a pivot is
+    not above ``PIVOT_TOLERANCE`` x its diagonal entry. ``L``: work array, >= ``d x d``."""
     for j in range(d):
         s = C[j, j]
         for k in range(j):
