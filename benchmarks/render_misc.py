@@ -315,12 +315,17 @@ def gnc(doc: dict) -> str:
     graphs = list(dict.fromkeys(r["graph"] for r in recs))
     gens = list(dict.fromkeys(r["generator"] for r in recs))
     fracs = sorted({r["fraction"] for r in recs})
-    head = ["graph (optimum)"] + [f"{g} {' / '.join(f'{x:.0%}' for x in fracs)}" for g in gens]
+    clean = {r["graph"]: r for r in doc["results"]["records"]
+             if r["method"] == "LM (clean graph)"}
+    head = (["graph (optimum)"] + (["LM, clean graph"] if clean else [])
+            + [f"{g} {' / '.join(f'{x:.0%}' for x in fracs)}" for g in gens])
     lines = _head(head)
     missed = []
     for g in graphs:
         opt = next(r["optimum"] for r in recs if r["graph"] == g)
         row = [f"{g} ({opt:.6g})"]
+        if clean:
+            row.append(f"{clean[g]['cpu']:.1f} s" if g in clean else "—")
         for gen in gens:
             cells = []
             for x in fracs:

@@ -264,3 +264,58 @@ def bal_synthetic(cameras: int, points: int, observations_per_point: int = 5, se
     init_cams[:, 3:6] += rng.normal(0, 0.05, (cameras, 3))
     init_pts = pts + rng.normal(0, 0.05, pts.shape)
     return SyntheticBAL(ci, pj, uv, init_cams, init_pts, cams, pts)
+
+
+#: Chi-square 0.999 quantiles by tangent dimension (a drawn error below it is not gross).
+_CHI2_999 = {3: 16.266, 6: 22.458}
+
+
+def gross_error(rng: np.random.Generator, is3d: bool, sigma_of, max_rotation: float = 0.5,
+                max_translation: float = 5.0):
+    """A relative-pose error (rotation angle uniform up to ``max_rotation`` rad, about a random
+    axis in 3D; translation uniform in ``[-max_translation, max_translation]`` m per axis) whose
+    squared whitened norm ``sigma_of(err)`` exceeds the chi-square 0.999 quantile (a draw the
+    noise model would call plausible is redrawn)."""
+    dim = 6 if is3d else 3
+    while True:
+        if is3d:
+            axis = rng.normal(size=3)
+            rot = axis / np.linalg.norm(axis) * rng.uniform(0, max_rotation)
+            err = SE3.exp(np.concatenate([rot, rng.uniform(-max_translation, max_translation, 3)]))
+        else:
+            err = SE2.from_xytheta(*rng.uniform(-max_translation, max_translation, 2),
+                                   rng.uniform(-max_rotation, max_rotation))
+        if sigma_of(err) > _CHI2_999[dim]:
+            return err
+
+
+def random_loop_closures(graph: FactorGraph, reference: Variables, fraction: float,
+                         seed: int = 0, sigma: float = 0.1, max_rotation: float = 0.5,
+                         max_translation: float = 5.0) -> tuple[FactorGraph, int]:
+    """``graph`` plus ``round(fraction * edges)`` wrong loop closures between random pairs of
+    non-consecutive poses of ``reference`` (SE2 or SE3 values): each measures the reference
+    relative pose times a :func:`gross_error`, under an isotropic noise of ``sigma`` (m and rad).
+    Returns ``(graph, number added)``; the added factors come last.
+
+    >>> bad, n = random_loop_closures(graph, clean_result.values, 0.1)
+    """
+    from .noise.models import Isotropic
+
+    rng = np.random.default_rng(seed)
+    keys = reference.keys()
+    is3d = isinstance(reference.at(keys[0]), SE3)
+    dim = 6 if is3d else 3
+    edges = sum(1 for f in graph if len(f.keys) == 2)
+    n = int(round(fraction * edges))
+    noise = Isotropic.sigma(dim, sigma)
+    out = FactorGraph(list(graph))
+    for _ in range(n):
+        while True:
+            i, j = (int(x) for x in rng.choice(len(keys), 2, replace=False))
+            if abs(i - j) > 1:  # consecutive poses would pass for odometry
+                break
+        err = gross_error(rng, is3d, lambda e: float(np.sum(e.log() ** 2)) / sigma ** 2,
+                          max_rotation, max_translation)
+        true = reference.at(keys[i]).between(reference.at(keys[j]))
+        out.add(BetweenFactor(keys[i], keys[j], true * err, noise))
+    return out, n

@@ -35,7 +35,14 @@ class FgoptIndexError(FgoptError, IndexError):
 
 
 class NotPositiveDefiniteError(FgoptError, ValueError):
-    """A covariance / information matrix, or a linear system, is not positive definite."""
+    """A covariance / information matrix, or a linear system, is not positive definite.
+
+    ``variable``: when a factorization of H failed at a known pivot, the index (in the
+    problem's variable order) of the variable it belongs to, else None."""
+
+    def __init__(self, message: str = "", variable: int | None = None):
+        super().__init__(message)
+        self.variable = variable
 
 
 class NonFiniteError(FgoptError, ValueError):

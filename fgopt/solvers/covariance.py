@@ -15,7 +15,7 @@ import numpy as np
 
 from ..errors import FgoptError, KeyNotFoundError, NotPositiveDefiniteError, have_extra
 from ..key import Key, as_key, key_str
-from .linear.base import make_linear_solver
+from .linear.base import describe_indefinite, make_linear_solver
 
 
 #: Up to this many tangent columns, marginals come from solves with the identity's columns;
@@ -63,19 +63,24 @@ def marginals(result: Any, keys: Iterable[int] | None = None, graph: Any = None,
         linear_solver = "block" if many or not have_extra("sksparse") else "cholmod"
     solver = make_linear_solver(linear_solver, pattern=problem.pattern)
     solver.analyze(problem.pattern)
-    try:
-        solver.factorize(problem.H_data.copy())
-    except NotPositiveDefiniteError:
-        raise NotPositiveDefiniteError(
-            "marginals: the information matrix H is singular at the solution; fix the gauge "
-            "with a prior (e.g. PriorFactor on the first pose)") from None
-    off, dim = problem.var_offset, problem.var_dim
-    out: dict[Key, np.ndarray] = {}
     # constant variables (fgopt.bounds) are not in H: their covariance is zero, and H's
     # variables are the free ones, numbered in order
     R = getattr(problem, "restrictions", None)
     held = R.const_var if R is not None else np.zeros(problem.var_keys.shape[0], dtype=bool)
     in_h = np.cumsum(~held) - 1
+
+    def indefinite(exc: NotPositiveDefiniteError) -> NotPositiveDefiniteError:
+        return describe_indefinite(
+            exc, problem.var_keys[~held], "marginals",
+            "fix the gauge with a prior (e.g. PriorFactor on the first pose) and give every "
+            "variable enough factors")
+
+    try:
+        solver.factorize(problem.H_data.copy())
+    except NotPositiveDefiniteError as exc:
+        raise indefinite(exc) from None
+    off, dim = problem.var_offset, problem.var_dim
+    out: dict[Key, np.ndarray] = {}
     cols, spans = [], []
     for k in list(key_list):
         v = problem._var_of_key.get(k)
@@ -105,7 +110,10 @@ def marginals(result: Any, keys: Iterable[int] | None = None, graph: Any = None,
     for start in range(0, len(cols), chunk):
         E = np.zeros((n, min(chunk, len(cols) - start)))
         E[cols[start:start + chunk], np.arange(E.shape[1])] = 1.0
-        X = solver.solve(E) if E.shape[1] > 1 else solver.solve(E[:, 0])[:, None]
+        try:   # (an iterative solver finds no solution here)
+            X = solver.solve(E) if E.shape[1] > 1 else solver.solve(E[:, 0])[:, None]
+        except NotPositiveDefiniteError as exc:
+            raise indefinite(exc) from None
         X_cols.append(np.asarray(X).reshape(n, -1))
     X = np.concatenate(X_cols, axis=1)
     for k, (c0, d) in zip(key_list, spans):

@@ -26,6 +26,7 @@ from .._threads import blas_threads
 from ..errors import NotPositiveDefiniteError
 from ..variables import Variables
 from ._run import Callback, Run, refuse_constraints, require_no_bounds
+from .linear.base import describe_indefinite
 from .params import DoglegParams
 from .result import Result, Status
 
@@ -82,8 +83,9 @@ class Dogleg:
                 try:
                     h_gn = run.solve_damped(
                         p.regularization * np.maximum(H[pattern.diag_pos], 1e-6), -g)
-                except NotPositiveDefiniteError:
-                    return run.finish(Status.FAILED, "H is not positive definite")
+                except NotPositiveDefiniteError as exc:
+                    return run.finish(Status.FAILED, str(describe_indefinite(
+                        exc, problem.var_keys, "dogleg", "add a prior or use method='lm'")))
                 if not np.all(np.isfinite(h_gn)):
                     return run.finish(Status.FAILED, "the Gauss-Newton step is not finite")
                 gHg = float(g @ pattern.matvec(H, g))

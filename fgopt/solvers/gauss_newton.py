@@ -18,6 +18,7 @@ from .._threads import blas_threads
 from ..errors import NotPositiveDefiniteError
 from ..variables import Variables
 from ._run import Callback, Run, refuse_constraints, require_no_bounds
+from .linear.base import describe_indefinite
 from .params import GaussNewtonParams
 from .result import Result, Status
 
@@ -50,9 +51,10 @@ class GaussNewton:
             if delta is None:
                 try:
                     delta = run.solve_damped(None, -problem.g)
-                except NotPositiveDefiniteError:
-                    return run.finish(Status.FAILED, "H is not positive definite: add a prior to "
-                                      "fix the gauge, or use method='lm'")
+                except NotPositiveDefiniteError as exc:
+                    return run.finish(Status.FAILED, str(describe_indefinite(
+                        exc, problem.var_keys, "Gauss-Newton",
+                        "add a prior to fix the gauge, or use method='lm'")))
                 if not np.all(np.isfinite(delta)):
                     return run.finish(Status.FAILED, "the Gauss-Newton step is not finite")
             step_norm = float(np.linalg.norm(delta))

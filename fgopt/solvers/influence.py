@@ -229,18 +229,12 @@ def _leverage_fn(problem: Problem, state: State):
     sides, so smaller chunks). A tiny ridge fixes a free gauge."""
     problem.linearize(state)
     if have_extra("sksparse"):
-        from sksparse.cholmod import CholmodNotPositiveDefiniteError, cholesky
+        from .linear.cholmod import CholmodSolver
 
-        from .linear.cholmod import serial_openmp
-
-        H = problem.pattern.matrix(problem.H_data)
-        with serial_openmp():
-            try:
-                F = cholesky(H)
-            except CholmodNotPositiveDefiniteError:  # no prior: a tiny ridge fixes the gauge
-                ridge = 1e-9 * max(1.0, float(np.abs(H.diagonal()).max()))
-                F = cholesky(H, beta=ridge)
-        return _sparse_leverages(F), 1 << 30
+        # through the solver's pivot test: with no prior, CHOLMOD's L D L^T of H could hold a
+        # rounding-negative pivot that only the conversion to L L^T in solve_L reported
+        solver = _factorized(problem, CholmodSolver(ordering_method="default"))
+        return _sparse_leverages(solver._factor), 1 << 30
     return _solve_leverages(problem), _DENSE_CHUNK
 
 

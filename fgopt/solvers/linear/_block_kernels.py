@@ -143,16 +143,29 @@ def _update_tiles(L, b0, w, m, n, k, C, ldc):
 @njit(cache=True)
 def factorize(H, hmap, L, C, pstart, width, rows, cb_ptr, cb_base, cb_ld, cb_src, cb_dim,
               run_ptr, run_src, run_dst, run_len, iw, fw, small_panel, tile_panel, small_syrk,
-              chunk):
-    """Numeric factorization; returns -1, or the supernode whose pivot was not positive."""
+              chunk, diag0, tol):
+    """Numeric factorization; returns -1, or the (postorder) scalar column whose pivot failed.
+
+    A pivot ``d_j`` (``L_jj^2``) fails unless ``d_j > tol * H_jj``, ``H_jj`` the assembled
+    diagonal (kept in ``diag0``): in a direction H does not constrain, elimination leaves only
+    rounding noise of either sign, which a test for ``d_j > 0`` alone passes about half the time.
+    """
     L[:] = 0.0
     for p in range(H.shape[0]):
         L[hmap[p]] = H[p]
+    S = width.shape[0]
+    j = 0
+    for s in range(S):
+        p0 = pstart[s]
+        m = rows[s]
+        for c in range(width[s]):
+            diag0[j] = L[p0 + c * m + c]
+            j += 1
     base = L.ctypes.data
     cbase = C.ctypes.data
     ip = iw.ctypes.data
     fp = fw.ctypes.data
-    S = width.shape[0]
+    col = 0   # the supernode's first scalar column (postorder)
     for s in range(S):
         w = width[s]
         m = rows[s]
@@ -162,25 +175,31 @@ def factorize(H, hmap, L, C, pstart, width, rows, cb_ptr, cb_base, cb_ld, cb_src
         iw[_I0 + 1] = m
         iw[_I0 + 3] = r
         if w <= small_panel:
-            if _panel_small(L, p0, w, m) != 0:
-                return s
+            bad = _panel_small(L, p0, w, m)
+            if bad != 0:
+                return col + bad - 1
         elif w <= tile_panel:
-            if _panel_tiles(L, p0, w, m, C) != 0:   # C is free until the update: scratch
-                return s
+            bad = _panel_tiles(L, p0, w, m, C)   # C is free until the update: scratch
+            if bad != 0:
+                return col + bad - 1
         else:
             iw[_I0 + 2] = 0
             _dpotrf(ip + 4 * _CL, ip + 4 * _I0, base + 8 * p0, ip + 4 * (_I0 + 1),
                     ip + 4 * (_I0 + 2))
             if iw[_I0 + 2] != 0:
-                return s
-            for c in range(w):   # OpenBLAS's potf2 tests ``ajj <= 0``, which lets NaN through
-                if not L[p0 + c * m + c] > 0.0:
-                    return s
+                return col + iw[_I0 + 2] - 1
             if r > 0:
                 # B <- B L11^-T : side R, lower, transposed, non-unit; B is r x w at p0 + w
                 _dtrsm(ip + 4 * _CR, ip + 4 * _CL, ip + 4 * _CT, ip + 4 * _CN,
                        ip + 4 * (_I0 + 3), ip + 4 * _I0, fp, base + 8 * p0, ip + 4 * (_I0 + 1),
                        base + 8 * (p0 + w), ip + 4 * (_I0 + 1))
+        # relative to the assembled diagonal (OpenBLAS's potf2 tests ``ajj <= 0``, which lets
+        # NaN through: this test does not)
+        for c in range(w):
+            d = L[p0 + c * m + c]
+            if not d * d > tol * diag0[col + c]:
+                return col + c
+        col += w
         if r > 0:   # the update B B^T, formed and scattered in chunks of whole column blocks
             jb = cb_ptr[s]
             jb_end = cb_ptr[s + 1]

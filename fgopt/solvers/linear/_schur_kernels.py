@@ -31,21 +31,20 @@ from __future__ import annotations
 
 import numpy as np
 from ..._jit import njit
+from .base import PIVOT_TOLERANCE
 
 _FM = {"contract"}  # let LLVM fuse multiply-adds (no reassociation)
 
 
 @njit(cache=True, fastmath=_FM)
 def _chol_inverse(C, d, L, out):
-    """``out = C^-1`` for a symmetric ``d x d`` block (lower triangle read); False if not PD.
-
-    ``L`` is a work array of at least ``d x d`` (overwritten).
-    """
+    """``out = C^-1`` for a symmetric ``d x d`` block (lower triangle read); False if a pivot is
+    not above ``PIVOT_TOLERANCE`` x its diagonal entry. ``L``: work array, >= ``d x d``."""
     for j in range(d):
         s = C[j, j]
         for k in range(j):
             s -= L[j, k] * L[j, k]
-        if not s > 0.0:
+        if not s > PIVOT_TOLERANCE * C[j, j]:
             return False
         ljj = np.sqrt(s)
         L[j, j] = ljj

@@ -11,7 +11,8 @@ symbolic work runs on the *variable* graph, which is 3-9x smaller than the scala
 * ``factorize`` (each iteration, one numba call): right-looking supernodal Cholesky. A panel is
   factored (LAPACK ``dpotrf`` + ``dtrsm``, or a fused numba loop when narrow), its whole update
   ``B B^T`` is formed by one ``dsyrk`` (+ ``dgemm`` per column chunk) and scattered straight into
-  the ancestors' panels. A non-positive pivot raises :class:`NotPositiveDefiniteError`.
+  the ancestors' panels. A pivot not above ``pivot_tolerance`` times its diagonal entry of H
+  raises :class:`NotPositiveDefiniteError` naming the variable (:func:`.base.pivot_failure`).
 * ``solve``: forward / backward substitution by supernodes (numba), one or many right-hand sides.
 
 Variables are permuted internally (etree postorder of the pattern's own order: same fill); the
@@ -28,6 +29,7 @@ import numpy as np
 from ...errors import DimensionMismatchError, FgoptError, NotPositiveDefiniteError
 from ...structure import HessianPattern
 from . import _block_symbolic as sym
+from .base import PIVOT_TOLERANCE, pivot_failure
 
 # CHOLMOD-like relaxed amalgamation: (max merged width in scalar columns, max zero fraction)
 DEFAULT_RELAX = ((4, 1.0), (16, 0.8), (48, 0.1), (1 << 62, 0.05))
@@ -96,7 +98,10 @@ class BlockCholeskySolver:
     name = "block"
 
     def __init__(self, small_panel: int = 8, tile_panel: int = 192, small_syrk: int = 96,
-                 chunk: int = 512, relax=DEFAULT_RELAX, dense: bool = False):
+                 chunk: int = 512, relax=DEFAULT_RELAX, dense: bool = False,
+                 pivot_tolerance: float = PIVOT_TOLERANCE):
+        #: A pivot must exceed this times its diagonal entry of H (:data:`.base.PIVOT_TOLERANCE`).
+        self.pivot_tolerance = float(pivot_tolerance)
         #: One supernode for the whole system (:func:`analyze_dense`): small systems.
         self.dense = bool(dense)
         self.tile_panel = int(tile_panel)
@@ -113,6 +118,8 @@ class BlockCholeskySolver:
 
         sy = analyze_dense(pattern) if self.dense else analyze_blocks(pattern, self.relax)
         self.symbolic = sy
+        self._var_offset, self._var_dim = pattern.var_offset, pattern.var_dim
+        self._diag0 = np.empty(int(pattern.size))   # H's diagonal in the factor's order
         sn_of, self._perm, new_var, self._col0, self._rix_ptr, self._rix = sym.factor_layout(
             sy.post_var, sy.dim, sy.off, sy.sn, sy.rvi, sy.rows,
             np.asarray(pattern.var_offset, np.int64), int(pattern.size))
@@ -156,12 +163,13 @@ class BlockCholeskySolver:
         fail = k.factorize(H_data, self._hmap, self.L,
                            self._C, sy.pstart, sy.width, sy.rows, *self._maps, self._iw,
                            self._fw, self.small_panel, self.tile_panel,
-                           self.small_syrk, self.chunk)
+                           self.small_syrk, self.chunk, self._diag0, self.pivot_tolerance)
         if fail >= 0:
-            v = int(sy.post_var[sy.sn[fail]])
-            raise NotPositiveDefiniteError(
-                f"block Cholesky: H is not positive definite (non-positive pivot in the supernode "
-                f"starting at variable {v}); increase the damping")
+            at = int(np.searchsorted(sy.off, fail, side="right")) - 1   # postorder variable
+            v = int(sy.post_var[at])
+            raise pivot_failure("block Cholesky", self._var_offset, self._var_dim,
+                                int(self._var_offset[v] + fail - sy.off[at]),
+                                self.pivot_tolerance)
         self._ok = True
         self._sigma = None
 

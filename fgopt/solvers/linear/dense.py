@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...errors import NotPositiveDefiniteError
 from ...structure import HessianPattern
+from .base import PIVOT_TOLERANCE, pivot_failure
 
 
 class DenseCholeskySolver:
@@ -16,12 +16,14 @@ class DenseCholeskySolver:
 
     name = "dense"
 
-    def __init__(self, numba: bool = False):
+    def __init__(self, numba: bool = False, pivot_tolerance: float = PIVOT_TOLERANCE):
         self._block = None
+        #: A pivot must exceed this times its diagonal entry of H (:data:`.base.PIVOT_TOLERANCE`).
+        self.pivot_tolerance = float(pivot_tolerance)
         if numba:
             from .block_cholesky import BlockCholeskySolver
 
-            self._block = BlockCholeskySolver(dense=True)
+            self._block = BlockCholeskySolver(dense=True, pivot_tolerance=pivot_tolerance)
 
     def analyze(self, pattern: HessianPattern) -> None:
         if self._block is not None:
@@ -42,9 +44,18 @@ class DenseCholeskySolver:
         try:
             L = np.linalg.cholesky(H)  # reads the lower triangle (numpy: no scipy import)
         except np.linalg.LinAlgError:
-            raise NotPositiveDefiniteError("dense Cholesky: H is not positive definite") from None
-        if not np.all(np.diag(L) > 0):
-            raise NotPositiveDefiniteError("dense Cholesky: H is not positive definite")
+            # which pivot failed (LAPACK's info; scipy only on this path)
+            from scipy.linalg import lapack
+
+            _, info = lapack.dpotrf(H, lower=1)
+            raise pivot_failure("dense Cholesky", self._pattern.var_offset,
+                                self._pattern.var_dim, max(int(info) - 1, 0),
+                                self.pivot_tolerance) from None
+        d = np.diag(L)
+        ok = d * d > self.pivot_tolerance * np.diag(H)   # (NaN fails)
+        if not np.all(ok):
+            raise pivot_failure("dense Cholesky", self._pattern.var_offset,
+                                self._pattern.var_dim, int(np.argmin(ok)), self.pivot_tolerance)
         self._L = L
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:

@@ -62,6 +62,15 @@ class PCGSolver:
         return z
 
     def solve(self, rhs: np.ndarray) -> np.ndarray:
+        """``H^-1 rhs`` for one right-hand side or the columns of a 2-D ``rhs``. Raises
+        :class:`NotPositiveDefiniteError` when CG does not reach ``rtol`` (H singular, or too
+        ill-conditioned for ``max_iterations``): its iterate is no solution."""
+        rhs = np.asarray(rhs, dtype=float)
+        if rhs.ndim == 2:
+            return np.column_stack([self._solve1(rhs[:, j]) for j in range(rhs.shape[1])])
+        return self._solve1(rhs)
+
+    def _solve1(self, rhs: np.ndarray) -> np.ndarray:
         n = self._pattern.size
         H_data, pattern = self._H, self._pattern
         A = spla.LinearOperator((n, n), matvec=lambda x: pattern.matvec(H_data, x), dtype=float)
@@ -71,9 +80,14 @@ class PCGSolver:
         def count(_):
             iters[0] += 1
 
-        x, info = spla.cg(A, rhs, rtol=self.rtol, atol=0.0, M=M,
-                          maxiter=self.max_iterations or 10 * n, callback=count)
+        maxiter = self.max_iterations or 10 * n
+        x, info = spla.cg(A, rhs, rtol=self.rtol, atol=0.0, M=M, maxiter=maxiter,
+                          callback=count)
         self.last_iterations = iters[0]
         if info < 0:
             raise NotPositiveDefiniteError("PCG broke down (H not positive definite?)")
+        if info > 0 or not np.all(np.isfinite(x)):
+            raise NotPositiveDefiniteError(
+                f"PCG: no solution to rtol={self.rtol:g} in {maxiter} iterations (H singular "
+                "or too ill-conditioned)")
         return x

@@ -41,6 +41,7 @@ from ...structure import (HessianPattern, _sym_matvec, build_pattern, fill_reduc
                           kinds_by_count)
 from . import _schur_kernels as K
 from . import _schur_layout as L
+from .base import PIVOT_TOLERANCE, pivot_failure
 from ._schur_layout import is_ba_shaped as is_ba_shaped
 
 REDUCED = ("auto", "dense", "sparse", "pcg")
@@ -122,6 +123,7 @@ class SchurSolver:
         edge_e, edge_f = edge_e[srt], np.ascontiguousarray(edge_f[srt])
         self._edge_ptr, self._edge_f = edge_ptr, edge_f
         self._e_off, self._e_dim = var_off[e_vars].astype(np.int64), e_dim
+        self._e_vars = e_vars
         self._f_hoff, self._f_dim = var_off[f_vars].astype(np.int64), f_dim
         self._c_ptr = np.concatenate([[0], np.cumsum(e_dim * e_dim)]).astype(np.int64)
         self._Cinv = np.empty(int(self._c_ptr[-1]))
@@ -252,9 +254,10 @@ class SchurSolver:
                 self._pair_ptr, self._pair_blk, self._blk_ptr, self._blk_base, self._Cinv,
                 self._W, S, self._explicit)
         if bad >= 0:
+            v = int(self._e_vars[bad])
             raise NotPositiveDefiniteError(
-                f"Schur: the diagonal block of eliminated variable #{bad} is not positive "
-                "definite (a point seen too few times / too little damping)")
+                f"Schur: the diagonal block of eliminated variable #{v} is not positive "
+                "definite (a point seen too few times / too little damping)", variable=v)
         t1 = self.clock()
         self.timing["eliminate"] += t1 - t0
         try:
@@ -270,11 +273,16 @@ class SchurSolver:
                 # in place (Fortran-contiguous float64); keep the returned array to be safe
                 from scipy.linalg import lapack  # here: scipy.linalg costs ~0.1 s to import
 
+                d0 = self._S.diagonal().copy()
                 self._L, info = lapack.dpotrf(self._S, lower=1, clean=0, overwrite_a=1)
-                if info != 0:
-                    raise NotPositiveDefiniteError(
-                        f"Schur: the reduced camera system is not positive definite (LAPACK "
-                        f"dpotrf info={info})")
+                if info < 0:
+                    raise FgoptError(f"Schur: LAPACK dpotrf info={info}")
+                d = self._L.diagonal()
+                ok = d * d > PIVOT_TOLERANCE * d0   # (NaN fails)
+                if info > 0 or not np.all(ok):
+                    bad = info - 1 if info > 0 else int(np.argmin(ok))
+                    raise pivot_failure("Schur (reduced system)", self._pattern.var_offset,
+                                        self._pattern.var_dim, int(self._s_to_h[bad]))
         elif self.mode == "sparse":
             self._S_flat[self._pk_dst] = self._packed[self._pk_src]
             self._chol.factorize(self._S_flat)
