@@ -264,3 +264,7 @@ def bal_synthetic(cameras: int, points: int, observations_per_point: int = 5, se
     init_cams[:, 3:6] += rng.normal(0, 0.05, (cameras, 3))
     init_pts = pts + rng.normal(0, 0.05, pts.shape)
     return SyntheticBAL(ci, pj, uv, init_cams, init_pts, cams, pts)
+
+#: The public names (each has an entry in the API reference: tests/test_docs_reference.py).
+__all__ = ["data_dir", "SyntheticPoseGraph", "manhattan_2d", "grid_3d", "SyntheticSfm", "sfm_cube",
+           "SyntheticBAL", "bal_synthetic"]

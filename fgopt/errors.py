@@ -109,3 +109,10 @@ def missing_extra(module: str, feature: str) -> BackendUnavailableError:
         f"{feature} needs {what}, which is not installed: pip install 'fgopt[{extra}]' "
         f"(on Debian/Ubuntu first apt-get install libsuitesparse-dev), or use fgopt's own "
         f"solvers (the default)")
+
+#: The public names (each has an entry in the API reference: tests/test_docs_reference.py).
+__all__ = ["FgoptError", "FgoptWarning", "KeyNotFoundError", "DuplicateKeyError",
+           "DimensionMismatchError", "FgoptIndexError", "NotPositiveDefiniteError",
+           "NonFiniteError", "EmptyProblemError", "BackendUnavailableError", "ManifoldError",
+           "ManifoldDeclarationError", "FileFormatError", "CheiralityError", "CalibrationError",
+           "TriangulationError", "EXTRAS", "have_extra", "missing_extra"]

@@ -252,3 +252,7 @@ def save_result_plot(path: str | os.PathLike, graph: Any, initial: Any, result: 
     """Write :func:`plot_result` to ``path`` (format from the extension, e.g. ``.png``)."""
     fig = plot_result(graph, initial, result, title=title)
     fig.savefig(os.fspath(path), dpi=dpi)
+
+#: The public names (each has an entry in the API reference: tests/test_docs_reference.py).
+__all__ = ["plot_pose_graph", "camera_centers", "plot_bundle", "plot_cost_history", "plot_result",
+           "save_result_plot"]

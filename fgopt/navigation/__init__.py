@@ -28,3 +28,7 @@ from .navstate import NavState as NavState
 from .params import PreintegrationParams as PreintegrationParams
 from .preintegration import PreintegratedCombinedImu as PreintegratedCombinedImu
 from .preintegration import PreintegratedImu as PreintegratedImu
+
+#: The public names (each has an entry in the API reference: tests/test_docs_reference.py).
+__all__ = ["ImuBias", "CombinedImuFactor", "GpsFactor", "ImuFactor", "NavState",
+           "PreintegrationParams", "PreintegratedCombinedImu", "PreintegratedImu"]
