@@ -7,7 +7,17 @@ from __future__ import annotations
 
 
 class FgoptError(Exception):
-    """Root of every error fgopt raises on purpose."""
+    """Root of every error fgopt raises on purpose.
+
+    Example:
+
+    >>> try:
+    ...     fgopt.Variables().at(key('x', 1))
+    ... except fgopt.FgoptError as e:
+    ...     print(type(e).__name__)
+    ...
+    KeyNotFoundError
+    """
 
 
 class FgoptWarning(UserWarning):
