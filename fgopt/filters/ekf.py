@@ -140,24 +140,10 @@ class ManifoldEKF:
         dt: name of the time-step argument (a ``Scalar``).
         reset: move the covariance to the corrected state's tangent space after each update.
         name: a name for reprs and generated modules (default the process function's).
+    Example (run in docs/guide/generated_functions_ekf.md)::
 
-    Example:
-
-    >>> from fgopt import SO3
-    >>> from fgopt.filters import ManifoldEKF
-    >>> from fgopt.symbolic import Rot3, V3, Scalar
-    >>> def process(R: Rot3, p: V3, v: V3, accel: V3, dt: Scalar):
-    ...     a = R * accel + V3(0, 0, -9.81)
-    ...     return R, p + v * dt + a * (dt * dt / 2), v + a * dt
-    ...
-    >>> def gps(p: V3) -> V3:
-    ...     return p
-    ...
-    >>> ekf = ManifoldEKF(process, [gps], x0=(SO3(), np.zeros(3), np.zeros(3)), P0=np.eye(9))
-    >>> ekf.predict(np.array([0.0, 0.0, 9.81]), 0.1, np.eye(3) * 1e-4)
-    >>> ekf.update(np.array([0.1, 0.0, 0.0]), np.eye(3), 'gps')
-    >>> np.round(ekf.state[1], 3)
-    array([0.05, 0.  , 0.  ])
+        ekf = ManifoldEKF(process, [gps], x0=(SO3(), p0, v0), P0=np.eye(9))
+        ekf.predict(np.r_[gyro, accel], 0.01, Q_imu); ekf.update(z_gps, R_gps, "gps")
     """
 
     def __init__(self, process: Callable, measurements: Mapping[str, Callable] | Sequence[Callable],
