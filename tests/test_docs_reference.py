@@ -32,6 +32,7 @@ PACKAGES = ["fgopt", "fgopt.noise", "fgopt.manifolds", "fgopt.factors", "fgopt.s
 
 #: Reference entries whose docstring has no example yet (what the reference does not cover).
 WITHOUT_EXAMPLE = {
+    'fgopt.constraint',
     'fgopt.OrientedPlane3', 'fgopt.Problem', 'fgopt.SE23', 'fgopt.cameras.Cal3Bundler',
     'fgopt.cameras.Cal3DS2', 'fgopt.cameras.Cal3Fisheye', 'fgopt.cameras.Cal3Unified',
     'fgopt.cameras.Cal3_S2Stereo', 'fgopt.cameras.Calibration', 'fgopt.cameras.DoubleSphere',
