@@ -1,4 +1,4 @@
-# Two commands: `make demo` and `make test`. Each sets everything up first (idempotent):
+# Two commands: `make demo` and `make test` (and `make docs` for the documentation site). Each sets everything up first (idempotent):
 # Debian's SuiteSparse headers (for the optional scikit-sparse / CHOLMOD extra), a virtual env in
 # .venv, and the package with its test, notebook and cholmod extras. `pip install fgopt` alone
 # needs no apt and no compiler (wheels only); CHOLMOD is then simply not used.
@@ -12,7 +12,9 @@ export FGOPT_DATA ?= $(abspath ../shared/data)
 # BLAS; OpenBLAS makes it 3-4x faster on 3D pose graphs (measured on sphere2500).
 APT_PACKAGES := libsuitesparse-dev libopenblas0-pthread
 
-.PHONY: setup demo test bench clean
+DOCS_STAMP := $(VENV)/.fgopt-docs-installed
+
+.PHONY: setup demo test bench docs clean
 
 setup: $(STAMP)
 
@@ -42,5 +44,17 @@ bench: setup
 	@$(PY) -m pip install -q --disable-pip-version-check -e '.[bench]'
 	@$(PY) -m benchmarks.run --all $(if $(SKIP),--skip $(SKIP))
 
+# The documentation site (docs/README.md): every page's code cells and every example notebook
+# execute; warnings (a failing example, a broken link, an unresolved reference) are errors.
+# FGOPT_EXECUTED_NOTEBOOKS=<dir of executed notebooks> reuses the test suite's runs (.ci/run).
+$(DOCS_STAMP): $(STAMP) pyproject.toml
+	@echo "==> installing the docs extra into $(VENV)"
+	@$(PY) -m pip install -q --disable-pip-version-check -e '.[docs]'
+	@touch $(DOCS_STAMP)
+
+docs: setup $(DOCS_STAMP)
+	@$(PY) -m sphinx -W --keep-going -b html docs docs/_build/html
+	@echo "==> docs/_build/html/index.html"
+
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build *.egg-info docs/_build docs/api/generated docs/gallery/notebooks docs/jupyter_execute

@@ -1,4 +1,5 @@
-"""Regenerate the README's tables at HEAD with one command.
+"""Regenerate the benchmark tables (README.md's headline, docs/benchmarks.md's) at HEAD with one
+command.
 
     python -m benchmarks.run --all [--skip scale,...]   # run every registered benchmark
     python -m benchmarks.run --only startup,navigation  # some tables (their benchmarks run)
@@ -9,9 +10,9 @@
 Benchmarks run one at a time (the machine is shared), each as
 ``python -m benchmarks.<name> <the registered arguments>``. Its JSON is saved as
 ``benchmarks/results/tables/<bench>.json`` = ``{"meta": {commit, dirty, date, loadavg,
-command, duration_s, protocol}, "results": <the benchmark's own JSON>}``, and the README's
+command, duration_s, protocol}, "results": <the benchmark's own JSON>}``, and the pages'
 blocks between ``<!-- table:NAME -->`` markers are rewritten; text outside them is untouched.
-"+dirty" after the commit means files other than the README and ``benchmarks/results`` differed
+"+dirty" after the commit means files other than those pages and ``benchmarks/results`` differed
 from HEAD while measuring. A table whose benchmark ``--skip`` left out keeps its saved results
 and commit, and says it was not rerun (so does one whose benchmark failed;
 ``benchmarks/results/tables/index.json`` remembers which).
@@ -35,6 +36,9 @@ from .tables import BENCHES, RESULTS, TABLES, benches_of, tables_of
 
 REPO = Path(__file__).resolve().parent.parent
 README = REPO / "README.md"
+#: The pages whose table markers ``--all`` / ``--only`` / ``--render-only`` rewrite: the README
+#: holds the headline table, the docs site's benchmarks page every table.
+PAGES = (README, REPO / "docs" / "benchmarks.md")
 
 
 def git_state(repo: Path = REPO) -> tuple[str, bool]:
@@ -42,7 +46,7 @@ def git_state(repo: Path = REPO) -> tuple[str, bool]:
     head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
                           text=True, cwd=repo, check=False).stdout.strip()
     status = subprocess.run(["git", "status", "--porcelain", "--", ".", ":(exclude)README.md",
-                             ":(exclude)benchmarks/results"], capture_output=True, text=True,
+                             ":(exclude)docs/benchmarks.md", ":(exclude)benchmarks/results"], capture_output=True, text=True,
                             cwd=repo, check=False).stdout.strip()
     return head, bool(status)
 
@@ -129,7 +133,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--render-only", action="store_true",
                     help="re-render from the saved results without running anything")
     ap.add_argument("--list", action="store_true", help="list tables and benchmarks")
-    ap.add_argument("--readme", default=str(README))
+    ap.add_argument("--readme", action="append", default=None,
+                    help="a page to rewrite (repeatable; default: README.md and "
+                         "docs/benchmarks.md)")
     ap.add_argument("--results", default=str(RESULTS), help="saved results directory")
     args = ap.parse_args(argv)
     results_dir = Path(args.results)
@@ -150,9 +156,14 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("give --all, --only NAME[,NAME], --render-only or --list")
     selected = only or list(BENCHES)
     run = [] if args.render_only else [b for b in selected if b not in skip]
-    readme = Path(args.readme)
-    text = readme.read_text()
-    markers.find_blocks(text)  # malformed markers fail before hours of benchmarks
+    pages = [Path(p) for p in args.readme] if args.readme else list(PAGES)
+    texts = {p: p.read_text() for p in pages}
+    present = set()
+    for text in texts.values():  # malformed markers fail before hours of benchmarks
+        present |= set(markers.find_blocks(text))
+    absent = [t for t in tables_of(selected) if t not in present]
+    if absent and not args.readme:
+        ap.error(f"table(s) {', '.join(absent)}: no markers in {', '.join(map(str, pages))}")
     failed = []
     if not args.render_only:
         head, dirty = git_state()
@@ -173,13 +184,18 @@ def main(argv: list[str] | None = None) -> int:
         index["not_rerun"] = stale
         results_dir.mkdir(parents=True, exist_ok=True)
         index_path.write_text(json.dumps(index, indent=1, sort_keys=True) + "\n")
-    new, missing = render_readme(text, tables_of(selected), results_dir)
-    if new != text:
-        readme.write_text(new)
-    for t in missing:
-        print(f"table {t}: no saved results in {results_dir}; left as it was", file=sys.stderr)
-    print(f"rendered {len(tables_of(selected)) - len(missing)} table(s) into {readme}",
-          file=sys.stderr)
+    for page, text in texts.items():
+        here = [t for t in tables_of(selected) if t in markers.find_blocks(text)]
+        new, missing = render_readme(text, here, results_dir)
+        if new != text:
+            page.write_text(new)
+        for t in missing:
+            print(f"table {t}: no saved results in {results_dir}; left as it was",
+                  file=sys.stderr)
+        print(f"rendered {len(here) - len(missing)} table(s) into {page}", file=sys.stderr)
+    for t in absent:
+        print(f"table {t}: no markers in {', '.join(map(str, pages))}; not rendered",
+              file=sys.stderr)
     if failed:
         print(f"benchmarks that failed: {', '.join(failed)}", file=sys.stderr)
         return 1

@@ -186,3 +186,14 @@ def render(doc: dict) -> str:
         table_costs(doc), "",
         (f"Seconds, median of {meta['args'].get('repeats')} runs after a warm-up, one process per "
         f"library × problem × mode, single thread. Versions: {versions}.")])
+
+
+def headline(doc: dict) -> str:
+    """The README's headline: the to-convergence table alone (the docs' benchmarks page has all
+    three)."""
+    meta = doc["results"]["meta"]
+    versions = ", ".join(f"{_LABEL.get(k, k)} {v}" for k, v in meta.get("versions", {}).items())
+    return "\n".join([table_converge(doc), "",
+                      (f"Seconds, median of {meta['args'].get('repeats')} runs after a warm-up, "
+                       f"one process per library × problem × mode, single thread. Versions: "
+                       f"{versions}.")])

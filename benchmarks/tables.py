@@ -1,4 +1,4 @@
-"""Registry of the README's generated tables: which benchmark produces each table, with which
+"""Registry of the generated tables (README's headline, docs/benchmarks.md's others): which benchmark produces each table, with which
 arguments, and which renderer turns the benchmark's saved results into markdown.
 
 A README table lives between ``<!-- table:NAME -->`` and ``<!-- /table:NAME -->``
@@ -87,6 +87,7 @@ BENCHES: dict[str, Bench] = {
 
 TABLES: dict[str, Table] = {
     "peers": Table("peers", render_peers.render),
+    "headline": Table("peers", render_peers.headline),
     "startup": Table("startup", render_misc.startup),
     "startup-overheads": Table("startup", render_misc.startup_overheads),
     "startup-first-use": Table("startup", render_misc.startup_first_use),

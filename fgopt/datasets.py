@@ -45,7 +45,16 @@ class SyntheticPoseGraph:
 
 def manhattan_2d(num_poses: int = 3500, seed: int = 0, sigmas=(0.01, 0.05, 0.05),
                  loop_probability: float = 0.5, turn_probability: float = 0.3) -> SyntheticPoseGraph:
-    """A Manhattan-world 2D pose graph; ``sigmas`` are (theta, x, y), fgopt's tangent order."""
+    """A Manhattan-world 2D pose graph; ``sigmas`` are (theta, x, y), fgopt's tangent order.
+
+    Example:
+
+    >>> s = fgopt.datasets.manhattan_2d(num_poses=100, seed=0)
+    >>> len(s.initial), s.num_loop_closures > 0
+    (100, True)
+    >>> fgopt.optimize(s.graph, s.initial).success
+    True
+    """
     rng = np.random.default_rng(seed)
     sig = np.asarray(sigmas, dtype=float)
     noise = Diagonal.sigmas(sig)
@@ -89,7 +98,14 @@ def manhattan_2d(num_poses: int = 3500, seed: int = 0, sigmas=(0.01, 0.05, 0.05)
 
 def grid_3d(num_poses: int = 1000, seed: int = 0, rotation_sigma: float = 0.01,
             translation_sigma: float = 0.05, loop_probability: float = 0.5) -> SyntheticPoseGraph:
-    """A 3D grid-world SE(3) pose graph (random walk on a unit lattice with loop closures)."""
+    """A 3D grid-world SE(3) pose graph (random walk on a unit lattice with loop closures).
+
+    Example:
+
+    >>> s = fgopt.datasets.grid_3d(num_poses=27, seed=0)
+    >>> len(s.initial), type(s.initial.at(key('x', 0))).__name__
+    (27, 'SE3')
+    """
     rng = np.random.default_rng(seed)
     sig = np.array([rotation_sigma] * 3 + [translation_sigma] * 3)
     noise = Diagonal.sigmas(sig)
@@ -149,6 +165,14 @@ def sfm_cube(smart: bool = False, seed: int = 0, pose_noise: float = 0.1,
     (``SFMExample_SmartFactor.cpp``): a SmartProjectionFactor per landmark, priors on ``x0`` and
     ``x1`` (sigmas 0.1 rad, 0.3 m), initial poses ``pose * delta`` with GTSAM's fixed ``delta``
     (Rodrigues(-0.1, 0.2, 0.25), (0.05, -0.10, 0.20)).
+
+    Example:
+
+    >>> scene = fgopt.datasets.sfm_cube()
+    >>> scene.measurements.shape
+    (8, 8, 2)
+    >>> fgopt.optimize(scene.graph, scene.initial).success
+    True
     """
     from .cameras import Cal3_S2, PinholeCamera, ProjectionFactor, SmartProjectionFactor
     from .noise import Isotropic
@@ -230,6 +254,12 @@ def bal_synthetic(cameras: int, points: int, observations_per_point: int = 5, se
     BAL's camera model: ``P = R(w) X + t``, ``p = -P[:2] / P[2]``, ``uv = f (1 + k1 |p|^2 +
     k2 |p|^4) p`` (cameras look down their -z axis). Fully vectorized: 5M observations in
     seconds.
+
+    Example:
+
+    >>> ba = fgopt.datasets.bal_synthetic(cameras=4, points=20, observations_per_point=3)
+    >>> ba.cameras.shape, ba.points.shape, ba.observations.shape
+    ((4, 9), (20, 3), (60, 2))
     """
     from scipy.spatial.transform import Rotation
 
@@ -319,3 +349,9 @@ def random_loop_closures(graph: FactorGraph, reference: Variables, fraction: flo
         true = reference.at(keys[i]).between(reference.at(keys[j]))
         out.add(BetweenFactor(keys[i], keys[j], true * err, noise))
     return out, n
+
+
+#: The public names (each has an entry in the API reference: tests/test_docs_reference.py).
+__all__ = ["data_dir", "SyntheticPoseGraph", "manhattan_2d", "grid_3d", "SyntheticSfm", "sfm_cube",
+           "SyntheticBAL", "bal_synthetic",
+           "gross_error", "random_loop_closures"]

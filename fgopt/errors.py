@@ -7,7 +7,17 @@ from __future__ import annotations
 
 
 class FgoptError(Exception):
-    """Root of every error fgopt raises on purpose."""
+    """Root of every error fgopt raises on purpose.
+
+    Example:
+
+    >>> try:
+    ...     fgopt.Variables().at(key('x', 1))
+    ... except fgopt.FgoptError as e:
+    ...     print(type(e).__name__)
+    ...
+    KeyNotFoundError
+    """
 
 
 class FgoptWarning(UserWarning):
@@ -116,3 +126,10 @@ def missing_extra(module: str, feature: str) -> BackendUnavailableError:
         f"{feature} needs {what}, which is not installed: pip install 'fgopt[{extra}]' "
         f"(on Debian/Ubuntu first apt-get install libsuitesparse-dev), or use fgopt's own "
         f"solvers (the default)")
+
+#: The public names (each has an entry in the API reference: tests/test_docs_reference.py).
+__all__ = ["FgoptError", "FgoptWarning", "KeyNotFoundError", "DuplicateKeyError",
+           "DimensionMismatchError", "FgoptIndexError", "NotPositiveDefiniteError",
+           "NonFiniteError", "EmptyProblemError", "BackendUnavailableError", "ManifoldError",
+           "ManifoldDeclarationError", "FileFormatError", "CheiralityError", "CalibrationError",
+           "TriangulationError", "EXTRAS", "have_extra", "missing_extra"]

@@ -24,6 +24,22 @@ class FactorGraph:
 
     Constraints (:func:`fgopt.constraint` instances) added with ``add`` are kept apart, in
     ``constraints``: they are not part of the cost; :func:`fgopt.optimize` enforces them.
+
+    Example:
+
+    >>> from fgopt import SE2, PriorFactor, BetweenFactor
+    >>> from fgopt.noise import Isotropic
+    >>> graph = fgopt.FactorGraph()
+    >>> noise = Isotropic.sigma(3, 0.1)
+    >>> graph.add(PriorFactor(key('x', 0), SE2(), noise)).add(BetweenFactor(key('x', 0), key('x', 1), SE2.from_xytheta(1, 0, 0), noise))
+    FactorGraph(2 factors on 2 keys)
+             1 x prior_pose2
+             1 x between_pose2
+    >>> len(graph), graph.keys()
+    (2, [x0, x1])
+    >>> values = fgopt.Variables().add(key('x', 0), SE2()).add(key('x', 1), SE2.from_xytheta(1.1, 0, 0))
+    >>> round(graph.error(values), 6)
+    0.5
     """
 
     def __init__(self, factors: Iterable[Factor] = ()):

@@ -14,7 +14,16 @@ _INDEX_MASK = (1 << _CHAR_SHIFT) - 1
 
 
 class Key(int):
-    """An integer key with a readable ``repr`` (``x1``, ``l42``)."""
+    """An integer key with a readable ``repr`` (``x1``, ``l42``).
+
+    Example:
+
+    >>> k = fgopt.Key(7)
+    >>> k, k.char, k.index
+    (7, '', 7)
+    >>> key('x', 3).char, key('x', 3).index
+    ('x', 3)
+    """
 
     __slots__ = ()
 
@@ -34,7 +43,15 @@ class Key(int):
 
 
 def key(char: str, index: int) -> Key:
-    """Make the key ``<char><index>``, e.g. ``key('x', 1)`` -> ``x1``."""
+    """Make the key ``<char><index>``, e.g. ``key('x', 1)`` -> ``x1``.
+
+    Example:
+
+    >>> key('x', 1)
+    x1
+    >>> int(key('x', 1)) == (ord('x') << 56) | 1
+    True
+    """
     if not isinstance(char, str) or len(char) != 1 or not (0 < ord(char) < 128):
         raise FgoptError(f"key char must be one ASCII character, got {char!r}")
     index = int(index)

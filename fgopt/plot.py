@@ -233,7 +233,17 @@ def plot_cost_history(history: Any, ax: Any = None, title: str | None = None) ->
 
 
 def plot_result(graph: Any, initial: Any, result: Any, title: str | None = None) -> Any:
-    """Two panels: the problem after optimization (over the initial guess) and the cost."""
+    """Two panels: the problem after optimization (over the initial guess) and the cost.
+
+    Example:
+
+    >>> import matplotlib
+    >>> matplotlib.use('Agg')
+    >>> s = fgopt.datasets.manhattan_2d(num_poses=50, seed=0)
+    >>> fig = fgopt.plot.plot_result(s.graph, s.initial, fgopt.optimize(s.graph, s.initial))
+    >>> len(fig.axes)
+    2
+    """
     values = result.values
     _, _, dim = _poses(values)
     fig = _figure((12, 5.5))
@@ -252,3 +262,7 @@ def save_result_plot(path: str | os.PathLike, graph: Any, initial: Any, result: 
     """Write :func:`plot_result` to ``path`` (format from the extension, e.g. ``.png``)."""
     fig = plot_result(graph, initial, result, title=title)
     fig.savefig(os.fspath(path), dpi=dpi)
+
+#: The public names (each has an entry in the API reference: tests/test_docs_reference.py).
+__all__ = ["plot_pose_graph", "camera_centers", "plot_bundle", "plot_cost_history", "plot_result",
+           "save_result_plot"]

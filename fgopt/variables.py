@@ -84,7 +84,8 @@ class _Rows:
 class Variables:
     """A map from keys to manifold values (Lie groups, floats, 1-D arrays, custom manifolds).
 
-    >>> v = Variables(); v.add(key('x', 1), SE2.from_xytheta(0, 0, 0)); v.at(key('x', 1))
+    >>> fgopt.Variables().add(key('x', 1), fgopt.SE2.from_xytheta(0, 0, 0)).at(key('x', 1))
+    SE2(x=0.000, y=0.000, theta=0.000)
 
     Vector values added in bulk (:meth:`add_rows`, what the file readers use) stay in their
     ``(n, d)`` array until per-key objects are needed: a million BA points then cost 24 bytes

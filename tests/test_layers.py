@@ -1,4 +1,5 @@
-"""The package's imports run one way through the layers stated in README.md's layout table.
+"""The package's imports run one way through the layers stated in docs/architecture.md's layout
+table.
 
 The table is the single statement of the order: this test parses it, then every ``fgopt`` import
 in the package (module level, inside functions, and ``importlib.import_module`` with a literal
@@ -26,8 +27,8 @@ LONG_MODULES = {
 }
 
 
-def layer_table(readme: Path = REPO / "README.md") -> dict[str, int]:
-    """``{top-level module name: layer index}`` from README.md's layout table."""
+def layer_table(readme: Path = REPO / "docs" / "architecture.md") -> dict[str, int]:
+    """``{top-level module name: layer index}`` from docs/architecture.md's layout table."""
     text = readme.read_text()
     section = text[text.index("## Layout"):]
     section = section[:section.index("\n## ", 1)]
@@ -120,8 +121,8 @@ def layer_of(module: str, layers: dict[str, int]) -> int:
     parts = module.split(".")
     top = parts[1] if len(parts) > 1 else "__init__"
     if top not in layers:
-        raise AssertionError(f"{module}: top-level module {top!r} has no row in README's layout "
-                             "table; give it a layer")
+        raise AssertionError(f"{module}: top-level module {top!r} has no row in "
+                             "docs/architecture.md's layout table; give it a layer")
     return layers[top]
 
 
@@ -170,7 +171,7 @@ def test_the_checker_catches_a_wrong_import(tmp_path):
 
 
 def test_readme_table_is_what_the_test_reads():
-    """The table parses into the layers the architecture names (a README edit that breaks the
+    """The table parses into the layers the architecture names (an edit of the page that breaks the
     table fails here rather than silently allowing everything)."""
     layers = layer_table()
     for name in ("errors", "key", "manifolds", "noise", "symbolic", "factors", "navigation",

@@ -25,3 +25,9 @@ from .factors import stereo_kernel as stereo_kernel
 from .triangulation import triangulate as triangulate
 from .smart import SmartProjectionFactor as SmartProjectionFactor
 from .smart import smart_kernel as smart_kernel
+
+#: The public names (each has an entry in the API reference: tests/test_docs_reference.py).
+__all__ = ["Cal3_S2", "Cal3_S2Stereo", "Cal3Bundler", "Cal3DS2", "Cal3Fisheye", "Cal3Unified",
+           "Calibration", "DoubleSphere", "PinholeCamera", "StereoCamera", "GeneralSFMFactor",
+           "ProjectionFactor", "camera_projection_kernel", "StereoFactor", "projection_kernel",
+           "stereo_kernel", "triangulate", "SmartProjectionFactor", "smart_kernel"]

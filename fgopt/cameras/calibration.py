@@ -253,7 +253,17 @@ class Calibration:
 
 class Cal3_S2(Calibration):
     """Pinhole ``u = fx x + s y + u0``, ``v = fy y + v0``. Storage = tangent
-    ``(fx, fy, s, u0, v0)``."""
+    ``(fx, fy, s, u0, v0)``.
+
+    Example:
+
+    >>> from fgopt.cameras import Cal3_S2
+    >>> K = Cal3_S2(500.0, 500.0, 0.0, 320.0, 240.0)
+    >>> K.uncalibrate(np.array([0.1, -0.2]))
+    array([370., 140.])
+    >>> K.calibrate(np.array([370.0, 140.0]))
+    array([ 0.1, -0.2])
+    """
 
     __slots__ = ()
     MODEL = CK.CAL3_S2

@@ -67,6 +67,16 @@ class PinholeCamera:
     a manifold (GTSAM's ``PinholeCamera<Cal>``: a variable holding pose and calibration, e.g. a
     BAL camera): storage ``[qx, qy, qz, qw, tx, ty, tz, k...]``, tangent ``[w, v, dk]``,
     ``retract(d) = (pose * Exp(d[:6]), calibration + d[6:])``.
+
+    Example:
+
+    >>> from fgopt import SE3
+    >>> from fgopt.cameras import Cal3_S2, PinholeCamera
+    >>> cam = PinholeCamera(SE3(), Cal3_S2(500.0, 500.0, 0.0, 320.0, 240.0))
+    >>> cam.project(np.array([0.2, -0.4, 2.0]))
+    array([370., 140.])
+    >>> cam.backproject(np.array([370.0, 140.0]), 2.0)
+    array([ 0.2, -0.4,  2. ])
     """
 
     __slots__ = ("_pose", "_calibration", "_R")

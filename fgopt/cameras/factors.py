@@ -273,6 +273,17 @@ class ProjectionFactor(CameraKernelFactor):
         calibration: a :class:`~fgopt.cameras.Calibration` (constant) or a key (variable;
             then ``model`` names its class).
         cheirality: ``"reject"`` or ``"allow"`` (see the module docstring).
+
+    Example:
+
+    >>> from fgopt import SE3
+    >>> from fgopt.cameras import Cal3_S2, ProjectionFactor
+    >>> from fgopt.noise import Isotropic
+    >>> K = Cal3_S2(500.0, 500.0, 0.0, 320.0, 240.0)
+    >>> f = ProjectionFactor(key('x', 0), key('l', 0), np.array([370.0, 140.0]), Isotropic.sigma(2, 1.0), K)
+    >>> values = fgopt.Variables().add(key('x', 0), SE3()).add(key('l', 0), np.array([0.2, -0.4, 2.0]))
+    >>> np.round(f.error(values), 6)
+    array([0., 0.])
     """
 
     def __init__(self, pose: int, point: int, measured: Any, loss: Any = None,

@@ -110,6 +110,13 @@ class SmartProjectionFactor(CameraKernelFactor):
         triangulation: ``"dlt"`` (GTSAM's default) or ``"nonlinear"``.
         degenerate: ``"reject"`` or ``"zero"``.
         rank_tol: DLT rank tolerance (GTSAM's smart-factor default 1.0, in pixels), > 0.
+
+    Example:
+
+    >>> scene = fgopt.datasets.sfm_cube(smart=True)
+    >>> result = fgopt.optimize(scene.graph, scene.initial)
+    >>> result.success
+    True
     """
 
     def __init__(self, pose_keys: Sequence[int], measurements: Any, calibration: Calibration,

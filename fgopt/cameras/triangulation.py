@@ -54,6 +54,16 @@ def triangulate(cameras: Sequence[PinholeCamera], measurements: Any, method: str
         rank_tol: singular values of the DLT system above this count toward its rank (GTSAM's
             ``rank_tol``, in pixel units); > 0, as with 0 rounding noise counts as rank.
         max_iterations: limit of the nonlinear refinement (>= 0).
+
+    Example:
+
+    >>> from fgopt import SE3
+    >>> from fgopt.cameras import Cal3_S2, PinholeCamera, triangulate
+    >>> K = Cal3_S2(500.0, 500.0, 0.0, 320.0, 240.0)
+    >>> cams = [PinholeCamera(SE3(translation=[x, 0.0, 0.0]), K) for x in (0.0, 1.0)]
+    >>> X = np.array([0.5, 0.2, 4.0])
+    >>> np.round(triangulate(cams, [c.project(X) for c in cams]), 6)
+    array([0.5, 0.2, 4. ])
     """
     if not isinstance(method, str) or method not in METHODS:
         raise FgoptError(f"triangulate: method must be one of {METHODS}, got {method!r}")

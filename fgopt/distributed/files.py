@@ -54,7 +54,12 @@ def solve_files(paths: list[str], out_dir: str | None = None, *, method: str = "
                 client: Any = None, workers: int | None = None, progress: bool = True,
                 **options: Any) -> list[dict]:
     """Solve each file on Dask (see :func:`~fgopt.distributed.solve_many`); one summary row per
-    file, in order. A malformed file's row carries its ``file:line`` error; the rest are solved."""
+    file, in order. A malformed file's row carries its ``file:line`` error; the rest are solved.
+
+    Example:
+
+    >>> summary = fgopt.distributed.solve_files(['a.g2o', 'b.g2o'], out_dir='solved', workers=2)  # doctest: +SKIP
+    """
     if out_dir is not None:
         Path(out_dir).mkdir(parents=True, exist_ok=True)
     return run_tasks(solve_file, list(paths), client=client, workers=workers, progress=progress,

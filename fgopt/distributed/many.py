@@ -219,6 +219,15 @@ def solve_many(problems: Iterable[Any], *, method: str = "lm", client: Any = Non
     Returns:
         One entry per problem, in order: its :class:`~fgopt.Result`, or the
         :class:`~fgopt.FgoptError` that stopped it (the other problems still finish).
+
+    Example:
+
+    >>> def problem():
+    ...     s = fgopt.datasets.manhattan_2d(num_poses=50, seed=0)
+    ...     return s.graph, s.initial
+    ...
+    >>> results = fgopt.solve_many([problem, problem], workers=1, progress=False)  # doctest: +SKIP
+    >>> [r.success for r in results]  # doctest: +SKIP
     """
     items = list(problems)
     if method in WORKER_NUMBA_METHODS and "backend" not in options:

@@ -27,3 +27,8 @@ def __getattr__(name: str):
 
         return getattr(constraint, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+#: The public names (each has an entry in the API reference: tests/test_docs_reference.py).
+__all__ = ["Factor", "KernelFactor", "FactorKernel", "BetweenFactor", "PriorFactor",
+           "NumericalFactor", "numerical_jacobian", "numerical_jacobians", "factor", "const",
+           "SymbolicFactor", "SymbolicFactorType"]

@@ -29,7 +29,25 @@ from ..noise.models import Loss, base_noise, resolve_loss
 
 
 class Factor:
-    """A factor over ``keys`` with residual dimension ``dim`` and a noise model / robust ``loss``."""
+    """A factor over ``keys`` with residual dimension ``dim`` and a noise model / robust ``loss``.
+
+    Example:
+
+    >>> class Offset(fgopt.Factor):
+    ...     def __init__(self, k, target, loss=None):
+    ...         super().__init__([k], 2, loss)
+    ...         self.target = np.asarray(target, float)
+    ...     def error(self, values):
+    ...         return values.at(self.keys[0]) - self.target
+    ...     def jacobians(self, values):
+    ...         return [np.eye(2)]
+    ...
+    >>> values = fgopt.Variables().add(key('p', 0), np.array([1.0, 1.0]))
+    >>> Offset(key('p', 0), [0.0, 2.0]).error(values)
+    array([ 1., -1.])
+    >>> fgopt.check_jacobians([Offset(key('p', 0), [0.0, 2.0])], values).ok
+    True
+    """
 
     #: Batched kernel of this factor (fast path); ``None`` for Python factors.
     kernel: FactorKernel | None = None

@@ -80,6 +80,19 @@ def factor(fn: Callable | None = None, *, name: str | None = None, method: str =
         cache: use the on-disk kernel cache.
         variables: argument names that are variables in the default pattern shown by
             ``.source`` before any instance exists (default: all).
+
+    Example:
+
+    >>> from fgopt.symbolic import Pose2, V2, atan2
+    >>> @fgopt.factor
+    ... def range_bearing(pose: Pose2, landmark: V2, measured: V2) -> V2:
+    ...     d = pose.inverse() * landmark
+    ...     return V2(d.norm(), atan2(d[1], d[0])) - measured
+    ...
+    >>> f = range_bearing(pose=key('x', 0), landmark=key('l', 0), measured=np.array([2.0, 0.0]))
+    >>> values = fgopt.Variables().add(key('x', 0), fgopt.SE2()).add(key('l', 0), np.array([3.0, 0.0]))
+    >>> np.round(f.error(values), 6)
+    array([1., 0.])
     """
     def wrap(f: Callable, scope: dict | None = None) -> SymbolicFactorType:
         if scope is None:  # the defining scope: resolves string annotations of local names
@@ -95,6 +108,17 @@ class const:
 
     Only needed where a value could be read as a key (a bare int); floats, arrays and manifold
     values are constants already.
+
+    Example:
+
+    >>> from fgopt.symbolic import Scalar, V1
+    >>> @fgopt.factor
+    ... def scaled(x: Scalar, gain: Scalar) -> V1:
+    ...     return V1(gain * x - 1)
+    ...
+    >>> f = scaled(x=key('s', 0), gain=fgopt.const(2))
+    >>> f.error(fgopt.Variables().add(key('s', 0), 1.0))
+    array([1.])
     """
 
     __slots__ = ("value",)

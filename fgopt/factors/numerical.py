@@ -51,11 +51,37 @@ def numerical_jacobian(fn: Callable[[Any], np.ndarray], values: Any, k: Key,
 
 def numerical_jacobians(fn: Callable[[Any], np.ndarray], values: Any, keys: Sequence[Key],
                         delta: float = 1e-6) -> list[np.ndarray]:
+    """Central-difference Jacobians of ``fn(values)`` in the tangent space of each of ``keys``
+    (steps ``delta``), one ``(len(fn(values)), dim)`` array per key.
+
+    Example:
+
+    >>> from fgopt.factors import numerical_jacobians
+    >>> values = fgopt.Variables().add(key('p', 0), np.array([3.0, 4.0]))
+    >>> J, = numerical_jacobians(lambda v: np.array([np.linalg.norm(v.at(key('p', 0)))]),
+    ...                          values, [key('p', 0)])
+    >>> np.round(J, 6)
+    array([[0.6, 0.8]])
+    """
     return [numerical_jacobian(fn, values, k, delta) for k in keys]
 
 
 class NumericalFactor(Factor):
-    """A Python factor that only implements ``error``; Jacobians by central differences."""
+    """A Python factor that only implements ``error``; Jacobians by central differences.
+
+    Example:
+
+    >>> class Range(fgopt.NumericalFactor):
+    ...     def __init__(self, k, measured):
+    ...         super().__init__([k], 1)
+    ...         self.measured = measured
+    ...     def error(self, values):
+    ...         return np.array([np.linalg.norm(values.at(self.keys[0])) - self.measured])
+    ...
+    >>> values = fgopt.Variables().add(key('p', 0), np.array([3.0, 4.0]))
+    >>> np.round(Range(key('p', 0), 4.0).jacobians(values)[0], 6)
+    array([[0.6, 0.8]])
+    """
 
     #: Step of the central differences, in tangent coordinates.
     delta: float = 1e-6

@@ -6,3 +6,6 @@ Layer: above the solvers (may import everything below; nothing below imports it)
 """
 
 from .ekf import ManifoldEKF as ManifoldEKF
+
+#: The public names (each has an entry in the API reference: tests/test_docs_reference.py).
+__all__ = ["ManifoldEKF"]

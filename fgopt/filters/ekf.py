@@ -140,6 +140,10 @@ class ManifoldEKF:
         dt: name of the time-step argument (a ``Scalar``).
         reset: move the covariance to the corrected state's tangent space after each update.
         name: a name for reprs and generated modules (default the process function's).
+    Example (run in docs/guide/generated_functions_ekf.md)::
+
+        ekf = ManifoldEKF(process, [gps], x0=(SO3(), p0, v0), P0=np.eye(9))
+        ekf.predict(np.r_[gyro, accel], 0.01, Q_imu); ekf.update(z_gps, R_gps, "gps")
     """
 
     def __init__(self, process: Callable, measurements: Mapping[str, Callable] | Sequence[Callable],

@@ -15,3 +15,7 @@ from .linear_container import LinearContainerFactor as LinearContainerFactor
 from .params import IncrementalParams as IncrementalParams
 from .params import UpdateResult as UpdateResult
 from .smoother import IncrementalSmoother as IncrementalSmoother
+
+#: The public names (each has an entry in the API reference: tests/test_docs_reference.py).
+__all__ = ["FixedLagSmoother", "LinearContainerFactor", "IncrementalParams", "UpdateResult",
+           "IncrementalSmoother"]

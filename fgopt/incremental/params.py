@@ -28,7 +28,14 @@ from ..errors import FgoptError
 
 @dataclass(frozen=True)
 class IncrementalParams:
-    """Settings of :class:`~fgopt.incremental.IncrementalSmoother`."""
+    """Settings of :class:`~fgopt.incremental.IncrementalSmoother`.
+
+    Example:
+
+    >>> params = fgopt.IncrementalParams(relinearize_threshold=0.05, relinearize_skip=1)
+    >>> params.relinearize_threshold, params.relinearize_skip
+    (0.05, 1)
+    """
 
     #: A variable is relinearized when some ``|delta_i| >= threshold_i`` (tangent coordinates,
     #: rotation first). A float for every component of every variable, or a dict keyed by key

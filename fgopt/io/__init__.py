@@ -36,3 +36,8 @@ def __getattr__(name: str):
 
 def __dir__() -> list[str]:
     return sorted(set(globals()) | set(_LAZY))
+
+#: The public names (each has an entry in the API reference: tests/test_docs_reference.py).
+__all__ = ["detect_format", "read", "FIX_SIGMA", "add_gauge_prior", "read_g2o", "write_g2o",
+           "read_bal", "reprojection_kernel", "write_bal", "write_bal_arrays", "read_bundler",
+           "load2d", "parse_load2d", "read_stereo_vo"]

@@ -349,7 +349,17 @@ def add_fixing_priors(graph: FactorGraph, values: Variables, keys: list[int], la
 
 def add_gauge_prior(graph: FactorGraph, values: Variables) -> int | None:
     """Fix the gauge GTSAM-style: a tight prior (sigma ``FIX_SIGMA``) on the SE2 / SE3 pose
-    with the lowest key, unless some factor already is a pose prior. Returns the key or None."""
+    with the lowest key, unless some factor already is a pose prior. Returns the key or None.
+
+    Example:
+
+    >>> sample = fgopt.datasets.manhattan_2d(num_poses=5, seed=0)
+    >>> graph = sample.graph.copy()
+    >>> n = len(graph)
+    >>> fgopt.io.add_gauge_prior(graph, sample.initial)
+    >>> len(graph) - n
+    0
+    """
     from ..factors.library.prior_between import prior_kernel_for as prior_kernel
 
     kinds = {pose_kind(2), pose_kind(3)}

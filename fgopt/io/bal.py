@@ -70,6 +70,16 @@ def read_bal(path: str | os.PathLike, data: bytes | None = None,
 
     Raises:
         FileFormatError: malformed input; the message names the file and line.
+
+    Example:
+
+    >>> import tempfile, pathlib
+    >>> ba = fgopt.datasets.bal_synthetic(cameras=3, points=10, observations_per_point=2)
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / 'ba.txt'
+    >>> ba.write(path)
+    >>> graph, initial = fgopt.io.read_bal(path)
+    >>> len(graph), len(initial)
+    (20, 13)
     """
     if form not in FORMS:
         raise FgoptError(f"read_bal: form must be one of {FORMS}, got {form!r}")

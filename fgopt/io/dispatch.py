@@ -64,6 +64,16 @@ def read(path: str | os.PathLike, *, format: str | None = None, add_prior: bool 
             non-default value for one is an error).
         progress: show a progress bar on stderr (tqdm, when installed) if scanning the file
             takes over a second.
+
+    Example:
+
+    >>> import tempfile, pathlib
+    >>> sample = fgopt.datasets.manhattan_2d(num_poses=30, seed=0)
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / 'm30.g2o'
+    >>> fgopt.io.write_g2o(path, sample.graph, sample.initial)
+    >>> graph, initial = fgopt.io.read(path)
+    >>> len(initial), fgopt.Key(0) in initial
+    (30, False)
     """
     p = os.fspath(path)
     data = read_bytes(p)

@@ -184,6 +184,15 @@ def read_g2o(path: str | os.PathLike, add_prior: bool = False, skip_unknown: boo
 
     Raises:
         FileFormatError: malformed input; the message names the file and line.
+
+    Example:
+
+    >>> import tempfile, pathlib
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / 'two.g2o'
+    >>> _ = path.write_text('VERTEX_SE2 0 0 0 0\\nVERTEX_SE2 1 1.1 0 0\\nEDGE_SE2 0 1 1 0 0 100 0 0 100 0 400\\n')
+    >>> graph, initial = fgopt.io.read_g2o(path)
+    >>> len(graph), initial.keys()
+    (1, [x0, x1])
     """
     if repair_information not in info_mod.REPAIR_CHOICES:
         raise FgoptError(f"repair_information must be None or 'clip', got {repair_information!r}")

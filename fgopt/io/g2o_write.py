@@ -65,7 +65,17 @@ def _factor_blocks(graph: Any):
 
 
 def write_g2o(path: str | os.PathLike, graph: Any, values: Any) -> None:
-    """Write ``graph`` and ``values`` to ``path`` in g2o format (see the module docstring)."""
+    """Write ``graph`` and ``values`` to ``path`` in g2o format (see the module docstring).
+
+    Example:
+
+    >>> import tempfile, pathlib
+    >>> sample = fgopt.datasets.manhattan_2d(num_poses=5, seed=0)
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / 'out.g2o'
+    >>> fgopt.io.write_g2o(path, sample.graph, sample.initial)
+    >>> path.read_text().splitlines()[0].split()[:2]
+    ['VERTEX_SE2', '0']
+    """
     from ..factors.library.prior_between import between_kernel_for as between_kernel
     from ..factors.library.prior_between import prior_kernel_for as prior_kernel
     from ..factors.library.pose_point import pose_point_kernel

@@ -207,7 +207,17 @@ def landmark_guess(pose: SE2, bearing: float, range_: float) -> np.ndarray:
 
 def load2d(path: str | os.PathLike, noise_format: str = "auto"
            ) -> tuple[FactorGraph, Variables]:
-    """``(graph, initial)`` of a ``load2D`` file (see the module docstring)."""
+    """``(graph, initial)`` of a ``load2D`` file (see the module docstring).
+
+    Example:
+
+    >>> import tempfile, pathlib
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / 'slam.txt'
+    >>> _ = path.write_text('ODOMETRY 0 1 1.0 0.0 0.0 0.01 0 0 0.01 0 0.001\\n')
+    >>> graph, initial = fgopt.io.load2d(path)
+    >>> len(graph), sorted(initial.keys())
+    (1, [x0, x1])
+    """
     from ..factors import BetweenFactor
     from ..factors.library.range_bearing import range_bearing_factor
     from ..noise import Diagonal, Gaussian

@@ -21,6 +21,18 @@ class SE2(LieGroup):
     ``retract(x, d) = x * Exp(d)``, ``local(x, y) = Log(x^-1 * y)`` (right perturbation, GTSAM's
     Pose2 default). ``adjoint() = [[1, 0, 0], [y, c, -s], [-x, s, c]]``.
     ``pose * p`` transforms 2-D points ``(2,)`` or ``(n, 2)``.
+
+    Example:
+
+    >>> from fgopt import SE2
+    >>> a = SE2.from_xytheta(1.0, 2.0, np.pi / 2)
+    >>> a.translation(), round(a.rotation().theta(), 6)
+    (array([1., 2.]), 1.570796)
+    >>> np.round(a.act(np.array([1.0, 0.0])), 6)
+    array([1., 3.])
+    >>> b = a.retract(np.array([0.1, 0.2, 0.3]))
+    >>> np.round(a.local(b), 6)
+    array([0.1, 0.2, 0.3])
     """
 
     __slots__ = ()

@@ -29,6 +29,18 @@ class SE3(LieGroup):
     SO(3) x R^3 product. ``retract(x, d) = x * Exp(d)``, ``local(x, y) = Log(x^-1 * y)`` (right
     perturbation, GTSAM's Pose3 default). ``adjoint() = [[R, 0], [hat(t) R, R]]``.
     ``pose * p`` transforms points ``(3,)`` or ``(n, 3)``.
+
+    Example:
+
+    >>> from fgopt import SE3, SO3
+    >>> p = SE3(SO3.from_rotvec([0.0, 0.0, np.pi / 2]), [1.0, 2.0, 3.0])
+    >>> np.round(p.act(np.array([1.0, 0.0, 0.0])), 6)
+    array([1., 3., 3.])
+    >>> np.round(p.to_storage(), 6)
+    array([0.      , 0.      , 0.707107, 0.707107, 1.      , 2.      ,
+           3.      ])
+    >>> np.round(SE3.exp(p.log()).matrix() - p.matrix(), 9).max()
+    np.float64(0.0)
     """
 
     __slots__ = ()

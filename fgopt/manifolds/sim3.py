@@ -24,6 +24,13 @@ class Sim3(LieGroup):
     Composition ``(R1, t1, s1)(R2, t2, s2) = (R1 R2, s1 R1 t2 + t1, s1 s2)``.
     ``retract(x, d) = x * Exp(d)``, ``local(x, y) = Log(x^-1 * y)`` (right perturbation).
     ``adjoint() = [[R, 0, 0], [hat(t) R, s R, -t], [0, 0, 1]]``.
+
+    Example:
+
+    >>> from fgopt import Sim3
+    >>> S = Sim3.exp([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, np.log(2.0)])
+    >>> round(S.scale(), 6)
+    2.0
     """
 
     __slots__ = ()

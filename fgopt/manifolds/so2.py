@@ -47,6 +47,16 @@ class SO2(LieGroup):
     ``Exp(theta) = R(theta)``, ``Log`` returns theta in (-pi, pi].
     ``retract(x, d) = x * Exp(d)``, ``local(x, y) = Log(x^-1 * y)`` (right perturbation);
     ``adjoint() = [[1]]``. ``rot * p`` rotates 2-D points ``(2,)`` or ``(n, 2)``.
+
+    Example:
+
+    >>> from fgopt import SO2
+    >>> r = SO2(np.pi / 2)
+    >>> np.round(r.matrix(), 6)
+    array([[ 0., -1.],
+           [ 1.,  0.]])
+    >>> round(r.compose(SO2(0.1)).theta(), 6)
+    1.670796
     """
 
     __slots__ = ()

@@ -19,6 +19,17 @@ class SO3(LieGroup):
     ``Exp(w)`` rotates by ``|w|`` about ``w / |w|``; ``Log`` picks the shortest rotation
     (``|w| <= pi``). ``retract(x, d) = x * Exp(d)``, ``local(x, y) = Log(x^-1 * y)`` (right
     perturbation). ``adjoint() = R``. ``rot * p`` rotates points ``(3,)`` or ``(n, 3)``.
+
+    Example:
+
+    >>> from fgopt import SO3
+    >>> R = SO3.from_axis_angle([0.0, 0.0, 1.0], np.pi / 2)
+    >>> np.round(R.act(np.array([1.0, 0.0, 0.0])), 6)
+    array([0., 1., 0.])
+    >>> np.round(R.quaternion(), 6)
+    array([0.707107, 0.      , 0.      , 0.707107])
+    >>> np.round(R.log(), 6)
+    array([0.      , 0.      , 1.570796])
     """
 
     __slots__ = ()

@@ -32,3 +32,8 @@ from .preintegration import PreintegratedImu as PreintegratedImu
 from .scenario import AcceleratingScenario as AcceleratingScenario
 from .scenario import ConstantTwistScenario as ConstantTwistScenario
 from .scenario import ScenarioRunner as ScenarioRunner
+
+#: The public names (each has an entry in the API reference: tests/test_docs_reference.py).
+__all__ = ["ImuBias", "CombinedImuFactor", "GpsFactor", "ImuFactor", "NavState",
+           "PreintegrationParams", "PreintegratedCombinedImu", "PreintegratedImu",
+           "AcceleratingScenario", "ConstantTwistScenario", "ScenarioRunner"]

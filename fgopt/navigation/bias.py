@@ -18,7 +18,15 @@ from ..manifolds.lie import as_float_vector
 
 
 class ImuBias:
-    """Accelerometer bias (m/s^2) then gyroscope bias (rad/s); immutable."""
+    """Accelerometer bias (m/s^2) then gyroscope bias (rad/s); immutable.
+
+    Example:
+
+    >>> from fgopt.navigation import ImuBias
+    >>> b = ImuBias(accelerometer=[0.1, 0.0, 0.0], gyroscope=[0.0, 0.0, 0.01])
+    >>> b.vector()
+    array([0.1 , 0.  , 0.  , 0.  , 0.  , 0.01])
+    """
 
     __slots__ = ("_v",)
 

@@ -133,7 +133,17 @@ class ImuFactor(KernelFactor):
     preintegrated IMU samples between states i and j (GTSAM's 5-variable ImuFactor). 9 residuals
     ``[rotation, position, velocity]`` in the chart of ``pim.params.error_mode``; noise
     ``pim.residual_covariance_at(predicted_attitude)`` (the attitude matters only with Coriolis,
-    as GTSAM's constructor argument)."""
+    as GTSAM's constructor argument).
+
+    Example:
+
+    >>> from fgopt.navigation import ImuBias, ImuFactor, PreintegratedImu, PreintegrationParams
+    >>> pim = PreintegratedImu(PreintegrationParams.make_u(9.81), ImuBias())
+    >>> pim = pim.integrate(np.tile([0.0, 0.0, 9.81], (10, 1)), np.zeros((10, 3)), 0.01)
+    >>> f = ImuFactor(key('x', 0), key('v', 0), key('x', 1), key('v', 1), key('b', 0), pim)
+    >>> f.keys
+    (x0, v0, x1, v1, b0)
+    """
 
     _NAMES = ("pose_i", "vel_i", "pose_j", "vel_j", "bias_i")
 
@@ -202,7 +212,17 @@ class CombinedImuFactor(ImuFactor):
 class GpsFactor(KernelFactor):
     """``GpsFactor(pose, position, loss, lever_arm=None)``: a position fix of the antenna at
     ``lever_arm`` (body frame; default the body origin), GTSAM's ``GPSFactor`` /
-    ``GPSFactorArm``: residual ``t + R lever_arm - position`` (3 rows, world frame)."""
+    ``GPSFactorArm``: residual ``t + R lever_arm - position`` (3 rows, world frame).
+
+    Example:
+
+    >>> from fgopt import SE3
+    >>> from fgopt.navigation import GpsFactor
+    >>> from fgopt.noise import Isotropic
+    >>> f = GpsFactor(key('x', 0), [1.0, 2.0, 3.0], Isotropic.sigma(3, 1.0), lever_arm=[0.0, 0.0, 0.5])
+    >>> np.round(f.error(fgopt.Variables().add(key('x', 0), SE3(translation=[1.0, 2.0, 2.5]))), 6)
+    array([0., 0., 0.])
+    """
 
     def __init__(self, pose: int, position: Any, loss: Any = None, lever_arm: Any = None, *,
                  noise: Any = UNSET):

@@ -39,7 +39,18 @@ def _as_so3(attitude: Any) -> SO3:
 
 class NavState:
     """Attitude ``world_R_body``, position and velocity (in the world frame); see the module
-    docstring for storage, tangent and chart. Immutable."""
+    docstring for storage, tangent and chart. Immutable.
+
+    Example:
+
+    >>> from fgopt import SE3
+    >>> from fgopt.navigation import NavState
+    >>> x = NavState.from_pose_velocity(SE3(translation=[1.0, 0.0, 0.0]), [0.0, 2.0, 0.0])
+    >>> x.position(), x.velocity()
+    (array([1., 0., 0.]), array([0., 2., 0.]))
+    >>> np.round(x.local(x.retract(np.arange(9) * 0.01)), 6)
+    array([0.  , 0.01, 0.02, 0.03, 0.04, 0.05, 0.06, 0.07, 0.08])
+    """
 
     __slots__ = ("_buf", "_data")
     _DIM = K.DIM

@@ -76,7 +76,15 @@ def _from_sigma(sigma: Any, covariance: Any, name: str, sigma_name: str,
 
 @dataclass(frozen=True, eq=False)
 class PreintegrationParams:
-    """IMU preintegration parameters (module docstring). Use :meth:`make_u` / :meth:`make_d`."""
+    """IMU preintegration parameters (module docstring). Use :meth:`make_u` / :meth:`make_d`.
+
+    Example:
+
+    >>> from fgopt.navigation import PreintegrationParams
+    >>> p = PreintegrationParams.make_u(9.81, accel_sigma=0.01, gyro_sigma=1e-3)
+    >>> p.n_gravity
+    array([ 0.  ,  0.  , -9.81])
+    """
 
     n_gravity: np.ndarray
     """Gravity in the navigation frame (m/s^2), e.g. ``[0, 0, -9.81]`` for Z up."""

@@ -15,3 +15,7 @@ from .models import NoiseModel as NoiseModel
 from .models import RobustLoss as RobustLoss
 from .models import Tukey as Tukey
 from .models import Unit as Unit
+
+#: The public names (each has an entry in the API reference: tests/test_docs_reference.py).
+__all__ = ["Barron", "Cauchy", "Diagonal", "Gaussian", "GemanMcClure", "Huber", "Isotropic",
+           "NoiseModel", "RobustLoss", "Tukey", "Unit"]

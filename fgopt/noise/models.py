@@ -71,7 +71,15 @@ class NoiseModel:
 
 
 class Gaussian(NoiseModel):
-    """Full-covariance Gaussian noise."""
+    """Full-covariance Gaussian noise.
+
+    Example:
+
+    >>> from fgopt.noise import Gaussian
+    >>> g = Gaussian.from_covariance(np.array([[4.0, 0.0], [0.0, 1.0]]))
+    >>> np.round(g.whiten(np.array([2.0, 1.0])), 6)
+    array([1., 1.])
+    """
 
     @classmethod
     def from_sqrt_information(cls, R: np.ndarray) -> "Gaussian":
@@ -102,6 +110,15 @@ class Diagonal(NoiseModel):
     ``[x, y, theta]``, miniSAM's SE3 ``[v, w]``: sigmas copied from them in that order give a
     different model. The named constructors :meth:`pose2`, :meth:`pose3` and :meth:`sim3` take
     sigmas by component and remember them for the repr.
+
+    Example:
+
+    >>> from fgopt.noise import Diagonal
+    >>> Diagonal.pose2(x=0.5, y=0.5, theta=0.1).sigma_values
+    array([0.1, 0.5, 0.5])
+    >>> Diagonal.sigmas([0.1, 0.2]).sqrt_information
+    array([[10.,  0.],
+           [ 0.,  5.]])
     """
 
     #: Component names of a pose model (tangent order), for the repr; None for plain sigmas.
@@ -163,7 +180,14 @@ class Diagonal(NoiseModel):
 
 
 class Isotropic(Diagonal):
-    """The same sigma on every component."""
+    """The same sigma on every component.
+
+    Example:
+
+    >>> from fgopt.noise import Isotropic
+    >>> Isotropic.sigma(3, 0.5).sigma_values
+    array([0.5, 0.5, 0.5])
+    """
 
     @classmethod
     def sigma(cls, dim: int, sigma: float) -> "Isotropic":
@@ -175,7 +199,14 @@ class Isotropic(Diagonal):
 
 
 class Unit(Isotropic):
-    """Unit noise: the residual is already whitened."""
+    """Unit noise: the residual is already whitened.
+
+    Example:
+
+    >>> from fgopt.noise import Unit
+    >>> Unit(2).whiten(np.array([3.0, 4.0]))
+    array([3., 4.])
+    """
 
     is_unit = True
 
@@ -285,25 +316,55 @@ class RobustLoss:
 
 
 class Huber(RobustLoss):
-    """``rho(t) = t^2/2`` for ``|t| <= k``, else ``k |t| - k^2/2``."""
+    """``rho(t) = t^2/2`` for ``|t| <= k``, else ``k |t| - k^2/2``.
+
+    Example:
+
+    >>> from fgopt.noise import Huber, Isotropic
+    >>> loss = Huber(1.345, Isotropic.sigma(2, 0.1))
+    >>> round(loss.weight(np.array([0.01, 0.0])), 6), round(loss.weight(np.array([1.0, 0.0])), 6)
+    (1.0, 0.1345)
+    """
 
     code = LOSS_HUBER
 
 
 class Cauchy(RobustLoss):
-    """``rho(t) = k^2/2 log(1 + t^2/k^2)``."""
+    """``rho(t) = k^2/2 log(1 + t^2/k^2)``.
+
+    Example:
+
+    >>> from fgopt.noise import Cauchy, Unit
+    >>> round(Cauchy(1.0, Unit(1)).weight(np.array([2.0])), 6)
+    0.2
+    """
 
     code = LOSS_CAUCHY
 
 
 class Tukey(RobustLoss):
-    """``rho(t) = k^2/6 (1 - (1 - t^2/k^2)^3)`` for ``|t| <= k``, else ``k^2/6``."""
+    """``rho(t) = k^2/6 (1 - (1 - t^2/k^2)^3)`` for ``|t| <= k``, else ``k^2/6``.
+
+    Example:
+
+    >>> from fgopt.noise import Tukey, Unit
+    >>> loss = Tukey(4.685, Unit(1))
+    >>> round(loss.weight(np.array([1.0])), 6), loss.weight(np.array([10.0]))
+    (0.910956, 0.0)
+    """
 
     code = LOSS_TUKEY
 
 
 class GemanMcClure(RobustLoss):
-    """``rho(t) = (k^2 t^2 / 2) / (k^2 + t^2)`` (GTSAM's Geman-McClure)."""
+    """``rho(t) = (k^2 t^2 / 2) / (k^2 + t^2)`` (GTSAM's Geman-McClure).
+
+    Example:
+
+    >>> from fgopt.noise import GemanMcClure, Unit
+    >>> round(GemanMcClure(1.0, Unit(1)).weight(np.array([1.0])), 6)
+    0.25
+    """
 
     code = LOSS_GEMAN_MCCLURE
 
@@ -312,7 +373,16 @@ class Barron(RobustLoss):
     """Barron's general adaptive loss with shape ``alpha`` and scale ``k``:
     ``rho(t) = k^2 |a-2|/a (((t/k)^2/|a-2| + 1)^(a/2) - 1)``; ``alpha`` = 2 is L2, 1
     pseudo-Huber, 0 Cauchy, -2 Geman-McClure (epsilon-safe at 0 and 2, see
-    :mod:`fgopt.noise.robust`)."""
+    :mod:`fgopt.noise.robust`).
+
+    Example:
+
+    >>> from fgopt.noise import Barron, Unit
+    >>> round(Barron(1.0, 2.0, Unit(1)).weight(np.array([3.0])), 6)
+    1.0
+    >>> round(Barron(1.0, -2.0, Unit(1)).weight(np.array([1.0])), 6)
+    0.64
+    """
 
     code = LOSS_BARRON
 

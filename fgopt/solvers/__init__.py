@@ -198,3 +198,10 @@ def _optimize_from(graph: Any, initial: Any, cls: Any, params: Any, solver_obj: 
             raise FgoptError("method='gnc' takes linear_solver by name")
         return cls(params).optimize(graph, initial, callback=callback)
     return cls(params, solver_obj).optimize(graph, initial, callback=callback, **restrict)
+
+
+#: The public names (each has an entry in the API reference: tests/test_docs_reference.py).
+__all__ = ["Dogleg", "GaussNewton", "LinearSolver", "make_linear_solver", "LevenbergMarquardt",
+           "DoglegParams", "GaussNewtonParams", "LMParams", "TerminationParams", "IterationRecord",
+           "Result", "Status", "GNC", "GNCParams", "JacobianReport", "check_jacobians",
+           "chordal_initialization", "marginals", "optimize"]

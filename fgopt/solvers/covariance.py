@@ -37,6 +37,14 @@ def marginals(result: Any, keys: Iterable[int] | None = None, graph: Any = None,
             ``SOLVE_MAX_COLUMNS`` tangent dimensions in all or CHOLMOD is not installed, else
             CHOLMOD; or ``"dense"``...). With ``"block"`` the marginals always come from the
             selected inverse; with the others, from solves with the identity's columns.
+
+    Example:
+
+    >>> sample = fgopt.datasets.manhattan_2d(num_poses=20, seed=0)
+    >>> result = fgopt.optimize(sample.graph, sample.initial)
+    >>> cov = fgopt.marginals(result, [key('x', 19)])
+    >>> cov[key('x', 19)].shape
+    (3, 3)
     """
     if result is not None:
         problem, state = result.problem, result.state

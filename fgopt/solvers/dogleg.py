@@ -52,6 +52,17 @@ def dogleg_step(h_gn: np.ndarray, h_sd: np.ndarray, g: np.ndarray, radius: float
 
 
 class Dogleg:
+    """Powell's dogleg trust-region method over the compiled problem (``method="dogleg"``);
+    ``Dogleg(params).optimize(graph, initial)`` -> :class:`~fgopt.solvers.Result`.
+
+    Example:
+
+    >>> from fgopt.solvers import Dogleg
+    >>> sample = fgopt.datasets.manhattan_2d(num_poses=20, seed=0)
+    >>> Dogleg().optimize(sample.graph, sample.initial).method
+    'dogleg'
+    """
+
     def __init__(self, params: DoglegParams | None = None, linear_solver: Any = None):
         self.params = params or DoglegParams()
         self.linear_solver = linear_solver

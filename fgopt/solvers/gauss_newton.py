@@ -24,6 +24,18 @@ from .result import Result, Status
 
 
 class GaussNewton:
+    """Gauss-Newton over the compiled problem (``method="gn"``; a step that raises the cost or
+    is non-finite is halved); ``GaussNewton(params).optimize(graph, initial)`` ->
+    :class:`~fgopt.solvers.Result`.
+
+    Example:
+
+    >>> from fgopt.solvers import GaussNewton
+    >>> sample = fgopt.datasets.manhattan_2d(num_poses=20, seed=0)
+    >>> GaussNewton().optimize(sample.graph, sample.initial).success
+    True
+    """
+
     def __init__(self, params: GaussNewtonParams | None = None, linear_solver: Any = None):
         self.params = params or GaussNewtonParams()
         self.linear_solver = linear_solver

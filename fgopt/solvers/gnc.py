@@ -64,6 +64,16 @@ from .result import Result, Status
 
 @dataclass(frozen=True)
 class GNCParams:
+    """Graduated non-convexity parameters (``method="gnc"``): the robust loss, its schedule,
+    which factors are known inliers, the inner LM.
+
+    Example:
+
+    >>> from fgopt.solvers import GNCParams
+    >>> GNCParams(loss="gm").loss, GNCParams().known_inliers
+    ('gm', 'odometry')
+    """
+
     loss: str = "tls"
     """``"tls"`` (truncated least squares) or ``"gm"`` (Geman-McClure, GTSAM's default). Both
     recover the outlier-free solution on M3500 / sphere2500 with 10 % wrong loop closures; TLS

@@ -127,6 +127,13 @@ def check_jacobians(graph: Any, values: Variables, step: float = 1e-6, rtol: flo
 
     Returns:
         A :class:`JacobianReport`: ``report.ok``, ``report.failures``, iterable, worst first.
+
+    Example:
+
+    >>> sample = fgopt.datasets.manhattan_2d(num_poses=10, seed=0)
+    >>> report = fgopt.check_jacobians(sample.graph, sample.initial)
+    >>> report.ok
+    True
     """
     if not isinstance(values, Variables):
         raise FgoptError(f"values must be fgopt.Variables, got {type(values).__name__}")

@@ -82,7 +82,15 @@ _DEFAULT_PARAMS = LMParams()
 
 
 class LevenbergMarquardt:
-    """``LevenbergMarquardt(LMParams(...)).optimize(graph, initial)`` -> :class:`Result`."""
+    """``LevenbergMarquardt(LMParams(...)).optimize(graph, initial)`` -> :class:`Result`.
+
+    Example:
+
+    >>> from fgopt.solvers import LevenbergMarquardt, LMParams
+    >>> sample = fgopt.datasets.manhattan_2d(num_poses=20, seed=0)
+    >>> LevenbergMarquardt(LMParams(max_iterations=5)).optimize(sample.graph, sample.initial).iterations <= 5
+    True
+    """
 
     def __init__(self, params: LMParams | None = None, linear_solver: Any = None):
         self.params = params or _DEFAULT_PARAMS  # (frozen: one shared default)

@@ -7,6 +7,15 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class TerminationParams:
+    """Stopping rules shared by every method (GTSAM's and Ceres' defaults, see each field).
+
+    Example:
+
+    >>> from fgopt.solvers import TerminationParams
+    >>> TerminationParams().max_iterations, TerminationParams().gradient_tolerance
+    (100, 1e-10)
+    """
+
     max_iterations: int = 100
     """Upper bound on iterations (each linear solve counts, accepted or not)."""
     relative_tolerance: float | None = None
@@ -23,6 +32,18 @@ class TerminationParams:
 
 @dataclass(frozen=True)
 class LMParams(TerminationParams):
+    """Levenberg-Marquardt parameters: damping, its update rule, the linear solver and ordering,
+    threads, backend (fields below); ``fgopt.optimize``'s keyword options replace fields.
+
+    Example:
+
+    >>> from fgopt.solvers import LMParams
+    >>> params = LMParams(max_iterations=20, damping="diagonal", lambda_policy="nielsen")
+    >>> sample = fgopt.datasets.manhattan_2d(num_poses=20, seed=0)
+    >>> fgopt.optimize(sample.graph, sample.initial, params=params).success
+    True
+    """
+
     initial_lambda: float | None = None
     """Initial damping of ``H + lambda D``. ``None``: GTSAM's 1e-5 with identity damping, Ceres'
     1e-4 with diagonal damping (with 1e-5 the first Ladybug-49 step is rejected)."""
@@ -67,6 +88,18 @@ class LMParams(TerminationParams):
 
 @dataclass(frozen=True)
 class GaussNewtonParams(TerminationParams):
+    """Gauss-Newton parameters (``method="gn"``): stopping rules, linear solver, ordering.
+
+    Example:
+
+    >>> from fgopt.solvers import GaussNewtonParams
+    >>> sample = fgopt.datasets.manhattan_2d(num_poses=20, seed=0)
+    >>> r = fgopt.optimize(sample.graph, sample.initial, method="gn",
+    ...                    params=GaussNewtonParams(max_iterations=10))
+    >>> r.method, r.success
+    ('gn', True)
+    """
+
     linear_solver: str = "auto"
     ordering: str = "amd"
     threads: int = 1
@@ -80,6 +113,17 @@ class GaussNewtonParams(TerminationParams):
 
 @dataclass(frozen=True)
 class DoglegParams(TerminationParams):
+    """Powell's dogleg parameters (``method="dogleg"``): trust-region radius and its updates.
+
+    Example:
+
+    >>> from fgopt.solvers import DoglegParams
+    >>> sample = fgopt.datasets.manhattan_2d(num_poses=20, seed=0)
+    >>> fgopt.optimize(sample.graph, sample.initial, method="dogleg",
+    ...                params=DoglegParams(initial_radius=10.0)).success
+    True
+    """
+
     initial_radius: float = 1.0
     """Initial trust-region radius (GTSAM's deltaInitial)."""
     min_radius: float = 1e-12

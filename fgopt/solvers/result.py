@@ -273,7 +273,17 @@ def _restart_lines(r: dict, final_cost: float) -> list[str]:
 
 @dataclass
 class Result:
-    """What an optimizer returns. ``values`` are built on first access from the final state."""
+    """What an optimizer returns. ``values`` are built on first access from the final state.
+
+    Example:
+
+    >>> sample = fgopt.datasets.manhattan_2d(num_poses=20, seed=0)
+    >>> result = fgopt.optimize(sample.graph, sample.initial)
+    >>> result.success, result.iterations > 0, len(result.values) == len(sample.initial)
+    (True, False, True)
+    >>> result.unused_keys
+    ()
+    """
 
     _values: "Variables | None"
     status: Status

@@ -122,3 +122,14 @@ def __getattr__(name: str) -> Any:
 
         return getattr(decorator, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+#: The public names (each has an entry in the API reference: tests/test_docs_reference.py).
+__all__ = ["PinholeCamera", "SnavelyCamera", "angle_axis_rotate", "Abs", "Max", "Min", "acos",
+           "asin", "atan", "atan2", "clamp", "cos", "cosh", "exp", "floor", "log", "safe_div",
+           "sign", "sign_no_zero", "sin", "sinh", "snz", "sqrt", "symbols", "tan", "tanh", "where",
+           "LieGroupBase", "M22", "M33", "M44", "V1", "V2", "V3", "V4", "V5", "V6", "V7", "V8",
+           "V9", "Matrix", "Scalar", "vector_type", "NavState", "Pose2", "Pose3", "Rot2", "Rot3",
+           "epsilon", "pi", "tangent_jacobians", "jacobians_of", "linearization_program",
+           "check_removable_singularity", "python_function", "total_ops", "generate",
+           "GeneratedFunction", "manifold", "Product", "check_manifold", "DeclaredManifold",
+           "Unit3", "OrientedPlane3", "SE23"]

@@ -114,7 +114,9 @@ def _fn(name: str):
 
     f.__name__ = name
     f.__qualname__ = name
-    f.__doc__ = f"``{name}(x)`` (entry-wise on matrices)."
+    f.__doc__ = (f"``{name}(x)`` (entry-wise on matrices): SymPy's ``{name}`` for factor "
+                 f"bodies and generated functions.\n\nExample::\n\n    from fgopt.symbolic import "
+                 f"V2, {name}\n    {name}(V2(0.1, 0.2))   # a V2 of {name}(0.1), {name}(0.2)\n")
     return f
 
 
@@ -144,10 +146,26 @@ def Abs(x: Any):
 
 
 def Min(*args: Any):
+    """The smallest argument, symbolically (SymPy's ``Min``; generated code keeps the branch).
+
+    Example:
+
+    >>> from fgopt.symbolic import Min, symbols
+    >>> Min(symbols("x"), 1)
+    Min(1, x)
+    """
     return _s().sp.Min(*(_s().as_expr(a) for a in args))
 
 
 def Max(*args: Any):
+    """The largest argument, symbolically (SymPy's ``Max``; generated code keeps the branch).
+
+    Example:
+
+    >>> from fgopt.symbolic import Max, symbols
+    >>> Max(symbols("x"), 0)
+    Max(0, x)
+    """
     return _s().sp.Max(*(_s().as_expr(a) for a in args))
 
 
@@ -157,7 +175,15 @@ def clamp(x: Any, lo: Any, hi: Any):
 
 
 def sqrt(x: Any, epsilon: Any = _DEFAULT):
-    """``sqrt(max(x, epsilon**2))``: never NaN, finite derivative at 0."""
+    """``sqrt(max(x, epsilon**2))``: never NaN, finite derivative at 0.
+
+    Example:
+
+    >>> from fgopt.symbolic import sqrt, symbols
+    >>> x = symbols('x')
+    >>> sqrt(x)
+    sqrt(Max(epsilon**2, x))
+    """
     e = _eps(epsilon)
     sp = _s().sp
     if e == 0:
@@ -191,7 +217,18 @@ def asin(x: Any, epsilon: Any = _DEFAULT):
 
 
 def atan2(y: Any, x: Any, epsilon: Any = _DEFAULT):
-    """``atan2(y, x + snz(x) epsilon)``: finite value and gradient at ``x = y = 0``."""
+    """``atan2(y, x + snz(x) epsilon)``: finite value and gradient at ``x = y = 0``.
+
+    Example:
+
+    >>> from fgopt.symbolic import V2, atan2
+    >>> @fgopt.factor
+    ... def bearing(p: V2, measured: V2) -> V2:
+    ...     return V2(atan2(p[1], p[0]), 0) - measured
+    ...
+    >>> np.round(bearing(p=key('p', 0), measured=np.zeros(2)).error(fgopt.Variables().add(key('p', 0), np.array([0.0, 1.0]))), 6)
+    array([ 1.570796, -0.      ])
+    """
     s = _s()
     y, x = s.as_expr(y), s.as_expr(x)
     e = _eps(epsilon)
@@ -238,6 +275,13 @@ def where(cond: Any, a: Any, b: Any):
     ``cond`` is a relation of expressions (``Abs(x) <= Abs(y)``), combined with ``&``, ``|``,
     ``~``. Evaluates ``h a + (1 - h) b`` with ``h`` the 0/1 indicator of ``cond``, so both
     branches must be finite everywhere. The derivative follows the selected branch.
+
+    Example:
+
+    >>> from fgopt.symbolic import where, symbols
+    >>> x = symbols('x')
+    >>> where(x > 0, x, -x)
+    -x*(1 - Heaviside(x, 0)) + x*Heaviside(x, 0)
     """
     from .matrix import Matrix, _as_matrix
 

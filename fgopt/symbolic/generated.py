@@ -119,6 +119,17 @@ def generate(fn: Callable | None = None, which: Iterable[str] | None = None, *,
     Returns:
         A :class:`GeneratedFunction`. Also usable as a decorator, ``@generate`` or
         ``@generate(which=["x"])``.
+
+    Example:
+
+    >>> from fgopt.symbolic import Rot3, V3, Scalar, generate
+    >>> def propagate(R: Rot3, w: V3, dt: Scalar) -> Rot3:
+    ...     return R * Rot3.exp(w * dt)
+    ...
+    >>> f = generate(propagate, which=['R', 'w'])
+    >>> R1, J = f(fgopt.SO3(), np.array([0.0, 0.0, 1.0]), 0.5)
+    >>> np.round(R1.log(), 6), J.shape
+    (array([0. , 0. , 0.5]), (3, 6))
     """
     scope = sys._getframe(1).f_locals
 

@@ -34,7 +34,15 @@ def _is_scalar(x: Any) -> bool:
 
 
 class Matrix:
-    """A symbolic matrix (see the module docstring). ``m.mat`` is the SymPy matrix."""
+    """A symbolic matrix (see the module docstring). ``m.mat`` is the SymPy matrix.
+
+    Example:
+
+    >>> from fgopt.symbolic import Matrix, V2
+    >>> M = Matrix.shaped(2, 2)([[1, 2], [3, 4]])
+    >>> M * V2(1, 1)
+    V2([[3], [7]])
+    """
 
     __slots__ = ("mat",)
     #: Fixed ``(rows, cols)`` of shaped subclasses (``V3``: ``(3, 1)``); ``None`` for ``Matrix``.
@@ -290,7 +298,18 @@ class Matrix:
 
 
 class Scalar:
-    """A scalar argument type: ``def f(x: V3, w: Scalar)``. Values are SymPy expressions."""
+    """A scalar argument type: ``def f(x: V3, w: Scalar)``. Values are SymPy expressions.
+
+    Example:
+
+    >>> from fgopt.symbolic import Scalar, V1, sqrt
+    >>> @fgopt.factor
+    ... def root(x: Scalar, target: Scalar) -> V1:
+    ...     return V1(sqrt(x) - target)
+    ...
+    >>> round(float(root(x=key('s', 0), target=2.0).error(fgopt.Variables().add(key('s', 0), 9.0))[0]), 6)
+    1.0
+    """
 
     def __new__(cls, value: Any = 0):
         return _s().as_expr(value)

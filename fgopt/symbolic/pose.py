@@ -40,6 +40,18 @@ class Pose2(LieGroupBase):
 
     ``Exp([t, v]) = (R(t), V(t) v)``, ``V = [[sin t/t, -(1 - cos t)/t], [(1 - cos t)/t, sin t/t]]``;
     ``Log`` is its inverse, ``V^-1 = [[a, t/2], [-t/2, a]]`` with ``a = (t/2) cot(t/2)``.
+
+    Example:
+
+    >>> from fgopt.symbolic import Pose2, V2
+    >>> @fgopt.factor
+    ... def landmark_in_body(pose: Pose2, landmark: V2, measured: V2) -> V2:
+    ...     return pose.inverse() * landmark - measured
+    ...
+    >>> values = fgopt.Variables().add(key('x', 0), fgopt.SE2.from_xytheta(1.0, 0.0, 0.0)).add(key('l', 0), np.array([3.0, 1.0]))
+    >>> f = landmark_in_body(pose=key('x', 0), landmark=key('l', 0), measured=np.array([2.0, 1.0]))
+    >>> np.round(f.error(values), 6)
+    array([0., 0.])
     """
 
     __slots__ = ("R", "t")
@@ -127,6 +139,18 @@ class Pose3(LieGroupBase):
     ``Exp([w, v]) = (Exp(w), V(w) v)``, ``V = I + B [w]x + C [w]x^2``, ``B = (1 - cos t)/t^2``,
     ``C = (t - sin t)/t^3``; ``Log`` is its inverse,
     ``V^-1 = I - [w]x / 2 + (1 - (t/2) cot(t/2)) / t^2 [w]x^2``.
+
+    Example:
+
+    >>> from fgopt.symbolic import Pose3, V3
+    >>> @fgopt.factor
+    ... def point_to_point(world_T_body: Pose3, body_point: V3, world_point: V3) -> V3:
+    ...     return world_T_body * body_point - world_point
+    ...
+    >>> values = fgopt.Variables().add(key('x', 0), fgopt.SE3(translation=[1.0, 0.0, 0.0]))
+    >>> f = point_to_point(world_T_body=key('x', 0), body_point=np.array([0.0, 1.0, 0.0]), world_point=np.array([1.0, 1.0, 0.0]))
+    >>> np.round(f.error(values), 6)
+    array([0., 0., 0.])
     """
 
     __slots__ = ("R", "t")

@@ -110,6 +110,17 @@ class Rot3(LieGroupBase):
     ``Exp(w)`` rotates by ``|w|`` about ``w / |w|``; ``Log`` returns the shortest rotation vector
     (angle in [0, pi]). ``rot * p`` rotates a ``V3``. Operations assume a unit quaternion,
     except ``log`` which is invariant to the quaternion's scale.
+
+    Example:
+
+    >>> from fgopt.symbolic import Rot3, V3, generate
+    >>> def rotate(R: Rot3, v: V3) -> V3:
+    ...     return R * v
+    ...
+    >>> f = generate(rotate, which=['R'])
+    >>> value, J = f(fgopt.SO3.from_rotvec([0.0, 0.0, np.pi / 2]), np.array([1.0, 0.0, 0.0]))
+    >>> np.round(value, 6), J.shape
+    (array([0., 1., 0.]), (3, 3))
     """
 
     __slots__ = ("q",)

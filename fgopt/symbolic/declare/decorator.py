@@ -71,6 +71,17 @@ def manifold(cls: type | None = None, *, name: str | None = None, cache: bool = 
             (methods of ``x`` only), other methods, ``fields``.
         name: the manifold's name (default the class name).
         cache: use the on-disk kernel cache.
+
+    Example:
+
+    >>> from fgopt.symbolic import Rot2, V2
+    >>> @fgopt.manifold
+    ... class Pose2Like(fgopt.Product(Rot2, V2, names=('heading', 'position'))):
+    ...     pass
+    ...
+    >>> x = Pose2Like.Value()
+    >>> np.round(x.local(x.retract([0.1, 0.2, 0.3])), 6)
+    array([0.1, 0.2, 0.3])
     """
     def wrap(c: type) -> type:
         return declare(c, name=name, cache=cache)

@@ -176,6 +176,16 @@ def Product(*components: Any, names: tuple | list | None = None) -> type:
     Args:
         components: two or more component types.
         names: one accessor name per component (default none: use ``x.component(i)``).
+
+    Example:
+
+    >>> from fgopt.symbolic import Rot3, V3
+    >>> @fgopt.manifold
+    ... class RotPos(fgopt.Product(Rot3, V3, names=('attitude', 'position'))):
+    ...     pass
+    ...
+    >>> RotPos.Value().retract(np.arange(6) * 0.1).position()
+    array([0.3, 0.4, 0.5])
     """
     if len(components) < 1:
         raise ManifoldDeclarationError("Product needs at least one component")

@@ -137,6 +137,11 @@ def check_manifold(M: Any, points: Any = None, seed: int = 0,
         points: values or storage vectors to check at (default: see the module docstring).
         seed: random directions.
         jacobians: also derive ``local``'s tangent Jacobians with SymPy and check them.
+
+    Example:
+
+    >>> print(fgopt.check_manifold(fgopt.symbolic.Unit3).ok)
+    True
     """
     twin = _twin_of(M)
     spec = twin.Value._spec

@@ -12,7 +12,7 @@ from .unit3 import Unit3
 
 @manifold
 class OrientedPlane3(Product(Unit3, Scalar, names=("normal", "distance"))):
-    """An oriented plane ``{p : n . p + d = 0}``, GTSAM's ``OrientedPlane3``.
+    """An oriented plane ``{p : n^T p + d = 0}``, GTSAM's ``OrientedPlane3``.
 
     Storage ``[nx, ny, nz, d]`` (unit normal, then distance); tangent ``[v (2), dd]``: the
     normal's :class:`~fgopt.symbolic.geometry.unit3.Unit3` coordinates, then the distance.

@@ -32,6 +32,24 @@ class Unit3:
     sin(theta) B(p)^T q`` with ``theta`` the angle between ``p`` and ``q`` (GTSAM's
     ``localCoordinates``; antipodal ``q`` has no unique answer). ``B`` jumps where the smallest
     component changes, as GTSAM's does, so tangent coordinates are only comparable at one point.
+
+    Example:
+
+    >>> n = fgopt.Unit3([0.0, 0.0, 1.0])
+    >>> m = n.retract([0.1, 0.0])
+    >>> np.round(n.local(m), 6)
+    array([0.1, 0. ])
+
+    Example:
+
+    >>> from fgopt.symbolic import Unit3, V3, V1
+    >>> @fgopt.factor
+    ... def facing(n: Unit3, d: V3) -> V1:
+    ...     return V1(n.point3().dot(d) - 1)
+    ...
+    >>> values = fgopt.Variables().add(key('n', 0), fgopt.Unit3([0.0, 0.0, 1.0]))
+    >>> np.round(facing(n=key('n', 0), d=np.array([0.0, 0.0, 1.0])).error(values), 6)
+    array([0.])
     """
 
     storage_dim = 3

@@ -1,0 +1,215 @@
+"""The API reference (docs/api/*.rst) covers every public name, and every entry's docstring has
+an example that runs.
+
+Public names are ``fgopt.__all__`` and the ``__all__`` of each public package (the modules
+``fgopt.datasets``, ``fgopt.plot`` and ``fgopt.errors`` included). Each is listed on its
+package's reference page: an autosummary entry (autodoc renders its signature and docstring), a
+``py:data`` entry for a constant, a link for a subpackage, or, on the ``fgopt`` page, an alias
+line pointing at the same object's entry in its package. An entry's docstring must show an
+example (``>>>`` lines, a ``::`` literal block or a fenced block); the ``>>>`` examples run here
+as doctests. Names still without an example are listed in ``WITHOUT_EXAMPLE``: the list can only
+shrink (an entry that gains an example must leave it).
+"""
+
+from __future__ import annotations
+
+import ast
+import doctest
+import importlib
+import inspect
+import re
+import types
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+API = REPO / "docs" / "api"
+PACKAGES = ["fgopt", "fgopt.noise", "fgopt.manifolds", "fgopt.factors", "fgopt.solvers",
+            "fgopt.symbolic", "fgopt.io", "fgopt.cameras", "fgopt.navigation",
+            "fgopt.incremental", "fgopt.filters", "fgopt.distributed", "fgopt.datasets",
+            "fgopt.plot", "fgopt.errors"]
+
+#: Reference entries whose docstring has no example yet (what the reference does not cover).
+WITHOUT_EXAMPLE = {
+    'fgopt.constraint',
+    'fgopt.OrientedPlane3', 'fgopt.Problem', 'fgopt.SE23', 'fgopt.cameras.Cal3Bundler',
+    'fgopt.cameras.Cal3DS2', 'fgopt.cameras.Cal3Fisheye', 'fgopt.cameras.Cal3Unified',
+    'fgopt.cameras.Cal3_S2Stereo', 'fgopt.cameras.Calibration', 'fgopt.cameras.DoubleSphere',
+    'fgopt.cameras.GeneralSFMFactor', 'fgopt.cameras.StereoCamera', 'fgopt.cameras.StereoFactor',
+    'fgopt.cameras.camera_projection_kernel', 'fgopt.cameras.projection_kernel',
+    'fgopt.cameras.smart_kernel', 'fgopt.cameras.stereo_kernel', 'fgopt.datasets.SyntheticBAL',
+    'fgopt.datasets.SyntheticPoseGraph', 'fgopt.datasets.SyntheticSfm', 'fgopt.datasets.data_dir',
+    'fgopt.distributed.summary_table', 'fgopt.errors.BackendUnavailableError',
+    'fgopt.errors.CalibrationError', 'fgopt.errors.CheiralityError',
+    'fgopt.errors.DimensionMismatchError', 'fgopt.errors.DuplicateKeyError',
+    'fgopt.errors.EmptyProblemError', 'fgopt.errors.FgoptIndexError', 'fgopt.errors.FgoptWarning',
+    'fgopt.errors.FileFormatError', 'fgopt.errors.KeyNotFoundError',
+    'fgopt.errors.ManifoldDeclarationError', 'fgopt.errors.ManifoldError',
+    'fgopt.errors.NonFiniteError', 'fgopt.errors.NotPositiveDefiniteError',
+    'fgopt.errors.TriangulationError', 'fgopt.errors.have_extra', 'fgopt.errors.missing_extra',
+    'fgopt.factors.FactorKernel', 'fgopt.factors.KernelFactor', 'fgopt.factors.SymbolicFactor',
+    'fgopt.factors.SymbolicFactorType', 'fgopt.factors.numerical_jacobian',
+    'fgopt.incremental.LinearContainerFactor', 'fgopt.incremental.UpdateResult',
+    'fgopt.io.detect_format', 'fgopt.io.parse_load2d', 'fgopt.io.read_bundler',
+    'fgopt.io.read_stereo_vo', 'fgopt.io.reprojection_kernel', 'fgopt.io.write_bal',
+    'fgopt.io.write_bal_arrays', 'fgopt.manifolds.BatchKind',
+    'fgopt.manifolds.InvalidGroupElementError', 'fgopt.manifolds.LieGroup',
+    'fgopt.manifolds.ManifoldOps', 'fgopt.manifolds.ops_for', 'fgopt.manifolds.register',
+    'fgopt.manifolds.vector_kind', 'fgopt.navigation.CombinedImuFactor',
+    'fgopt.navigation.PreintegratedCombinedImu', 'fgopt.noise.NoiseModel',
+    'fgopt.noise.RobustLoss', 'fgopt.plot.camera_centers', 'fgopt.plot.plot_bundle',
+    'fgopt.plot.plot_cost_history', 'fgopt.plot.plot_pose_graph', 'fgopt.plot.save_result_plot',
+    'fgopt.solvers.GNC', 'fgopt.solvers.IterationRecord', 'fgopt.solvers.JacobianReport',
+    'fgopt.solvers.make_linear_solver', 'fgopt.symbolic.Abs', 'fgopt.symbolic.DeclaredManifold',
+    'fgopt.symbolic.GeneratedFunction', 'fgopt.symbolic.LieGroupBase', 'fgopt.symbolic.M22',
+    'fgopt.symbolic.M33', 'fgopt.symbolic.M44', 'fgopt.symbolic.NavState',
+    'fgopt.symbolic.OrientedPlane3', 'fgopt.symbolic.PinholeCamera', 'fgopt.symbolic.Rot2',
+    'fgopt.symbolic.SE23', 'fgopt.symbolic.SnavelyCamera', 'fgopt.symbolic.V1',
+    'fgopt.symbolic.V2', 'fgopt.symbolic.V3', 'fgopt.symbolic.V4', 'fgopt.symbolic.V5',
+    'fgopt.symbolic.V6', 'fgopt.symbolic.V7', 'fgopt.symbolic.V8', 'fgopt.symbolic.V9',
+    'fgopt.symbolic.acos', 'fgopt.symbolic.angle_axis_rotate', 'fgopt.symbolic.asin',
+    'fgopt.symbolic.check_removable_singularity', 'fgopt.symbolic.clamp',
+    'fgopt.symbolic.jacobians_of', 'fgopt.symbolic.linearization_program', 'fgopt.symbolic.log',
+    'fgopt.symbolic.python_function', 'fgopt.symbolic.safe_div', 'fgopt.symbolic.sign_no_zero',
+    'fgopt.symbolic.snz', 'fgopt.symbolic.symbols', 'fgopt.symbolic.tangent_jacobians',
+    'fgopt.symbolic.total_ops', 'fgopt.symbolic.vector_type',
+}
+
+_EXAMPLE = re.compile(r"^\s*>>>|::\s*$|^\s*```", re.M)
+
+
+def _page(package: str) -> str:
+    return (API / f"{package}.rst").read_text()
+
+
+def entries(package: str) -> dict[str, str]:
+    """``{name: how}`` listed on a package's page: ``autosummary``, ``data``, ``module`` or
+    ``alias:<target>``."""
+    text = _page(package)
+    out: dict[str, str] = {}
+    for block in re.finditer(r"^\.\. autosummary::\n((?:   .*\n|\n)*)", text, re.M):
+        for line in block.group(1).splitlines():
+            name = line.strip()
+            if name and not name.startswith(":"):
+                out[name] = "autosummary"
+    for m in re.finditer(r"^\.\. py:data:: (\w+)$", text, re.M):
+        out[m.group(1)] = "data"
+    for m in re.finditer(r":doc:`fgopt\.(\w+)`", text):
+        out[m.group(1)] = "module"
+    for m in re.finditer(r"^\.\. py:(?:class|function|exception):: (\w+)\n   :no-index-entry:\n\n"
+                         r"   Re-exported: the same object as :py:obj:`([\w.]+)`\.$", text, re.M):
+        out[m.group(1)] = "alias:" + m.group(2)
+    return out
+
+
+def public(package: str) -> list[str]:
+    return list(importlib.import_module(package).__all__)
+
+
+def _resolve(dotted: str):
+    module, _, name = dotted.rpartition(".")
+    return getattr(importlib.import_module(module), name)
+
+
+def documented() -> list[tuple[str, object]]:
+    """Every reference entry rendered by autodoc, as (dotted name, object)."""
+    out = []
+    for package in PACKAGES:
+        mod = importlib.import_module(package)
+        for name, how in entries(package).items():
+            if how == "autosummary":
+                out.append((f"{package}.{name}", getattr(mod, name)))
+    return out
+
+
+@pytest.mark.parametrize("package", PACKAGES)
+def test_every_public_name_has_a_reference_entry(package):
+    """Each name of the package's ``__all__`` is listed on its reference page in the form its
+    kind needs, and the page lists nothing the package does not export."""
+    mod = importlib.import_module(package)
+    listed = entries(package)
+    names = public(package)
+    missing = [n for n in names if n not in listed]
+    assert not missing, f"docs/api/{package}.rst lacks {missing}: add them to its autosummary"
+    extra = [n for n in listed if n not in names]
+    assert not extra, f"docs/api/{package}.rst lists {extra}, which {package}.__all__ lacks"
+    for name, how in listed.items():
+        obj = getattr(mod, name)
+        if how == "module":
+            assert isinstance(obj, types.ModuleType), name
+            assert (API / f"fgopt.{name}.rst").is_file(), f"no reference page for fgopt.{name}"
+        elif how == "data":
+            assert not (inspect.isclass(obj) or callable(obj)), f"{name} is not a constant"
+        elif how.startswith("alias:"):
+            target = how[len("alias:"):]
+            assert _resolve(target) is obj, f"fgopt.{name} is not {target}"
+            tpkg, _, tname = target.rpartition(".")
+            assert entries(tpkg).get(tname) == "autosummary", f"{target} has no entry"
+
+
+@pytest.mark.parametrize("package", PACKAGES[1:])
+def test_reexports_are_public(package):
+    """A name a package's ``__init__`` re-exports (``from .x import Y as Y``; submodules aside) is
+    in its ``__all__``, so it cannot escape the reference."""
+    path = REPO / (package.replace(".", "/") + "/__init__.py")
+    if not path.is_file():
+        path = path.parent.with_suffix(".py")
+    reexported = {a.asname for node in ast.parse(path.read_text()).body
+                  if isinstance(node, ast.ImportFrom) for a in node.names
+                  if a.asname and a.asname == a.name}
+    mod = importlib.import_module(package)
+    reexported = {n for n in reexported if not isinstance(getattr(mod, n), types.ModuleType)}
+    assert reexported <= set(public(package)), sorted(reexported - set(public(package)))
+
+
+def test_api_index_lists_every_page():
+    """The reference's table of contents has a page per package."""
+    index = (API / "index.md").read_text()
+    for package in PACKAGES:
+        assert re.search(rf"^{re.escape(package)}$", index, re.M), package
+
+
+def test_every_entry_has_a_docstring_with_an_example():
+    """autodoc renders each entry's docstring: it must exist and show an example, except for
+    the entries still listed in ``WITHOUT_EXAMPLE`` (which must all still lack one)."""
+    no_doc, no_example, has_example = [], [], []
+    for dotted, obj in documented():
+        doc = inspect.getdoc(obj) or ""
+        if not doc.strip():
+            no_doc.append(dotted)
+        elif not _EXAMPLE.search(doc):
+            no_example.append(dotted)
+        elif dotted in WITHOUT_EXAMPLE:
+            has_example.append(dotted)
+    assert not no_doc, f"entries without a docstring: {no_doc}"
+    new = sorted(set(no_example) - WITHOUT_EXAMPLE)
+    assert not new, f"entries whose docstring has no example: {new}"
+    assert not has_example, f"these now have an example: remove them from WITHOUT_EXAMPLE: " \
+                            f"{sorted(has_example)}"
+    stale = sorted(WITHOUT_EXAMPLE - {d for d, _ in documented()})
+    assert not stale, f"WITHOUT_EXAMPLE names entries that do not exist: {stale}"
+
+
+def _doctests():
+    finder = doctest.DocTestFinder(recurse=False)
+    tests = []
+    for dotted, obj in documented():
+        for t in finder.find(obj, dotted, globs={}):
+            if t.examples:
+                tests.append(t)
+    return tests
+
+
+@pytest.mark.parametrize("test", _doctests(), ids=lambda t: t.name)
+def test_docstring_examples_run(test):
+    """The ``>>>`` example of an entry's docstring runs and prints what it shows."""
+    import numpy as np
+
+    import fgopt
+
+    runner = doctest.DocTestRunner(optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
+    # what every example may assume (docs/api/index.md says so)
+    test.globs = {"np": np, "fgopt": fgopt, "key": fgopt.key}
+    runner.run(test, out=lambda s: print(s, end=""))
+    assert runner.failures == 0, f"{test.name}: {runner.failures} failing example(s) (output above)"
