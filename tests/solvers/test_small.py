@@ -104,8 +104,22 @@ def test_shared_tiny_files_match_the_general_path(data_file, name):
     graph, init = fgopt.io.read(str(data_file(name)), add_prior=True)
     off = dict(max_iterations=5, relative_tolerance=0.0, absolute_tolerance=0.0,
                gradient_tolerance=0.0, step_tolerance=0.0)
-    assert_same(solve(graph, init, **off), solve(graph, init, general=True, **off))
+    assert_same_point(solve(graph, init, **off), solve(graph, init, general=True, **off))
     assert_same(solve(graph, init), solve(graph, init, general=True))
+
+
+def assert_same_point(a, b, atol=1e-8):
+    """``a`` (driver) and ``b`` (general path) ran the same number of iterations to the same
+    cost and point. Once a tiny file has converged, a step's accept/reject is decided by
+    round-off, and the driver's kernels and the general path's generated ones round differently
+    (the same formulas, not the same instruction order): that tail is not compared."""
+    assert a.linear_solver == DRIVER
+    assert (a.status, a.iterations) == (b.status, b.iterations)
+    np.testing.assert_allclose(a.final_cost, b.final_cost, rtol=1e-9, atol=1e-12 * b.initial_cost)
+    sa, sb = storage(a.values), storage(b.values)
+    assert sa.keys() == sb.keys()
+    for k in sa:
+        np.testing.assert_allclose(sa[k], sb[k], atol=atol)
 
 
 def test_one_kernel_in_a_batch_and_in_single_factors(data_file):
