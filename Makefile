@@ -53,6 +53,7 @@ $(DOCS_STAMP): $(STAMP) pyproject.toml
 	@touch $(DOCS_STAMP)
 
 docs: setup $(DOCS_STAMP)
+	@FGOPT_DOCTESTS=1 $(PY) -m pytest -q -p no:xdist tests/test_docs_reference.py
 	@$(PY) -m sphinx -W --keep-going -b html docs docs/_build/html
 	@echo "==> docs/_build/html/index.html"
 
