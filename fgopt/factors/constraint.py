@@ -22,6 +22,8 @@ augmented-Lagrangian loop (:mod:`fgopt.solvers.constrained`).
 
 from __future__ import annotations
 
+import hashlib
+import inspect
 import sys
 from collections.abc import Callable, Iterable
 from typing import Any
@@ -93,6 +95,49 @@ class SymbolicConstraintType(SymbolicFactorType):
         super().__init__(fn, **options)
         self.inequality = inequality
         self._options["inequality"] = inequality
+        self._penalty: dict = {}
+
+    def penalty_kernel(self, kernel: Any) -> Any:
+        """The generated kernel of the augmented-Lagrangian term of this type's constraints
+        with kernel ``kernel`` (:mod:`fgopt.solvers.constrained`): residual rows
+        ``scale_i (c_i(x) + shift_i)``, for an inequality ``scale_i max(0, c_i(x) + shift_i)``,
+        with the constants ``shift`` and ``scale`` (one each per output row) after the
+        constraint's own."""
+        pattern = next(p for p, k in self._kernels.items() if k is kernel)
+        return self.penalty_type(kernel.residual_dim).kernel(pattern + (False, False))
+
+    def penalty_type(self, m: int) -> SymbolicFactorType:
+        """The factor type of :meth:`penalty_kernel` (``m``: the constraint's output size)."""
+        ftype = self._penalty.get(m)
+        if ftype is not None:
+            return ftype
+        from ..symbolic import Max, vector_type
+        from ..symbolic.jacobians import output_storage
+        from ..symbolic.ops import storage_of
+
+        fn, ineq = self.fn, self.inequality
+
+        def penalty(*args: Any) -> list:
+            rows = [c + s for c, s in zip(output_storage(fn(*args[:-2])), storage_of(args[-2]))]
+            return [(Max(r, 0) if ineq else r) * w for r, w in zip(rows, storage_of(args[-1]))]
+
+        P = inspect.Parameter
+        params = [P(n, P.POSITIONAL_OR_KEYWORD, annotation=tp) for n, tp in self.params]
+        params += [P("penalty_shift", P.POSITIONAL_OR_KEYWORD, annotation=vector_type(m)),
+                   P("penalty_scale", P.POSITIONAL_OR_KEYWORD, annotation=vector_type(m))]
+        penalty.__signature__ = inspect.Signature(params, return_annotation=vector_type(m))
+        penalty.__annotations__ = {p.name: p.annotation for p in params}
+        penalty.__annotations__["return"] = vector_type(m)
+        ftype = SymbolicFactorType(penalty, name=f"{self.name}_penalty", method=self.method,
+                                   engine=self.engine, hessian=False, cache=self.use_cache,
+                                   variables=None)
+        # the kernel is decided by the constraint's code and the wrapper's own
+        ftype._fingerprint = hashlib.sha256(
+            f"{self.fingerprint} {penalty.__code__.co_code.hex()} {ineq} {m}".encode()
+        ).hexdigest()
+        ftype.recipe = (SymbolicConstraintType.penalty_type, (self, m))
+        self._penalty[m] = ftype
+        return ftype
 
     def __call__(self, *args: Any, loss: Any = None, **kwargs: Any) -> Constraint:
         if loss is not None:

@@ -87,7 +87,9 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
         constraint_params: for a graph holding constraints (:func:`fgopt.constraint`), an
             :class:`~fgopt.solvers.constrained.AugmentedLagrangianParams` (tolerance, penalty
             schedule). Such a graph is solved by an augmented-Lagrangian loop around LM from
-            ``initial`` (:mod:`fgopt.solvers.constrained`); the result carries
+            ``initial`` (``initialization="chordal"``: from the chordal relaxation of its cost;
+            ``"auto"`` is ``"given"``), with ``constant`` and ``bounds`` kept by the inner LM
+            (:mod:`fgopt.solvers.constrained`); the result carries
             ``constraint_violation`` and ``multipliers``, and ends ``Status.INFEASIBLE`` when the
             constraints cannot be met.
         constant: keys held fixed (they leave the linear system; their values come back bit
@@ -137,19 +139,25 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
         if method == "gnc" or initialization == "chordal":
             raise FgoptError("constant / bounds work with methods 'lm', 'gn' and 'dogleg', and "
                              "initialization 'given' or 'auto'")
-        if len(getattr(graph, "constraints", ())) > 0:
-            raise FgoptError("constant / bounds on a graph holding constraints are not "
-                             "supported yet: write a constant as an equality constraint")
         restrict = {"constant": constant, "bounds": bounds}
         initialization = "given"  # a chordal start would move the constant variables
     if len(getattr(graph, "constraints", ())) > 0:
         if method != "lm":
-            raise FgoptError(f"a graph with constraints is solved by method='lm' (an augmented-"
-                             f"Lagrangian loop around LM); got method={method!r}")
+            raise FgoptError(f"method={method!r} does not enforce constraints and the graph "
+                             f"holds {len(graph.constraints)}: use method='lm' (the default; an "
+                             "augmented-Lagrangian loop around LM), or remove the constraints")
         from .constrained import inner_schedule, optimize_constrained
 
-        return optimize_constrained(graph, initial, inner_schedule(params, set(options), constraint_params),
-                                    constraint_params, solver_obj, callback)
+        start = initial
+        if initialization == "chordal":  # the relaxation of the cost alone, then the loop
+            from .chordal import chordal_initialization
+
+            start = chordal_initialization(graph, initial)
+        result = optimize_constrained(graph, start, inner_schedule(params, set(options),
+                                                                   constraint_params),
+                                      constraint_params, solver_obj, callback, **restrict)
+        result.info["initialization"] = "chordal" if start is not initial else "given"
+        return result
 
     def run(start: Any, run_params: Any) -> Result:
         return _optimize_from(graph, start, cls, run_params, solver_obj, method, callback,

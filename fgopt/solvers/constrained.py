@@ -9,14 +9,15 @@ minimizes, with LM warm-started from the last iterate, the augmented Lagrangian
 
 (the shifted-penalty form of Hestenes-Powell-Rockafellar). Both penalty terms are least-squares
 residuals ``sqrt(mu) (c(x) + lambda / mu)`` (rows with ``h + lambda/mu <= 0`` zeroed), so the
-inner problem is an ordinary sparse least-squares problem: one batched kernel per constraint
-type wraps the constraint's generated kernel (value and tangent-space Jacobian), the problem is
-compiled and its linear solver analyzed once, and every outer iteration only changes the
-shifts and penalties the kernel reads. After each inner solve
+inner problem is an ordinary sparse least-squares problem: each constraint type has a
+generated penalty kernel (:meth:`~fgopt.factors.constraint.SymbolicConstraintType.penalty_kernel`)
+whose constants carry the shifts and penalties, the problem is compiled once (its linear solver
+analyzed once; a small problem runs each inner solve in one call of the small-problem driver),
+and every outer iteration only rewrites those constants. After each inner solve
 
     lambda_j <- lambda_j + mu_j g_j(x),     lambda_k <- max(0, lambda_k + mu_k h_k(x)),
 
-and each instance whose violation did not fall below ``violation_reduction`` times the previous
+and each scalar constraint whose violation did not fall below ``violation_reduction`` times the previous
 one gets ``mu <- penalty_factor * mu`` (up to ``max_penalty``). The run converges when every
 constraint holds to ``constraint_tolerance`` (for inequalities also complementarity:
 ``|max(h, -lambda/mu)| <= tol``) after a converged inner solve; it ends ``INFEASIBLE`` when the
@@ -35,10 +36,10 @@ from typing import Any
 import numpy as np
 
 from ..errors import FgoptError, KeyNotFoundError, NonFiniteError
-from ..factors.kernel import FactorKernel
 from ..key import key_str
 from ..variables import Variables
 from ._run import compile_problem
+from . import small
 from .linear.base import make_linear_solver
 from .lm import LevenbergMarquardt
 from .params import LMParams
@@ -59,7 +60,9 @@ class AugmentedLagrangianParams:
     """``mu`` of every constraint at the start. ``None``: ``penalty_ratio`` times the cost's
     curvature over the constraints' (median diagonals of ``H`` and ``J_c^T J_c`` at the start),
     so the choice does not depend on units."""
-    penalty_ratio: float = 10.0
+    penalty_ratio: float = 100.0
+    """(10 took 8-12 outer iterations on the small problems of ``benchmarks.constraints``, 100
+    takes 4-7; M3500 with 1,000 constraints 5 -> 4.)"""
     penalty_factor: float = 10.0
     max_penalty: float = 1e10
     violation_reduction: float = 0.25
@@ -74,122 +77,104 @@ class AugmentedLagrangianParams:
 _PROBLEM_TIMERS = ("linearize", "assemble", "retract", "cost")
 
 
-class _Shifts:
-    """What a penalty kernel reads per instance: ``shift = lambda / mu`` ``(n, m)`` and
-    ``scale = sqrt(mu)`` ``(n,)`` (replaced between outer iterations)."""
+class _Rows:
+    """Every scalar constraint row, flat (groups of one kernel in turn, instance-major): the
+    multipliers ``lam``, penalties ``mu``, which rows are inequalities, and per group the
+    compiled penalty batch (its constants: the constraints' own, then ``shift = lam / mu`` and
+    ``scale = sqrt(mu)`` per row, rewritten in place between outer iterations)."""
 
-    def __init__(self, n: int, m: int):
-        self.shift = np.zeros((n, m))
-        self.scale = np.ones(n)
+    def __init__(self, graph: Any, initial: Variables):
+        by_kernel: dict = {}
+        for i, c in enumerate(graph.constraints):
+            for k in c.keys:
+                if k not in initial:
+                    raise KeyNotFoundError(f"constraint {c.describe()} uses {key_str(k)}, which "
+                                           f"is not in the initial values: add it with "
+                                           f"Variables.add({key_str(k)}, value)")
+            by_kernel.setdefault(id(c.kernel), []).append(i)
+        cons = graph.constraints
+        self.members = list(by_kernel.values())  # per group, positions in graph.constraints
+        self.inner = [cons[m[0]].kernel for m in self.members]
+        self.consts = [np.ascontiguousarray(np.stack([cons[i].constants for i in m]).reshape(
+            len(m), -1)) for m in self.members]
+        sizes = [len(m) * k.residual_dim for m, k in zip(self.members, self.inner)]
+        self.slices = [slice(a - n, a) for a, n in zip(np.cumsum(sizes), sizes)]
+        self.ineq = np.concatenate([np.full(n, cons[m[0]].inequality)
+                                    for m, n in zip(self.members, sizes)])
+        self.lam, self.mu = np.zeros(self.ineq.shape[0]), np.ones(self.ineq.shape[0])
+        self.last = self.prev = None  # violation measures after the last two outer iterations
+        self.batches: list = []
 
+    def add_penalties(self, graph: Any) -> Any:
+        """A copy of ``graph`` (without its constraints) with one penalty batch per group."""
+        pg = type(graph)()
+        pg._factors, pg._batches = list(graph.factors), list(graph.batches)
+        for m, k, c in zip(self.members, self.inner, self.consts):
+            keys = np.array([[int(q) for q in graph.constraints[i].keys] for i in m],
+                            dtype=np.int64)
+            r = np.zeros((len(m), k.residual_dim))
+            pg.add_batch(graph.constraints[m[0]].factor_type.penalty_kernel(k), keys,
+                         np.column_stack([c, r, r]))
+        self.sources = pg.batches[len(graph.batches):]
+        return pg
 
-def penalty_kernel(inner: FactorKernel, inequality: bool, table: _Shifts) -> FactorKernel:
-    """The least-squares kernel of one constraint type's augmented-Lagrangian terms.
+    def set_penalty(self, on: bool = True) -> None:
+        """Write ``shift = lam / mu`` and ``scale = sqrt(mu)`` (``on=False``: scale 0, the
+        penalties off) into the penalty batches' constants."""
+        shift, scale = self.lam / self.mu, np.sqrt(self.mu) if on else np.zeros_like(self.mu)
+        for b, c, sl in zip(self.batches, self.consts, self.slices):
+            n, nc = c.shape
+            b.source.constants[:, nc:] = np.concatenate(
+                [shift[sl].reshape(n, -1), scale[sl].reshape(n, -1)], axis=1)
 
-    Its constants are the constraint's own, then the instance's row in ``table`` (a float):
-    residual ``scale (c + shift)`` (inequality: ``scale max(0, c + shift)``, zero Jacobian rows
-    where inactive), Jacobian ``scale dc/dx`` in the same tangent spaces as ``inner``.
-    """
-    # ``linearize``, not ``trusted_linearize``: on the NumPy backend the inner kernel must take
-    # its NumPy twin (this wrapper is NumPy, so the penalty kernel has one when the inner has)
-    lin = inner.linearize
+    def values(self, problem: Any, state: Any) -> np.ndarray:
+        """``c(x)`` of every row at ``state``."""
+        with problem.kernel_mode():
+            return np.concatenate([k.residual(b.gather(state), c).reshape(-1) for k, b, c in
+                                   zip(self.inner, self.batches, self.consts)])
 
-    def split(consts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return consts[:, -1].astype(np.intp), np.ascontiguousarray(consts[:, :-1])
+    def update(self, v: np.ndarray, ap: AugmentedLagrangianParams) -> float:
+        """Multiplier and penalty update at constraint values ``v``; returns the largest
+        violation measure (equality ``|g|``, inequality ``|max(h, -lambda/mu)|``)."""
+        meas = np.abs(np.where(self.ineq, np.maximum(v, -self.lam / self.mu), v))
+        lam = self.lam + self.mu * v
+        self.lam = np.where(self.ineq, np.maximum(lam, 0.0), lam)
+        if self.last is not None:
+            grow = (meas > ap.violation_reduction * self.last) & (meas > ap.constraint_tolerance)
+            self.mu = np.where(grow, np.minimum(self.mu * ap.penalty_factor, ap.max_penalty),
+                               self.mu)
+        self.prev, self.last = self.last, meas
+        return float(meas.max(initial=0.0))
 
-    def residual(args: tuple, consts: np.ndarray) -> np.ndarray:
-        idx, c = split(consts)
-        r = inner.residual(args, c) + table.shift[idx]
-        if inequality:
-            r = np.maximum(r, 0.0)
-        return r * table.scale[idx, None]
+    def feasibility(self, v: np.ndarray) -> float:
+        """``max(|g|, max(h, 0))`` over every row."""
+        return float(np.abs(np.where(self.ineq, np.maximum(v, 0.0), v)).max(initial=0.0))
 
-    def linearize(args: tuple, consts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        idx, c = split(consts)
-        res, jac = lin(args, c)
-        r = res + table.shift[idx]
-        s = table.scale[idx, None]
-        if inequality:
-            w = (r > 0.0) * s
-            return np.maximum(r, 0.0) * s, jac * w[:, :, None]
-        return r * s, jac * s[:, :, None]
+    def at_cap(self, ap: AugmentedLagrangianParams) -> bool:
+        """Every row still violated has its penalty at ``max_penalty``."""
+        return bool(np.all(self.mu[self.last > ap.constraint_tolerance] >= ap.max_penalty))
 
-    return FactorKernel(name=f"{inner.name} ({'<=' if inequality else '=='} 0)",
-                        arg_kinds=inner.arg_kinds, residual_dim=inner.residual_dim,
-                        num_constants=inner.num_constants + 1, residual=residual,
-                        linearize=linearize, source=inner.source,
-                        nonfinite_hint=inner.nonfinite_hint, numpy_twin=inner.numpy_twin)
+    def stuck(self, ap: AugmentedLagrangianParams) -> bool:
+        """The violation did not shrink in the last outer iteration (by 1 %)."""
+        if self.prev is None:
+            return False
+        now = float(self.last.max(initial=0.0))
+        return now > ap.constraint_tolerance and now >= 0.99 * float(self.prev.max(initial=0.0))
 
+    def multipliers(self, count: int) -> list:
+        out = [None] * count
+        for m, k, sl in zip(self.members, self.inner, self.slices):
+            lam = self.lam[sl].reshape(len(m), k.residual_dim)
+            for row, i in enumerate(m):
+                out[i] = lam[row].copy()
+        return out
 
-@dataclass(eq=False)
-class _Group:
-    """The constraints of one kernel and kind (equality / inequality)."""
-
-    inner: FactorKernel
-    inequality: bool
-    members: list          # positions in graph.constraints
-    table: _Shifts
-    kernel: FactorKernel   # the penalty kernel
-    lam: np.ndarray        # (n, m)
-    mu: np.ndarray         # (n,)
-    batch: Any = None      # the compiled problem's batch of this group
-    last: np.ndarray | None = None  # (n,) violation measure after the last outer iteration
-    prev: np.ndarray | None = None  # (n,) and after the one before
-
-
-def _groups(graph: Any, initial: Variables) -> list[_Group]:
-    by_kernel: dict = {}
-    for i, c in enumerate(graph.constraints):
-        for k in c.keys:
-            if k not in initial:
-                raise KeyNotFoundError(f"constraint {c.describe()} uses {key_str(k)}, which is "
-                                       f"not in the initial values: add it with "
-                                       f"Variables.add({key_str(k)}, value)")
-        by_kernel.setdefault((id(c.kernel), c.inequality), []).append(i)
-    groups = []
-    for (_, ineq), members in by_kernel.items():
-        inner = graph.constraints[members[0]].kernel
-        n, m = len(members), inner.residual_dim
-        table = _Shifts(n, m)
-        groups.append(_Group(inner, ineq, members, table, penalty_kernel(inner, ineq, table),
-                             np.zeros((n, m)), np.ones(n)))
-    return groups
-
-
-def _penalty_graph(graph: Any, groups: list[_Group]) -> Any:
-    pg = type(graph)()
-    pg._factors = list(graph.factors)
-    pg._batches = list(graph.batches)
-    cons = graph.constraints
-    for g in groups:
-        keys = np.array([[int(k) for k in cons[i].keys] for i in g.members], dtype=np.int64)
-        consts = np.column_stack([np.stack([cons[i].constants for i in g.members]),
-                                  np.arange(len(g.members), dtype=float)])
-        pg.add_batch(g.kernel, keys, consts)
-    return pg
-
-
-def _values(problem: Any, g: _Group, state: Any) -> np.ndarray:
-    """``c(x)`` of the group's instances ``(n, m)``, in the group's order."""
-    b = g.batch
-    consts = b.source.constants
-    with problem.kernel_mode():
-        c = g.inner.residual(b.gather(state), np.ascontiguousarray(consts[:, :-1]))
-    out = np.empty_like(c)
-    out[consts[:, -1].astype(np.intp)] = c
-    return out
-
-
-def _objective(problem: Any, groups: list[_Group], state: Any) -> float:
-    """``f(x)``: the cost without the penalty terms."""
-    saved = [g.table.scale for g in groups]
-    try:
-        for g in groups:
-            g.table.scale = np.zeros_like(g.table.scale)
-        return problem.cost(state)
-    finally:
-        for g, s in zip(groups, saved):
-            g.table.scale = s
+    def first_nonfinite(self, graph: Any, v: np.ndarray) -> str | None:
+        for m, k, sl in zip(self.members, self.inner, self.slices):
+            bad = ~np.all(np.isfinite(v[sl].reshape(len(m), k.residual_dim)), axis=1)
+            if bad.any():
+                return graph.constraints[m[int(np.argmax(bad))]].describe()
+        return None
 
 
 def inner_schedule(params: LMParams, explicit: set,
@@ -217,9 +202,11 @@ def inner_schedule(params: LMParams, explicit: set,
 
 def optimize_constrained(graph: Any, initial: Variables, schedule: list[LMParams],
                          constraint_params: AugmentedLagrangianParams | None = None,
-                         linear_solver: Any = None, callback: Callable | None = None) -> Result:
+                         linear_solver: Any = None, callback: Callable | None = None,
+                         constant: Any = None, bounds: Any = None) -> Result:
     """Minimize ``graph``'s cost subject to ``graph.constraints`` (see the module docstring);
-    ``schedule``: the inner LM's parameters per outer iteration (:func:`inner_schedule`)."""
+    ``schedule``: the inner LM's parameters per outer iteration (:func:`inner_schedule`);
+    ``constant`` / ``bounds``: as for :func:`fgopt.optimize` (kept by the inner LM)."""
     params = schedule[0]
     t0 = time.perf_counter()
     ap = constraint_params if constraint_params is not None else AugmentedLagrangianParams()
@@ -228,49 +215,43 @@ def optimize_constrained(graph: Any, initial: Variables, schedule: list[LMParams
                          f"{type(ap).__name__}")
     if not isinstance(initial, Variables):
         raise FgoptError(f"initial values must be fgopt.Variables, got {type(initial).__name__}")
-    groups = _groups(graph, initial)
+    rows = _Rows(graph, initial)
     choice = linear_solver if linear_solver is not None else params.linear_solver
-    problem = compile_problem(_penalty_graph(graph, groups), initial, params, choice)
-    problem.ensure_structure(params.ordering, choice)
-    for g in groups:
-        g.batch = next(b for b in problem.batches if b.kernel is g.kernel)
-    solver = make_linear_solver(choice, pattern=problem.pattern, backend=problem.backend)
-    solver.analyze(problem.pattern)
+    problem = compile_problem(rows.add_penalties(graph), initial, params, choice,
+                              build_structure=False, constant=constant, bounds=bounds)
+    by_source = {id(b.source): b for b in problem.batches}
+    rows.batches = [by_source[id(s)] for s in rows.sources]
+    inner_solve = _InnerSolve(problem, linear_solver, callback)
     state = problem.initial_state()
-    values = [_values(problem, g, state) for g in groups]
-    bad = _first_nonfinite(graph, groups, values)
+    values = rows.values(problem, state)
+    bad = rows.first_nonfinite(graph, values)
     if bad is not None:
         raise NonFiniteError(f"constraint {bad} is NaN or inf at the initial values")
-    f0 = _objective(problem, groups, state)
-    mu0 = ap.initial_penalty if ap.initial_penalty is not None else _initial_penalty(
-        problem, groups, state, ap.penalty_ratio)
-    for g in groups:
-        g.mu[:] = mu0
+    f0 = _objective(problem, rows, state)
+    rows.mu[:] = ap.initial_penalty if ap.initial_penalty is not None else _initial_penalty(
+        problem, rows, state, ap.penalty_ratio)
     records, augmented, its = [], [], 0
     timing: dict = {}
     status, message = None, ""
     inner = None
-    feas = _feasibility(groups, values)
+    feas = rows.feasibility(values)
     outer = 0
     for outer in range(1, ap.max_outer_iterations + 1):
-        for g in groups:
-            g.table.shift = g.lam / g.mu[:, None]
-            g.table.scale = np.sqrt(g.mu)
-        lm = LevenbergMarquardt(schedule[min(outer, len(schedule)) - 1], linear_solver)
-        inner = lm.optimize_problem(problem, state, solver, callback)
+        rows.set_penalty()
+        inner = inner_solve(schedule[min(outer, len(schedule)) - 1], state)
         state = inner.state
         its += inner.iterations
         records += inner.iteration_records
         for k, v in inner.timing.items():  # the problem's own timers count since it was made
             timing[k] = v if k in _PROBLEM_TIMERS else timing.get(k, 0.0) + v
-        values = [_values(problem, g, state) for g in groups]
-        feas = _feasibility(groups, values)
-        measure = max(_update(g, v, ap) for g, v in zip(groups, values))
+        values = rows.values(problem, state)
+        feas = rows.feasibility(values)
+        measure = rows.update(values, ap)
         augmented.append(inner.final_cost)
         if ap.verbose:
             print(f"outer {outer}: {inner.iterations} LM iterations ({inner.status.value}), "
                   f"augmented cost {augmented[-1]:.9e}, violation {feas:.3e}, measure {measure:.3e}, "
-                  f"penalty <= {max(float(g.mu.max()) for g in groups):.3g}")
+                  f"penalty <= {float(rows.mu.max()):.3g}")
         if inner.status is Status.STOPPED:
             status, message = Status.STOPPED, "callback asked to stop"
             break
@@ -280,7 +261,7 @@ def optimize_constrained(graph: Any, initial: Variables, schedule: list[LMParams
                 f"constraints hold to {max(feas, measure):.3g} <= "
                 f"{ap.constraint_tolerance:g} after {outer} outer iterations ({inner.message})")
             break
-        if _at_cap(groups, ap) and _stuck(groups, ap):
+        if rows.at_cap(ap) and rows.stuck(ap):
             status, message = Status.INFEASIBLE, (
                 f"the constraints cannot be met: the largest violation stays {feas:.3g} with the "
                 f"penalty at max_penalty={ap.max_penalty:g}; are the constraints contradictory?")
@@ -294,90 +275,83 @@ def optimize_constrained(graph: Any, initial: Variables, schedule: list[LMParams
             status, message = Status.MAX_ITERATIONS, (
                 f"feasible to {feas:.3g} but not converged (last inner solve: {inner.message}) "
                 f"after max_outer_iterations={ap.max_outer_iterations}")
-    f = _objective(problem, groups, state)
-    multipliers = [None] * len(graph.constraints)
-    for g in groups:
-        for row, i in enumerate(g.members):
-            multipliers[i] = g.lam[row].copy()
+    f = _objective(problem, rows, state)
     timing["total"] = time.perf_counter() - t0
     return Result(None, status=status, message=message, iterations=its, initial_cost=f0,
                   final_cost=f, cost_history=[f0, f], iteration_records=records,
                   timing=timing, method="lm+augmented-lagrangian",
-                  linear_solver=getattr(solver, "name", type(solver).__name__), problem=problem,
-                  state=state, info={"outer_iterations": outer, "augmented_costs": augmented,
-                                     "penalty_max": max(float(g.mu.max()) for g in groups)},
+                  linear_solver=inner.linear_solver, problem=problem, state=state,
+                  info={"outer_iterations": outer, "augmented_costs": augmented,
+                        "penalty_max": float(rows.mu.max())},
                   unused_keys=tuple(problem.unused_keys), constraint_violation=feas,
-                  multipliers=tuple(multipliers))
+                  multipliers=tuple(rows.multipliers(len(graph.constraints))))
 
 
-def _initial_penalty(problem: Any, groups: list[_Group], state: Any, ratio: float) -> float:
-    """``ratio`` times the median diagonal of the cost's ``H`` over the median nonzero
-    ``diag(J_c^T J_c)`` of the constraints at ``state``: a penalty whose curvature is ``ratio``
-    times the cost's whatever the units (then each outer iteration shrinks a linear
-    constraint's violation by about ``1 / (1 + ratio)``)."""
-    for g in groups:
-        g.table.scale = np.zeros_like(g.table.scale)
-    problem.linearize(state)
-    h = problem.H_data[problem.pattern.diag_pos]
-    h = h[h > 0]
+def _objective(problem: Any, rows: _Rows, state: Any) -> float:
+    """``f(x)``: the cost without the penalty terms."""
+    try:
+        rows.set_penalty(False)
+        return problem.cost(state)
+    finally:
+        rows.set_penalty()
+
+
+class _InnerSolve:
+    """The inner LM on the compiled penalty problem: on a small problem one call of the
+    small-problem driver (:mod:`fgopt.solvers.small`), else LM's general path with one linear
+    solver, analyzed on first use and kept."""
+
+    def __init__(self, problem: Any, linear_solver: Any, callback: Callable | None):
+        self.problem, self.linear_solver, self.callback = problem, linear_solver, callback
+        self.solver = None
+        self.driver = (problem.restrictions is None and callback is None
+                       and linear_solver is None)
+
+    def __call__(self, params: LMParams, state: Any) -> Result:
+        problem, t0 = self.problem, time.perf_counter()
+        driver = self.driver and small.qualifies(problem, params)
+        if driver:
+            result = small.optimize_small(problem, params, t0, state)
+            if result is not None:
+                return result
+        if self.solver is None:
+            choice = self.linear_solver if self.linear_solver is not None else \
+                params.linear_solver
+            problem.ensure_structure(params.ordering, choice)
+            self.solver = make_linear_solver(choice, pattern=problem.pattern,
+                                             backend=problem.backend)
+            self.solver.analyze(problem.pattern)
+        result = LevenbergMarquardt(params, self.linear_solver).optimize_problem(
+            problem, state, self.solver, self.callback)
+        if driver:
+            small.charge_general(problem, time.perf_counter() - t0)
+        return result
+
+
+def _initial_penalty(problem: Any, rows: _Rows, state: Any, ratio: float) -> float:
+    """``ratio`` times the median diagonal of the cost's Gauss-Newton ``H`` over the median
+    nonzero ``diag(J_c^T J_c)`` of the constraints at ``state``: a penalty whose curvature is
+    ``ratio`` times the cost's whatever the units (then each outer iteration shrinks a linear
+    constraint's violation by about ``1 / (1 + ratio)``). The diagonals come from the batches'
+    Jacobians (no sparse structure needed); Python factors are left out of the median."""
+    penalty = {id(b) for b in rows.batches}
+    voff = np.concatenate([[0], np.cumsum(problem.var_dim)])
+    h = np.zeros(voff[-1])
     cols = []
-    for g in groups:
-        b = g.batch
-        with problem.kernel_mode():
-            _, jac = g.inner.linearize(b.gather(state),
-                                       np.ascontiguousarray(b.source.constants[:, :-1]))
-        cols.append((jac ** 2).sum(axis=1).reshape(-1))
-    c = np.concatenate(cols)
+    with problem.kernel_mode():
+        for b in problem.batches:
+            if id(b) in penalty:
+                continue
+            _, jac = b.kernel.linearize(b.gather(state), b.source.constants)
+            if not b.unit:
+                jac = np.matmul(b.sqrt_info, jac)
+            d = (jac ** 2).sum(axis=1)  # (n, D): the diagonal of each factor's J^T J
+            for j, (dim, off) in enumerate(zip(b.arg_dims, b.arg_local_off)):
+                np.add.at(h, voff[b.var_idx[:, j], None] + np.arange(dim), d[:, off:off + dim])
+        for k, b, c in zip(rows.inner, rows.batches, rows.consts):
+            cols.append((k.linearize(b.gather(state), c)[1] ** 2).sum(axis=1).reshape(-1))
+    h, c = h[h > 0], np.concatenate(cols)
     c = c[np.isfinite(c) & (c > 0)]
     if h.shape[0] == 0 or c.shape[0] == 0:
         return 1.0
     return float(ratio * np.median(h) / np.median(c))
-
-
-def _active(g: _Group, v: np.ndarray) -> np.ndarray:
-    return np.maximum(v, 0.0) if g.inequality else v
-
-
-def _feasibility(groups: list[_Group], values: list[np.ndarray]) -> float:
-    """``max(|g|, max(h, 0))`` over every constraint."""
-    return max(float(np.max(np.abs(_active(g, v)), initial=0.0)) for g, v in zip(groups, values))
-
-
-def _update(g: _Group, v: np.ndarray, ap: AugmentedLagrangianParams) -> float:
-    """Multiplier and penalty update of one group at constraint values ``v``; returns its
-    largest violation measure (equality ``|g|``, inequality ``|max(h, -lambda/mu)|``)."""
-    if g.inequality:
-        meas = np.max(np.abs(np.maximum(v, -g.lam / g.mu[:, None])), axis=1)
-        g.lam = np.maximum(0.0, g.lam + g.mu[:, None] * v)
-    else:
-        meas = np.max(np.abs(v), axis=1)
-        g.lam = g.lam + g.mu[:, None] * v
-    if g.last is not None:
-        grow = (meas > ap.violation_reduction * g.last) & (meas > ap.constraint_tolerance)
-        g.mu = np.where(grow, np.minimum(g.mu * ap.penalty_factor, ap.max_penalty), g.mu)
-        g.prev = g.last
-    g.last = meas
-    return float(meas.max(initial=0.0))
-
-
-def _at_cap(groups: list[_Group], ap: AugmentedLagrangianParams) -> bool:
-    """Every instance still violated has its penalty at ``max_penalty``."""
-    return all(bool(np.all(g.mu[g.last > ap.constraint_tolerance] >= ap.max_penalty))
-               for g in groups)
-
-
-def _stuck(groups: list[_Group], ap: AugmentedLagrangianParams) -> bool:
-    """The violation did not shrink in the last outer iteration (by 1 %)."""
-    if any(g.prev is None for g in groups):
-        return False
-    before = max(float(g.prev.max(initial=0.0)) for g in groups)
-    now = max(float(g.last.max(initial=0.0)) for g in groups)
-    return now > ap.constraint_tolerance and now >= 0.99 * before
-
-
-def _first_nonfinite(graph: Any, groups: list[_Group], values: list[np.ndarray]) -> str | None:
-    for g, v in zip(groups, values):
-        rows = np.nonzero(~np.all(np.isfinite(v), axis=1))[0]
-        if rows.shape[0] > 0:
-            return graph.constraints[g.members[int(rows[0])]].describe()
-    return None

@@ -396,3 +396,100 @@ def test_small_constrained_solve_runs_on_numpy_twins():
                          timeout=600)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["CONVERGED", "numpy", "False"], out.stdout + out.stderr
+
+
+@fgopt.constraint
+def distance_to(x: V2, center: V2, radius: Scalar) -> V1:
+    d = x - center
+    return V1(d[0] * d[0] + d[1] * d[1] - radius * radius)
+
+
+def test_constant_and_bounds_with_constraints_match_scipy_and_closed_form():
+    """constant= and bounds= on a graph holding constraints: x pulled to (2, 1), kept at
+    distance 1 from a center c that is held constant at 0 (its own factor pulls it to
+    (0.5, 0.5)), and x_1 <= 0.3 by a bound. The optimum is (sqrt(1 - 0.09), 0.3) (closed
+    form; SLSQP with the same bound agrees), c keeps its value bit for bit, the bound's
+    multiplier-free side stays feasible, and the caller's Variables are untouched."""
+    from scipy.optimize import minimize
+
+    g = fgopt.FactorGraph()
+    g.add(pull2(x=key("x", 0), target=np.array([2.0, 1.0])))
+    g.add(pull2(x=key("c", 0), target=np.array([0.5, 0.5])))
+    g.add(distance_to(x=key("x", 0), center=key("c", 0), radius=1.0))
+    v = fgopt.Variables()
+    v.add(key("x", 0), np.array([0.3, 0.2]))
+    c0 = np.array([1e-17, -0.0])
+    v.add(key("c", 0), c0.copy())
+    before = {k: np.array(v.at(k)).copy() for k in v.keys()}
+    r = fgopt.optimize(g, v, constant=[key("c", 0)],
+                       bounds={key("x", 0): (np.array([-np.inf, -np.inf]), np.array([np.inf, 0.3]))},
+                       constraint_params=AugmentedLagrangianParams(constraint_tolerance=1e-10))
+    assert r.status is fgopt.Status.CONVERGED, r
+    assert r.values.at(key("c", 0)).tobytes() == c0.tobytes()
+    x = r.values.at(key("x", 0))
+    np.testing.assert_allclose(x, [np.sqrt(1 - 0.09), 0.3], atol=1e-8)
+    ref = minimize(lambda z: 0.5 * np.sum((z - [2.0, 1.0]) ** 2), [0.3, 0.2], method="SLSQP",
+                   bounds=[(None, None), (None, 0.3)], options={"ftol": 1e-14},
+                   constraints=[{"type": "eq", "fun": lambda z: z @ z - 1.0}])
+    np.testing.assert_allclose(x, ref.x, atol=1e-7)
+    for k, val in before.items():
+        assert np.array(v.at(k)).tobytes() == val.tobytes()
+
+
+def test_constant_variable_inside_a_constraint_matches_a_free_solve_with_it_fixed():
+    """A constant variable that only a constraint and its own prior see: the result equals
+    the solve in which that variable's value is a number in the constraint (the same
+    problem without it), to solver tolerance (LM's relative cost decrease 1e-13 leaves ~3e-7
+    along the circle)."""
+    g = fgopt.FactorGraph()
+    g.add(pull2(x=key("x", 0), target=np.array([2.0, 1.0])))
+    g.add(pull2(x=key("c", 0), target=np.array([5.0, 5.0])))
+    g.add(distance_to(x=key("x", 0), center=key("c", 0), radius=0.5))
+    v = fgopt.Variables()
+    v.add(key("x", 0), np.array([1.0, 0.4]))
+    v.add(key("c", 0), np.array([1.0, 0.5]))
+    r = fgopt.optimize(g, v, constant={key("c", 0): None})
+    g2 = fgopt.FactorGraph()
+    g2.add(pull2(x=key("x", 0), target=np.array([2.0, 1.0])))
+    g2.add(distance_to(x=key("x", 0), center=np.array([1.0, 0.5]), radius=0.5))
+    v2 = fgopt.Variables()
+    v2.add(key("x", 0), np.array([1.0, 0.4]))
+    r2 = fgopt.optimize(g2, v2)
+    assert r.status is r2.status is fgopt.Status.CONVERGED
+    assert r.values.at(key("c", 0)).tobytes() == np.array([1.0, 0.5]).tobytes()
+    # closed form: the center plus radius times the unit direction to the target
+    exact = np.array([1.0, 0.5]) + 0.5 * np.array([1.0, 0.5]) / np.sqrt(1.25)
+    for res in (r, r2):
+        np.testing.assert_allclose(res.values.at(key("x", 0)), exact, atol=1e-6)
+
+
+def test_gnc_and_chordal_start_on_constrained_graphs():
+    """method='gnc' on a graph with constraints raises an FgoptError saying GNC does not
+    enforce them and to use method='lm'; initialization='chordal' starts the augmented-
+    Lagrangian loop from the chordal relaxation (M3500, real; 20 step lengths 5 % longer
+    than at the unconstrained optimum), reaching the same constrained optimum as the start from
+    the file's values, and says so in result.info."""
+    import os
+
+    g, v = _circle_problem()
+    with pytest.raises(FgoptError, match=r"method='gnc' does not enforce constraints.*"
+                                         r"use method='lm'"):
+        fgopt.optimize(g, v, method="gnc")
+    path = os.path.join(os.environ.get("FGOPT_DATA", "/work/shared/data"),
+                        "pose2d/input_M3500_g2o.g2o")
+    if not os.path.exists(path):
+        pytest.skip("FGOPT_DATA has no pose2d/input_M3500_g2o.g2o")
+    g, v = fgopt.io.read(path, add_prior=True, progress=False)
+    keys = sorted(v.keys())
+    step = _step_length_constraint()
+    free = fgopt.optimize(g, v, initialization="given").values
+    gc = g.copy()
+    for a, b in [(keys[i], keys[i + 1]) for i in range(0, 3400, 170)]:
+        d = np.linalg.norm(np.asarray(free.at(b).translation() - free.at(a).translation()))
+        gc.add(step(a=a, b=b, d=1.05 * d))
+    given = fgopt.optimize(gc, v)
+    chordal = fgopt.optimize(gc, v, initialization="chordal")
+    assert (given.info["initialization"], chordal.info["initialization"]) == ("given", "chordal")
+    for r in (given, chordal):
+        assert r.status is fgopt.Status.CONVERGED, r
+    assert chordal.final_cost == pytest.approx(given.final_cost, rel=1e-6)

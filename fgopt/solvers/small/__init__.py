@@ -301,11 +301,12 @@ def charge_general(problem: Any, seconds: float) -> None:
     _plan(problem.batches).general_seconds += seconds
 
 
-def optimize_small(problem: Any, params: Any, t0: float) -> Result | None:
+def optimize_small(problem: Any, params: Any, t0: float, start: State | None = None
+                   ) -> Result | None:
     """LM on ``problem`` (a :class:`~fgopt.problem.Problem`, structure not needed) in one call of
-    its kernel set's driver. ``None``: the driver is not compiled yet (see
-    :data:`COMPILE_AFTER_SECONDS`), or the initial linearization is not finite (the general
-    path then names the factor). ``t0``: when the solve started
+    its kernel set's driver, from its initial values or ``start``. ``None``: the driver is not
+    compiled yet (see :data:`COMPILE_AFTER_SECONDS`), or the initial linearization is not
+    finite (the general path then names the factor). ``t0``: when the solve started
     (``perf_counter``)."""
     global _lm_module
     if _lm_module is None:
@@ -316,7 +317,7 @@ def optimize_small(problem: Any, params: Any, t0: float) -> Result | None:
     inputs = _inputs(problem, plan)
     cls = _kind_tables(problem.kinds)[4] or _lm_module.problem_class_for(
         problem.kinds, False, lambda: problem.ensure_structure().pattern)
-    storages = problem._initial_storages
+    storages = problem._initial_storages if start is None else start.storages
     # (the driver writes the final storage into x0: a copy)
     x0 = np.concatenate([s.reshape(-1) for s in storages]) if len(storages) > 1 else \
         storages[0].reshape(-1).copy()
