@@ -42,7 +42,7 @@ from ..key import Key, as_key, key_str
 from ..manifolds.base import ops_for
 from ..solvers.linear._block_kernels import blas_workspace
 from ..variables import Variables
-from . import _marginal, _ordering, _pool, _solve, _top, _update
+from . import _constants, _marginal, _ordering, _pool, _solve, _top, _update
 from ._factors import FactorStore
 from ._state import M_CL_HWM, M_HP_HEAD, M_HP_TOP, M_NCLIQUES, M_STAMP, TreeState
 from ._values import VariableStore
@@ -73,6 +73,7 @@ class IncrementalSmoother:
         self._nnz_per_var_ref = 0.0
         self._force_batch = False
         self._dirty = False
+        self._constants: dict = {}  # key -> value held constant (update(constant=...))
         #: Cliques back-substituted by the last (deferred) solve.
         self.last_solve_cliques = 0
 
@@ -88,17 +89,32 @@ class IncrementalSmoother:
     # ================================================================== public API
     def update(self, new_factors: "FactorGraph | Iterable[Factor]" = (),
                new_values: "Variables | dict | None" = None,
-               remove: Iterable[int] = ()) -> UpdateResult:
+               remove: Iterable[int] = (), constant: Iterable[Any] = ()) -> UpdateResult:
         """Add ``new_factors`` and ``new_values`` (values of keys new to the smoother), remove
         the factors with handles ``remove``, and update the estimate (see the module docstring).
 
+        ``constant``: keys of ``new_values`` held fixed from now on (e.g. a map one localizes
+        against): they never enter the smoother's system, so they cost nothing in the solve,
+        and keep their values bit for bit (``estimate`` returns them); factors over them, in
+        this update and later ones, become factors over their other keys (kernel factors only;
+        :mod:`._constants`). A key already in the smoother cannot become constant.
+
         Raises :class:`~fgopt.FgoptError` (naming the key or factor) and leaves the smoother
         unchanged when a factor uses an unknown key, ``new_values`` repeats a known key, a
-        handle in ``remove`` is not a factor of the smoother, or a variable would be left
-        unconstrained.
+        constant key is not in ``new_values``, a handle in ``remove`` is not a factor of the
+        smoother, or a variable would be left unconstrained.
+
+        Example::
+
+            isam.update(factors, values, constant=[key("l", j) for j in range(num_landmarks)])
         """
         t0 = _clock()
         factors = self._check_factors(new_factors)
+        consts = self._check_constant(constant, new_values)
+        if consts or self._constants:
+            every = {**self._constants, **consts}
+            factors = [_constants.substitute(f, every) for f in factors]
+            new_values = {k: v for k, v in self._values_items(new_values) if k not in consts}
         values = self._check_values(new_values, factors)
         removed = self._check_remove(remove)
         self._count += 1
@@ -109,6 +125,7 @@ class IncrementalSmoother:
         except BaseException:
             self._count -= 1
             raise
+        self._constants.update(consts)
         for _ in range(int(self.params.extra_steps)):
             if not self.params.enable_relinearization:
                 break
@@ -136,7 +153,12 @@ class IncrementalSmoother:
         the caller's: later updates do not change it.
         """
         if key is None:
-            return self._vars.estimate(self._exact_delta())
+            out = self._vars.estimate(self._exact_delta())
+            for k, x in self._constants.items():
+                out.add(k, x)
+            return out
+        if as_key(key) in self._constants:
+            return self._constants[as_key(key)]
         self._solve()
         return self._vars.estimate_value(self._vars.slot(as_key(key)))
 
@@ -264,20 +286,40 @@ class IncrementalSmoother:
                                  "smoother does not enforce constraints (fgopt.optimize does)")
         return factors
 
-    def _check_values(self, new_values: Any, factors: list[Factor]) -> list[tuple[Key, Any]]:
+    @staticmethod
+    def _values_items(new_values: Any) -> list[tuple[Key, Any]]:
         if new_values is None:
-            items = []
-        elif isinstance(new_values, Variables):
-            items = list(new_values.items())
-        elif isinstance(new_values, dict):
-            items = [(as_key(k), v) for k, v in new_values.items()]
-        else:
-            raise FgoptError(f"update: new_values must be Variables or a dict, got "
-                             f"{type(new_values).__name__}")
+            return []
+        if isinstance(new_values, Variables):
+            return list(new_values.items())
+        if isinstance(new_values, dict):
+            return [(as_key(k), v) for k, v in new_values.items()]
+        raise FgoptError(f"update: new_values must be Variables or a dict, got "
+                         f"{type(new_values).__name__}")
+
+    def _check_constant(self, constant: Iterable[Any], new_values: Any) -> dict:
+        """``{key: value}`` of the keys made constant by this update (checked)."""
+        keys = [as_key(k) for k in constant]
+        if not keys:
+            return {}
+        given = dict(self._values_items(new_values))
+        out = {}
+        for k in keys:
+            if k in self._vars.slot_of or k in self._constants:
+                raise FgoptError(f"update: {key_str(k)} is already in the smoother; only keys "
+                                 "new in this update (in new_values) can be held constant")
+            if k not in given:
+                raise KeyNotFoundError(f"update: constant key {key_str(k)} is not a variable: "
+                                       "give its value in new_values")
+            out[k] = given[k]
+        return out
+
+    def _check_values(self, new_values: Any, factors: list[Factor]) -> list[tuple[Key, Any]]:
+        items = self._values_items(new_values)
         known = self._vars.slot_of
         new_kind = {}
         for k, v in items:
-            if k in known:
+            if k in known or k in self._constants:
                 raise DuplicateKeyError(f"update: {key_str(k)} is already a variable of the "
                                         "smoother; new_values may only hold new keys")
             new_kind[k] = ops_for(v).batch_kind(v)
