@@ -144,10 +144,14 @@ class _Rows:
                    for k, b, c in zip(self.inner, self.batches, self.consts)]
         return np.concatenate([r.reshape(-1) for r, _ in out]), [j for _, j in out]
 
-    def update(self, v: np.ndarray, ap: AugmentedLagrangianParams) -> float:
+    def update(self, v: np.ndarray, ap: AugmentedLagrangianParams) -> tuple[float, float]:
         """Multiplier and penalty update at constraint values ``v``; returns the largest
-        violation measure (equality ``|g|``, inequality ``|max(h, -lambda/mu)|``)."""
-        meas = np.abs(np.where(self.ineq, np.maximum(v, -self.lam / self.mu), v))
+        violation measure (equality ``|g|``, inequality ``|max(h, -lambda/mu)|``) and the
+        penalty terms' cost at ``v`` before the update (:meth:`penalty`)."""
+        shift = self.lam / self.mu
+        meas = np.abs(np.where(self.ineq, np.maximum(v, -shift), v))
+        r = np.where(self.ineq, np.maximum(v + shift, 0.0), v + shift)
+        pen = 0.5 * float(self.mu @ (r * r))
         lam = self.lam + self.mu * v
         self.lam = np.where(self.ineq, np.maximum(lam, 0.0), lam)
         if self.last is not None:
@@ -155,7 +159,7 @@ class _Rows:
             self.mu = np.where(grow, np.minimum(self.mu * ap.penalty_factor, ap.max_penalty),
                                self.mu)
         self.prev, self.last = self.last, meas
-        return float(meas.max(initial=0.0))
+        return float(meas.max(initial=0.0)), pen
 
     def feasibility(self, v: np.ndarray) -> float:
         """``max(|g|, max(h, 0))`` over every row."""
@@ -273,9 +277,9 @@ def optimize_constrained(graph: Any, initial: Variables, schedule: list[LMParams
         if outer == 1:  # f(x0) = L(x0) - P(x0): the cost without the penalty terms
             f0 = inner.initial_cost - rows.penalty(values)
         values = rows.values(problem, state)[0]
-        f = inner.final_cost - rows.penalty(values)
         feas = rows.feasibility(values)
-        measure = rows.update(values, ap)
+        measure, pen = rows.update(values, ap)
+        f = inner.final_cost - pen
         augmented.append(inner.final_cost)
         if ap.verbose:
             print(f"outer {outer}: {inner.iterations} LM iterations ({inner.status.value}), "
@@ -290,7 +294,7 @@ def optimize_constrained(graph: Any, initial: Variables, schedule: list[LMParams
                 f"constraints hold to {max(feas, measure):.3g} <= "
                 f"{ap.constraint_tolerance:g} after {outer} outer iterations ({inner.message})")
             break
-        if rows.at_cap(ap) and rows.stuck(ap):
+        if rows.mu.max() >= ap.max_penalty and rows.at_cap(ap) and rows.stuck(ap):
             status, message = Status.INFEASIBLE, (
                 f"the constraints cannot be met: the largest violation stays {feas:.3g} with the "
                 f"penalty at max_penalty={ap.max_penalty:g}; are the constraints contradictory?")
