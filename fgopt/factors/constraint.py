@@ -95,7 +95,7 @@ class SymbolicConstraintType(SymbolicFactorType):
         super().__init__(fn, **options)
         self.inequality = inequality
         self._options["inequality"] = inequality
-        self._penalty: dict = {}
+        self._penalty: dict = {}  # penalty types by ("type", m), kernels by id(kernel)
 
     def penalty_kernel(self, kernel: Any) -> Any:
         """The generated kernel of the augmented-Lagrangian term of this type's constraints
@@ -103,12 +103,16 @@ class SymbolicConstraintType(SymbolicFactorType):
         ``scale_i (c_i(x) + shift_i)``, for an inequality ``scale_i max(0, c_i(x) + shift_i)``,
         with the constants ``shift`` and ``scale`` (one each per output row) after the
         constraint's own."""
-        pattern = next(p for p, k in self._kernels.items() if k is kernel)
-        return self.penalty_type(kernel.residual_dim).kernel(pattern + (False, False))
+        hit = self._penalty.get(id(kernel))
+        if hit is None or hit[0] is not kernel:
+            pattern = next(p for p, k in self._kernels.items() if k is kernel)
+            hit = self._penalty[id(kernel)] = (kernel, self.penalty_type(
+                kernel.residual_dim).kernel(pattern + (False, False)))
+        return hit[1]
 
     def penalty_type(self, m: int) -> SymbolicFactorType:
         """The factor type of :meth:`penalty_kernel` (``m``: the constraint's output size)."""
-        ftype = self._penalty.get(m)
+        ftype = self._penalty.get(("type", m))
         if ftype is not None:
             return ftype
         from ..symbolic import Max, vector_type
@@ -136,7 +140,7 @@ class SymbolicConstraintType(SymbolicFactorType):
             f"{self.fingerprint} {penalty.__code__.co_code.hex()} {ineq} {m}".encode()
         ).hexdigest()
         ftype.recipe = (SymbolicConstraintType.penalty_type, (self, m))
-        self._penalty[m] = ftype
+        self._penalty[("type", m)] = ftype
         return ftype
 
     def __call__(self, *args: Any, loss: Any = None, **kwargs: Any) -> Constraint:

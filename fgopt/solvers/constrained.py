@@ -85,38 +85,42 @@ class _Rows:
     compiled penalty batch (its constants: the constraints' own, then ``shift = lam / mu`` and
     ``scale = sqrt(mu)`` per row, rewritten in place between outer iterations)."""
 
-    def __init__(self, graph: Any, initial: Variables):
+    def __init__(self, graph: Any):
+        cons = graph.constraints
         by_kernel: dict = {}
-        for i, c in enumerate(graph.constraints):
+        for i, c in enumerate(cons):
+            by_kernel.setdefault(id(c.kernel), []).append(i)
+        self.members = list(by_kernel.values())  # per group, positions in graph.constraints
+        self.inner = [cons[m[0]].kernel for m in self.members]
+        self.consts = [np.array([cons[i].constants for i in m]).reshape(len(m), -1)
+                       for m in self.members]
+        sizes = [len(m) * k.residual_dim for m, k in zip(self.members, self.inner)]
+        self.slices = [slice(a - n, a) for a, n in zip(np.cumsum(sizes), sizes)]
+        self.ineq = np.repeat([cons[m[0]].inequality for m in self.members], sizes)
+        self.lam, self.mu = np.zeros(self.ineq.shape[0]), np.ones(self.ineq.shape[0])
+        self.last = self.prev = None  # violation measures after the last two outer iterations
+        self.batches: list = []
+
+    @staticmethod
+    def check_keys(graph: Any, initial: Variables) -> None:
+        """Raise naming the first constraint over a key without an initial value."""
+        for c in graph.constraints:
             for k in c.keys:
                 if k not in initial:
                     raise KeyNotFoundError(f"constraint {c.describe()} uses {key_str(k)}, which "
                                            f"is not in the initial values: add it with "
                                            f"Variables.add({key_str(k)}, value)")
-            by_kernel.setdefault(id(c.kernel), []).append(i)
-        cons = graph.constraints
-        self.members = list(by_kernel.values())  # per group, positions in graph.constraints
-        self.inner = [cons[m[0]].kernel for m in self.members]
-        self.consts = [np.ascontiguousarray(np.stack([cons[i].constants for i in m]).reshape(
-            len(m), -1)) for m in self.members]
-        sizes = [len(m) * k.residual_dim for m, k in zip(self.members, self.inner)]
-        self.slices = [slice(a - n, a) for a, n in zip(np.cumsum(sizes), sizes)]
-        self.ineq = np.concatenate([np.full(n, cons[m[0]].inequality)
-                                    for m, n in zip(self.members, sizes)])
-        self.lam, self.mu = np.zeros(self.ineq.shape[0]), np.ones(self.ineq.shape[0])
-        self.last = self.prev = None  # violation measures after the last two outer iterations
-        self.batches: list = []
 
     def add_penalties(self, graph: Any) -> Any:
         """A copy of ``graph`` (without its constraints) with one penalty batch per group."""
         pg = type(graph)()
         pg._factors, pg._batches = list(graph.factors), list(graph.batches)
+        cons = graph.constraints
         for m, k, c in zip(self.members, self.inner, self.consts):
-            keys = np.array([[int(q) for q in graph.constraints[i].keys] for i in m],
-                            dtype=np.int64)
-            r = np.zeros((len(m), k.residual_dim))
-            pg.add_batch(graph.constraints[m[0]].factor_type.penalty_kernel(k), keys,
-                         np.column_stack([c, r, r]))
+            consts = np.zeros((len(m), c.shape[1] + 2 * k.residual_dim))
+            consts[:, :c.shape[1]] = c
+            pg.add_batch(cons[m[0]].factor_type.penalty_kernel(k),
+                         np.array([cons[i].keys for i in m], dtype=np.int64), consts)
         self.sources = pg.batches[len(graph.batches):]
         return pg
 
@@ -246,10 +250,14 @@ def optimize_constrained(graph: Any, initial: Variables, schedule: list[LMParams
     inner_schedule(params, set(), ap)  # (checks ap)
     if not isinstance(initial, Variables):
         raise FgoptError(f"initial values must be fgopt.Variables, got {type(initial).__name__}")
-    rows = _Rows(graph, initial)
+    rows = _Rows(graph)
     choice = linear_solver if linear_solver is not None else params.linear_solver
-    problem = compile_problem(rows.add_penalties(graph), initial, params, choice,
-                              build_structure=False, constant=constant, bounds=bounds)
+    try:
+        problem = compile_problem(rows.add_penalties(graph), initial, params, choice,
+                                  build_structure=False, constant=constant, bounds=bounds)
+    except KeyNotFoundError:
+        rows.check_keys(graph, initial)  # (names the constraint when one is the culprit)
+        raise
     by_source = {id(b.source): b for b in problem.batches}
     rows.batches = [by_source[id(s)] for s in rows.sources]
     inner_solve = _InnerSolve(problem, linear_solver, callback)
@@ -375,7 +383,9 @@ def _initial_penalty(problem: Any, rows: _Rows, state: Any, jacobians: list,
     c = c[np.isfinite(c) & (c > 0)]
     if h.shape[0] == 0 or c.shape[0] == 0:
         return 1.0
-    return float(ratio * np.median(h) / np.median(c))
+    # (the upper median by partition: np.median's checks cost 60 us a call on a tiny array)
+    return float(ratio * np.partition(h, h.shape[0] // 2)[h.shape[0] // 2]
+                 / np.partition(c, c.shape[0] // 2)[c.shape[0] // 2])
 
 
 def _linearize(problem: Any, kernel: Any) -> Callable:
