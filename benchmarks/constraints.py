@@ -37,7 +37,8 @@ TABLE_PROTOCOL = {
                  "in a warm process (kernels and the small-problem driver compiled by an "
                  "untimed first run; `FGOPT_NUMPY_BUDGET=0`); scipy: `minimize` with exact "
                  "gradients and constraint Jacobians (NumPy), from the same start. Min of 3 "
-                 "interleaved runs (trust-constr: one)."),
+                 "interleaved runs on the large problems, 10 on the small ones "
+                 "(trust-constr: one)."),
     "stopping": ("fgopt: constraints to 1e-8 on the large problems, 1e-11 on the small ones "
                  "(the scipy comparison), and its default inner LM; SLSQP ftol 1e-12; "
                  "trust-constr gtol / xtol 1e-10; every library's own iteration limit."),
@@ -255,7 +256,7 @@ def run_small(reps: int) -> list[dict]:
     for name, make in (("sphere chain (90 unknowns, 30 eq.)", _sphere_chain),
                        ("sphere chain (300 unknowns, 100 eq.)", lambda: _sphere_chain(100)),
                        ("10-link arm IK (2 eq., 20 ineq.)", _arm)):
-        out += _compare(name, make(), reps, tight)
+        out += _compare(name, make(), max(reps, 10), tight)  # (milliseconds each: more samples)
     return out
 
 

@@ -10,8 +10,6 @@ table of constants, so it stays bit for bit what the caller gave.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from ..errors import FgoptError, ManifoldError

@@ -38,8 +38,8 @@ import numpy as np
 from ..errors import FgoptError, KeyNotFoundError, NonFiniteError
 from ..key import key_str
 from ..variables import Variables
-from ._run import compile_problem
 from . import small
+from ._run import compile_problem
 from .linear.base import make_linear_solver
 from .lm import LevenbergMarquardt
 from .params import LMParams
@@ -100,6 +100,7 @@ class _Rows:
         self.lam, self.mu = np.zeros(self.ineq.shape[0]), np.ones(self.ineq.shape[0])
         self.last = self.prev = None  # violation measures after the last two outer iterations
         self.batches: list = []
+        self._views: list | None = None
 
     @staticmethod
     def check_keys(graph: Any, initial: Variables) -> None:
@@ -127,12 +128,17 @@ class _Rows:
     def set_penalty(self) -> None:
         """Write ``shift = lam / mu`` and ``scale = sqrt(mu)`` into the penalty batches'
         constants."""
+        if self._views is None:  # (n, m) views of each batch's shift and scale columns
+            self._views = []
+            for b, c, sl in zip(self.batches, self.consts, self.slices):
+                n, nc = c.shape
+                m = (sl.stop - sl.start) // n
+                a = b.source.constants
+                self._views.append((sl, (n, m), a[:, nc:nc + m], a[:, nc + m:]))
         shift, scale = self.lam / self.mu, np.sqrt(self.mu)
-        for b, c, sl in zip(self.batches, self.consts, self.slices):
-            n, nc = c.shape
-            m = (sl.stop - sl.start) // n
-            b.source.constants[:, nc:nc + m] = shift[sl].reshape(n, m)
-            b.source.constants[:, nc + m:] = scale[sl].reshape(n, m)
+        for sl, shape, sv, wv in self._views:
+            sv[...] = shift[sl].reshape(shape)
+            wv[...] = scale[sl].reshape(shape)
 
     def penalty(self, v: np.ndarray) -> float:
         """The penalty terms' cost at constraint values ``v`` (before :meth:`update`):
@@ -203,13 +209,7 @@ def inner_schedule(params: LMParams, explicit: set,
     ``inner_relative_tolerance`` (early solves need not be exact: their multipliers are
     provisional; a tight first solve took 20 LM iterations on M3500 where 5 do). A caller's
     own ``relative_tolerance`` is used throughout."""
-    ap = ap if ap is not None else _DEFAULT
-    if not isinstance(ap, AugmentedLagrangianParams):
-        raise FgoptError(f"constraint_params must be an AugmentedLagrangianParams, got "
-                         f"{type(ap).__name__}")
-    if ap.max_outer_iterations < 1:
-        raise FgoptError(f"AugmentedLagrangianParams.max_outer_iterations must be >= 1, got "
-                         f"{ap.max_outer_iterations}")
+    ap = _checked(ap)
     if "relative_tolerance" in explicit or params.relative_tolerance is not None:
         return [params]
     hit = _SCHEDULES.get((id(params), id(ap)))  # (both frozen; the entry keeps them alive)
@@ -219,6 +219,17 @@ def inner_schedule(params: LMParams, explicit: set,
         _SCHEDULES.clear()
     out = _SCHEDULES[(id(params), id(ap))] = (params, ap, _schedule(params, ap))
     return out[2]
+
+
+def _checked(ap: AugmentedLagrangianParams | None) -> AugmentedLagrangianParams:
+    ap = ap if ap is not None else _DEFAULT
+    if not isinstance(ap, AugmentedLagrangianParams):
+        raise FgoptError(f"constraint_params must be an AugmentedLagrangianParams, got "
+                         f"{type(ap).__name__}")
+    if ap.max_outer_iterations < 1:
+        raise FgoptError(f"AugmentedLagrangianParams.max_outer_iterations must be >= 1, got "
+                         f"{ap.max_outer_iterations}")
+    return ap
 
 
 _DEFAULT = AugmentedLagrangianParams()
@@ -246,8 +257,7 @@ def optimize_constrained(graph: Any, initial: Variables, schedule: list[LMParams
     ``constant`` / ``bounds``: as for :func:`fgopt.optimize` (kept by the inner LM)."""
     params = schedule[0]
     t0 = time.perf_counter()
-    ap = constraint_params if constraint_params is not None else _DEFAULT
-    inner_schedule(params, set(), ap)  # (checks ap)
+    ap = _checked(constraint_params)
     if not isinstance(initial, Variables):
         raise FgoptError(f"initial values must be fgopt.Variables, got {type(initial).__name__}")
     rows = _Rows(graph)

@@ -68,7 +68,7 @@ def test_localizing_against_a_constant_map_matches_batch_constant(data_file):
             values.add(k, x)
     batch = fgopt.optimize(graph, values, constant=[k for k in map_keys if k in used], relative_tolerance=1e-14,
                            absolute_tolerance=0.0, max_iterations=200)
-    assert max_tangent_difference(fgopt.Variables({k: est.at(k) for k in batch.values.keys()}),
+    assert max_tangent_difference(fgopt.Variables({k: est.at(k) for k in batch.values}),
                                   batch.values) < 1e-6
     assert graph.error(est) == pytest.approx(batch.final_cost, rel=1e-9)
 

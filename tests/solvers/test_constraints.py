@@ -420,7 +420,7 @@ def test_constant_and_bounds_with_constraints_match_scipy_and_closed_form():
     v.add(key("x", 0), np.array([0.3, 0.2]))
     c0 = np.array([1e-17, -0.0])
     v.add(key("c", 0), c0.copy())
-    before = {k: np.array(v.at(k)).copy() for k in v.keys()}
+    before = {k: np.array(v.at(k)).copy() for k in v}
     r = fgopt.optimize(g, v, constant=[key("c", 0)],
                        bounds={key("x", 0): (np.array([-np.inf, -np.inf]), np.array([np.inf, 0.3]))},
                        constraint_params=AugmentedLagrangianParams(constraint_tolerance=1e-10))
