@@ -21,7 +21,7 @@ Scenarios (``--only`` takes a comma-separated subset):
     python -m benchmarks.compile_times --only custom-factor --top 15 --json out.json
     python -m benchmarks.compile_times --compare before.json after.json   # two checkouts
 
-Children run with ``FGOPT_NUMPY_BUDGET=0`` and no background compile process, so every kernel
+Children run with ``FGOPT_NUMPY_BUDGET=0``, so every kernel
 a solve uses is compiled in the process that is timed (a small problem takes the general path).
 """
 
@@ -196,7 +196,6 @@ def run_scenario(name: str, cache: str | None = None) -> dict:
         cache = cache or tmp
         env = dict(os.environ, PYTHONPATH=str(REPO), FGOPT_CACHE_DIR=os.path.join(cache, "fg"),
                    NUMBA_CACHE_DIR=os.path.join(cache, "nb"), FGOPT_NUMPY_BUDGET="0",
-                   FGOPT_BACKGROUND_WARMUP="0",
                    COMPILE_TIMES_OUT=os.path.join(tmp, "rows.json"))
         env.pop("PYTHONDONTWRITEBYTECODE", None)
         code = RECORDER + SCENARIOS[name]()

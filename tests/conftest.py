@@ -21,8 +21,6 @@ def pytest_configure(config):
     warm on reruns, away from the user's ~/.cache). Set before any test runs: generated kernels
     are memoized per process, so a cache directory switched mid-session would leave subprocesses
     looking in a directory the parent never wrote."""
-    # no detached numba warm-up processes outlive a test (tests/test_numpy_backend.py tests them)
-    os.environ.setdefault("FGOPT_BACKGROUND_WARMUP", "0")
     if "FGOPT_CACHE_DIR" not in os.environ:
         path = config.cache.mkdir("fgopt-kernels")
         path.chmod(0o700)  # fgopt refuses a cache root others can write (a umask of 002)

@@ -24,7 +24,7 @@ from .._jit import njit
 from ..manifolds._kernels import quat_from_matrix, skew_poly3, so3_coeffs, so3_log
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True)
 def hat_into(w, out):
     skew_poly3(w, 0.0, 1.0, 0.0, out, 0, 0)
 
@@ -96,7 +96,7 @@ def dlinv_apply(w, r, out):
     out[2, 1] += 0.5 * r[0]
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True)
 def mm3(a, b, out):
     """out = a @ b for 3x3 (out must not alias a or b)."""
     for i in range(3):
@@ -104,7 +104,7 @@ def mm3(a, b, out):
             out[i, j] = a[i, 0] * b[0, j] + a[i, 1] * b[1, j] + a[i, 2] * b[2, j]
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True)
 def mtm3(a, b, out):
     """out = a^T @ b for 3x3."""
     for i in range(3):
@@ -112,14 +112,14 @@ def mtm3(a, b, out):
             out[i, j] = a[0, i] * b[0, j] + a[1, i] * b[1, j] + a[2, i] * b[2, j]
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True)
 def mv3(a, v, out):
     """out = a @ v (out must not alias v)."""
     for i in range(3):
         out[i] = a[i, 0] * v[0] + a[i, 1] * v[1] + a[i, 2] * v[2]
 
 
-@njit(cache=True, inline='always')
+@njit(cache=True)
 def mtv3(a, v, out):
     """out = a^T @ v (out must not alias v)."""
     for i in range(3):

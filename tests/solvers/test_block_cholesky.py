@@ -154,21 +154,27 @@ def test_misuse_raises_fgopt_errors():
         s.solve(np.ones(pattern.size + 1))
 
 
-def test_auto_picks_dense_only_for_small_and_mostly_full_systems():
+def test_auto_picks_dense_only_for_small_and_mostly_full_systems(monkeypatch):
     """``"auto"`` on a small system: the dense Cholesky when H is at least a quarter full (a
     tiny scene where every camera sees every point), the block Cholesky when it is sparse (a
-    100-pose graph: 300 unknowns, ~3 % full, where dense factors 2x slower); both solve to the
-    same optimum."""
+    100-pose graph: 300 unknowns, ~3 % full, where dense factors 2x slower) once the process
+    runs compiled kernels; before (a fresh script within its NumPy budget) LAPACK's dense
+    Cholesky, which needs no compilation. All solve to the same optimum."""
+    import fgopt._jit
     from fgopt.datasets import sfm_cube
     from fgopt.solvers.linear.base import choose_linear_solver
     from fgopt.structure import DENSE_MAX_SIZE, DENSE_MIN_FILL
 
     d = manhattan_2d(100, seed=1)
+    monkeypatch.setattr(fgopt._jit, "NUMPY_BUDGET_SECONDS", 0.0)
     r = fgopt.optimize(d.graph, d.initial)
     p = r.problem.pattern
     assert p.size <= DENSE_MAX_SIZE and 2 * p.nnz - p.size < DENSE_MIN_FILL * p.size ** 2
     assert choose_linear_solver(p) == "block" and r.linear_solver == "block"
     dense = fgopt.optimize(d.graph, d.initial, linear_solver="dense")
     assert dense.final_cost == pytest.approx(r.final_cost, rel=1e-9)
+    monkeypatch.setattr(fgopt._jit, "NUMPY_BUDGET_SECONDS", float("inf"))
+    assert choose_linear_solver(p) == "dense"
+    assert choose_linear_solver(p, backend="numpy") == "dense"
     s = sfm_cube(smart=True, seed=3)
     assert fgopt.optimize(s.graph, s.initial).linear_solver == "dense"

@@ -401,8 +401,7 @@ def test_declaring_and_solving_imports_no_numba(tmp_path):
         assert "numba" not in sys.modules, "numba imported"
         print("ok")
     """)
-    env = dict(os.environ, PYTHONPATH=str(REPO), FGOPT_CACHE_DIR=str(tmp_path),
-               FGOPT_BACKGROUND_WARMUP="0")
+    env = dict(os.environ, PYTHONPATH=str(REPO), FGOPT_CACHE_DIR=str(tmp_path))
     out = subprocess.run([sys.executable, "-c", code], check=False, cwd=tmp_path, env=env,
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0 and "ok" in out.stdout, out.stderr[-3000:]

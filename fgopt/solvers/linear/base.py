@@ -70,7 +70,8 @@ def choose_linear_solver(pattern: HessianPattern | None, backend: str = "numba")
     """The backend ``"auto"`` picks for a problem's pattern (measured choices, see README).
 
     Small systems (at most ``DENSE_MAX_SIZE`` unknowns): dense Cholesky when H is at least
-    ``DENSE_MIN_FILL`` full, else the block Cholesky. Larger ones: fgopt's block supernodal
+    ``DENSE_MIN_FILL`` full or the process still runs small work on NumPy (no numba compile
+    yet: :func:`fgopt._jit.numpy_budget_left`), else the block Cholesky. Larger ones: fgopt's block supernodal
     Cholesky, which factors 1.4-5x faster than CHOLMOD supernodal (its OpenMP loops serial, as
     fgopt calls it) on every pose graph and the full BA system measured
     (``benchmarks/factorization.py``); BA-shaped problems go to the Schur complement.
@@ -82,8 +83,13 @@ def choose_linear_solver(pattern: HessianPattern | None, backend: str = "numba")
     if pattern is None:
         return "cholmod" if have_extra("sksparse") else "block"
     if pattern.size <= DENSE_MAX_SIZE:  # small: no Schur complement (nor its ordering)
+        from ..._jit import numpy_budget_left
+
         full = 2 * pattern.nnz - pattern.size  # nnz: the upper triangle's entries
-        return "dense" if full >= DENSE_MIN_FILL * pattern.size ** 2 else "block"
+        # LAPACK while the process rents (fgopt._jit): the block solver's analysis and
+        # factorization are ~30 s of numba compilation on a fresh install
+        sparse = full < DENSE_MIN_FILL * pattern.size ** 2
+        return "block" if sparse and backend != "numpy" and not numpy_budget_left() else "dense"
     if backend == "numpy":
         return "cholmod" if have_extra("sksparse") else "ldlt"
     from ._schur_layout import is_ba_shaped
