@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import FgoptError
 from .factors.library.prior_between import BetweenFactor, PriorFactor
 from .noise.models import Diagonal
 from .graph import FactorGraph
@@ -265,7 +266,7 @@ def bal_synthetic(cameras: int, points: int, observations_per_point: int = 5, se
 
     k = int(observations_per_point)
     if cameras < 2 or points < 1 or not 2 <= k <= cameras:
-        raise ValueError("bal_synthetic: need cameras >= 2, points >= 1, "
+        raise FgoptError("bal_synthetic: need cameras >= 2, points >= 1, "
                          "2 <= observations_per_point <= cameras")
     rng = np.random.default_rng(seed)
     angle = 2 * np.pi * np.arange(cameras) / cameras

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from .errors import FgoptError
 from .key import key_index
 from .manifolds.base import ops_for
 from .manifolds.declared import DeclaredValue
@@ -117,7 +118,7 @@ def plot_pose_graph(graph: Any, values: Any, ax: Any = None, initial: Any = None
     """Draw the trajectory of ``values`` (and ``initial`` faintly); returns the axes."""
     keys, xyz, dim = _poses(values)
     if dim == 0:
-        raise ValueError("plot_pose_graph: the values hold no poses (SE2, SE3 or a declared "
+        raise FgoptError("plot_pose_graph: the values hold no poses (SE2, SE3 or a declared "
                          "manifold with a position accessor)")
     ax = _axes(ax, dim)
     cols = [xyz[:, i] for i in range(dim)]
@@ -194,7 +195,7 @@ def plot_bundle(values: Any, ax: Any = None, max_points: int = 20000,
     cc = camera_centers(cams.reshape(-1, 9)) if cams.shape[0] > 0 else np.zeros((0, 3))
     everything = np.concatenate([pts, cc])
     if everything.shape[0] == 0:
-        raise ValueError("plot_bundle: the values hold no R^9 cameras and no R^3 points")
+        raise FgoptError("plot_bundle: the values hold no R^9 cameras and no R^3 points")
     lo, hi = _box(everything, q=3.0)  # BAL scenes have far outliers: crop them
     if pts.shape[0] > 0:
         inside = np.all((pts >= lo) & (pts <= hi), axis=1)

@@ -5,6 +5,7 @@ generated 3D grid written as g2o reads back with the same cost."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 import fgopt
 from fgopt.datasets import bal_synthetic, grid_3d
@@ -43,3 +44,14 @@ def test_grid_3d_round_trips_through_g2o(tmp_path):
     edges = fgopt.FactorGraph([f for f in g.graph if "prior" not in type(f).__name__.lower()
                                and "prior" not in getattr(f.kernel, "name", "")])
     assert np.isclose(graph.error(initial), edges.error(g.initial), rtol=1e-9)
+
+
+def test_bal_synthetic_rejects_bad_sizes_with_an_fgopt_error():
+    """A scene that cannot be built (one camera, or more observations per point than cameras)
+    raises FgoptError naming the function, not a bare ValueError."""
+    from fgopt.datasets import bal_synthetic
+    from fgopt.errors import FgoptError
+
+    for kwargs in (dict(cameras=1, points=5), dict(cameras=3, points=5, observations_per_point=4)):
+        with pytest.raises(FgoptError, match="bal_synthetic"):
+            bal_synthetic(**kwargs)
