@@ -980,6 +980,12 @@ class Problem:
         Vf = var_kind.shape[0]
         if eliminated is not None:
             order = schur_order(var_kind, eliminated)
+        elif (linear_solver == "auto" and ordering == "amd" and numpy_budget_left()
+              and int(var_dim.sum()) <= DENSE_MAX_SIZE):
+            # "auto" factors it densely with LAPACK (solvers.linear.base.choose_linear_solver):
+            # no fill to reduce, and no ordering's imports (scipy.sparse and CHOLMOD cost a new
+            # process ~0.2 s)
+            order = np.arange(Vf, dtype=np.int64)
         else:
             order = fill_reducing_order(Vf, pi, pj, ordering)
         self.pattern, lookup = build_pattern(var_dim, order, pi, pj)
