@@ -328,7 +328,11 @@ def random_loop_closures(graph: FactorGraph, reference: Variables, fraction: flo
     relative pose times a :func:`gross_error`, under an isotropic noise of ``sigma`` (m and rad).
     Returns ``(graph, number added)``; the added factors come last.
 
-    >>> bad, n = random_loop_closures(graph, clean_result.values, 0.1)
+    >>> s = fgopt.datasets.manhattan_2d(num_poses=50, seed=0)
+    >>> clean = fgopt.optimize(s.graph, s.initial)
+    >>> bad, n = fgopt.datasets.random_loop_closures(s.graph, clean.values, 0.1)
+    >>> n, len(bad) - len(s.graph)
+    (5, 5)
     """
     from .noise.models import Isotropic
 

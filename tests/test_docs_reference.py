@@ -216,5 +216,7 @@ def test_docstring_examples_run(test):
     runner = doctest.DocTestRunner(optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE)
     # what every example may assume (docs/api/index.md says so)
     test.globs = {"np": np, "fgopt": fgopt, "key": fgopt.key}
-    runner.run(test, out=lambda s: print(s, end=""))
-    assert runner.failures == 0, f"{test.name}: {runner.failures} failing example(s) (output above)"
+    report: list[str] = []  # doctest swaps sys.stdout while it runs: print() would be lost
+    runner.run(test, out=report.append)
+    assert runner.failures == 0, f"{test.name}: {runner.failures} failing example(s):\n" + \
+        "".join(report)
