@@ -33,13 +33,12 @@ PACKAGES = ["fgopt", "fgopt.noise", "fgopt.manifolds", "fgopt.factors", "fgopt.s
 
 #: Reference entries whose docstring has no example yet (what the reference does not cover).
 WITHOUT_EXAMPLE = {
-    'fgopt.constraint', 'fgopt.datasets.gross_error', 'fgopt.navigation.AcceleratingScenario',
-    'fgopt.navigation.ConstantTwistScenario', 'fgopt.navigation.ScenarioRunner',
-    'fgopt.OrientedPlane3', 'fgopt.SE23', 'fgopt.cameras.GeneralSFMFactor',
-    'fgopt.cameras.StereoFactor', 'fgopt.cameras.camera_projection_kernel',
-    'fgopt.cameras.projection_kernel', 'fgopt.cameras.smart_kernel', 'fgopt.cameras.stereo_kernel',
-    'fgopt.distributed.summary_table', 'fgopt.errors.ManifoldDeclarationError',
-    'fgopt.factors.FactorKernel', 'fgopt.factors.KernelFactor', 'fgopt.factors.SymbolicFactor',
+    'fgopt.constraint', 'fgopt.datasets.gross_error', 'fgopt.OrientedPlane3', 'fgopt.SE23',
+    'fgopt.cameras.GeneralSFMFactor', 'fgopt.cameras.StereoFactor',
+    'fgopt.cameras.camera_projection_kernel', 'fgopt.cameras.projection_kernel',
+    'fgopt.cameras.smart_kernel', 'fgopt.cameras.stereo_kernel', 'fgopt.distributed.summary_table',
+    'fgopt.errors.ManifoldDeclarationError', 'fgopt.factors.FactorKernel',
+    'fgopt.factors.KernelFactor', 'fgopt.factors.SymbolicFactor',
     'fgopt.factors.SymbolicFactorType', 'fgopt.factors.numerical_jacobian',
     'fgopt.incremental.LinearContainerFactor', 'fgopt.incremental.UpdateResult',
     'fgopt.io.parse_load2d', 'fgopt.io.read_bundler', 'fgopt.io.read_stereo_vo',
