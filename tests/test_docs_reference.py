@@ -33,7 +33,9 @@ PACKAGES = ["fgopt", "fgopt.noise", "fgopt.manifolds", "fgopt.factors", "fgopt.s
 
 #: Reference entries whose docstring has no example yet (what the reference does not cover).
 WITHOUT_EXAMPLE = {
-    'fgopt.constraint', 'fgopt.datasets.gross_error', 'fgopt.OrientedPlane3', 'fgopt.SE23',
+    'fgopt.cameras.Cal3DS2', 'fgopt.cameras.Cal3Fisheye', 'fgopt.cameras.Cal3Unified',
+    'fgopt.cameras.Calibration', 'fgopt.cameras.DoubleSphere', 'fgopt.constraint',
+    'fgopt.datasets.gross_error', 'fgopt.OrientedPlane3', 'fgopt.SE23',
     'fgopt.cameras.GeneralSFMFactor', 'fgopt.cameras.StereoFactor',
     'fgopt.cameras.camera_projection_kernel', 'fgopt.cameras.projection_kernel',
     'fgopt.cameras.smart_kernel', 'fgopt.cameras.stereo_kernel', 'fgopt.distributed.summary_table',
