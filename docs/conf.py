@@ -123,3 +123,26 @@ def _prepare_gallery() -> list[str]:
 
 nb_execution_excludepatterns = _prepare_gallery()
 templates_path = ['_templates']
+
+
+# -- the sidebar lists pages, not the ~230 reference entries ---------------------------------
+# autosummary's ``:toctree:`` puts every generated entry page in the site's table of contents;
+# furo renders that whole tree into every page's sidebar, which cost ~90 s of a 2-core build
+# (an O(pages^2) write). The entry pages stay reachable from their package page's summary
+# table and the search; they leave the tree and are marked orphan (no "not in any toctree").
+GENERATED = "api/generated/"
+
+
+def _entries_off_the_sidebar(app, doctree) -> None:
+    from sphinx.ext.autosummary import autosummary_toc
+
+    docname = app.env.docname
+    if docname.startswith(GENERATED):
+        app.env.metadata[docname]["orphan"] = True
+    for node in list(doctree.findall(autosummary_toc)):
+        node.parent.remove(node)
+
+
+def setup(app) -> None:
+    # before the toctree collector (priority 500) reads the document's toctrees
+    app.connect("doctree-read", _entries_off_the_sidebar, priority=400)

@@ -29,7 +29,13 @@ from .variables import Variables
 
 def data_dir() -> Path:
     """The real benchmark data folder: env ``FGOPT_DATA``, else ``../shared/data`` beside the
-    repository (it may not exist: callers skip or fall back to the generators below)."""
+    repository (it may not exist: callers skip or fall back to the generators below).
+
+    >>> import os, pathlib
+    >>> folder = fgopt.datasets.data_dir()          # e.g. folder / "pose2d" / "intel.g2o"
+    >>> folder == pathlib.Path(os.environ.get("FGOPT_DATA", folder))
+    True
+    """
     env = os.environ.get("FGOPT_DATA")
     if env:
         return Path(env)
@@ -38,6 +44,14 @@ def data_dir() -> Path:
 
 @dataclass
 class SyntheticPoseGraph:
+    """A generated pose graph (:func:`manhattan_2d`, :func:`grid_3d`): the factors, a noisy
+    initial guess, the ground truth, and how many factors are loop closures.
+
+    >>> s = fgopt.datasets.manhattan_2d(num_poses=50, seed=0)
+    >>> len(s.truth) == len(s.initial) == 50, len(s.graph) > 50
+    (True, True)
+    """
+
     graph: FactorGraph
     initial: Variables
     truth: Variables
@@ -147,6 +161,14 @@ def grid_3d(num_poses: int = 1000, seed: int = 0, rotation_sigma: float = 0.01,
 
 @dataclass
 class SyntheticSfm:
+    """A generated structure-from-motion scene (:func:`sfm_cube`): the graph, initial guess,
+    truth, the shared calibration and the pixel measurements ``(num_poses, num_points, 2)``.
+
+    >>> scene = fgopt.datasets.sfm_cube()
+    >>> type(scene.calibration).__name__, scene.measurements.shape
+    ('Cal3_S2', (8, 8, 2))
+    """
+
     graph: FactorGraph
     initial: Variables
     truth: Variables
@@ -215,7 +237,14 @@ def sfm_cube(smart: bool = False, seed: int = 0, pose_noise: float = 0.1,
 
 @dataclass
 class SyntheticBAL:
-    """A generated bundle-adjustment problem in BAL's conventions (Snavely cameras)."""
+    """A generated bundle-adjustment problem in BAL's conventions (Snavely cameras):
+    :func:`bal_synthetic`. ``read()`` gives ``(graph, initial)``, ``write(path)`` a BAL file.
+
+    >>> ba = fgopt.datasets.bal_synthetic(cameras=3, points=10, observations_per_point=3)
+    >>> graph, initial = ba.read()
+    >>> len(graph), ba.true_cameras.shape
+    (30, (3, 9))
+    """
 
     camera_index: np.ndarray   # (m,) camera of each observation
     point_index: np.ndarray    # (m,) point of each observation
@@ -328,7 +357,11 @@ def random_loop_closures(graph: FactorGraph, reference: Variables, fraction: flo
     relative pose times a :func:`gross_error`, under an isotropic noise of ``sigma`` (m and rad).
     Returns ``(graph, number added)``; the added factors come last.
 
-    >>> bad, n = random_loop_closures(graph, clean_result.values, 0.1)
+    >>> s = fgopt.datasets.manhattan_2d(num_poses=50, seed=0)
+    >>> clean = fgopt.optimize(s.graph, s.initial)
+    >>> bad, n = fgopt.datasets.random_loop_closures(s.graph, clean.values, 0.1)
+    >>> n, len(bad) - len(s.graph)
+    (5, 5)
     """
     from .noise.models import Isotropic
 

@@ -314,7 +314,22 @@ def replaced_values(initial: Variables, groups: Any, unused: Any = None,
 
 
 class Problem:
-    """A graph compiled against initial values; see the module docstring."""
+    """A graph compiled against initial values; see the module docstring. The solvers build
+    one per solve; it is public for code that drives its own iterations.
+
+    >>> from fgopt.noise import Isotropic
+    >>> noise, step = Isotropic.sigma(3, 0.1), fgopt.SE2.from_xytheta(1.0, 0.0, 0.0)
+    >>> graph = fgopt.FactorGraph([fgopt.PriorFactor(key('x', 0), fgopt.SE2(), noise),
+    ...                            fgopt.BetweenFactor(key('x', 0), key('x', 1), step, noise)])
+    >>> problem = fgopt.Problem(graph, fgopt.Variables({key('x', 0): fgopt.SE2(), key('x', 1): fgopt.SE2()}))
+    >>> problem.size, problem.num_variables       # tangent dimension, variables
+    (6, 2)
+    >>> state = problem.initial_state()
+    >>> round(problem.cost(state), 9)             # 0.5 * |(1 m) / (0.1 m)|^2
+    50.0
+    >>> problem.values(state).at(key('x', 1)).equals(fgopt.SE2())
+    True
+    """
 
     #: Per row of the initial values' one bulk block, the variable holding it, when
     #: :meth:`_collect_small` saw the values as that block alone (else None): :meth:`values`.

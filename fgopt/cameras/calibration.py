@@ -304,7 +304,12 @@ class Cal3DS2(Calibration):
 class Cal3Bundler(Calibration):
     """Bundler / BAL: ``u = u0 + f g x``, ``g = 1 + k1 r^2 + k2 r^4``. Storage
     ``(f, k1, k2, u0, v0)``, tangent ``(f, k1, k2)``: the principal point is not optimized
-    (GTSAM's ``Cal3Bundler``, dimension 3)."""
+    (GTSAM's ``Cal3Bundler``, dimension 3).
+
+    >>> K = fgopt.cameras.Cal3Bundler(500.0, 0.1, 0.01, 320.0, 240.0)   # f, k1, k2, u0, v0
+    >>> np.round(K.uncalibrate([0.1, -0.2]), 4), np.round(K.calibrate([370.2513, 139.4975]), 4)
+    (array([370.2513, 139.4975]), array([ 0.1, -0.2]))
+    """
 
     __slots__ = ()
     MODEL = CK.CAL3BUNDLER
@@ -428,7 +433,11 @@ class DoubleSphere(Calibration):
 class Cal3_S2Stereo(Calibration):
     """A rectified stereo pair: both images share ``Cal3_S2(fx, fy, s, u0, v0)``; the right
     camera sits ``b`` along the left camera's x axis. Storage = tangent
-    ``(fx, fy, s, u0, v0, b)``."""
+    ``(fx, fy, s, u0, v0, b)``.
+
+    >>> fgopt.cameras.Cal3_S2Stereo(500.0, 500.0, 0.0, 320.0, 240.0, 0.2).baseline()
+    0.2
+    """
 
     __slots__ = ()
     MODEL = CK.CAL3_S2STEREO

@@ -217,6 +217,13 @@ class StereoCamera:
 
     ``project(X) = (uL, uR, v)`` with ``uL = u0 + fx x / z``, ``uR = u0 + fx (x - b) / z``,
     ``v = v0 + fy y / z`` for ``(x, y, z) = pose^-1 X`` (skew ignored, as GTSAM's).
+
+    >>> from fgopt.cameras import Cal3_S2Stereo, StereoCamera
+    >>> camera = StereoCamera(fgopt.SE3(), Cal3_S2Stereo(500.0, 500.0, 0.0, 320.0, 240.0, 0.2))
+    >>> camera.project(np.array([1.0, 0.5, 5.0]))            # (uL, uR, v)
+    array([420., 400., 290.])
+    >>> np.round(camera.backproject(np.array([420.0, 400.0, 290.0])), 9)
+    array([1. , 0.5, 5. ])
     """
 
     __slots__ = ("_pose", "_calibration", "_R")

@@ -28,8 +28,22 @@ from .smoother import IncrementalSmoother
 class FixedLagSmoother:
     """``FixedLagSmoother(lag, params)``; ``update(new_factors, new_values, timestamps)``.
 
-    >>> smoother = FixedLagSmoother(2.0)
-    >>> smoother.update([prior, odometry], {x0: p0, x1: p1}, {x0: 0.0, x1: 0.1})
+    Variables older than ``lag`` seconds (behind the newest timestamp) are marginalized:
+
+    >>> from fgopt import SE2, BetweenFactor, PriorFactor
+    >>> from fgopt.incremental import FixedLagSmoother
+    >>> from fgopt.noise import Isotropic
+    >>> noise, step = Isotropic.sigma(3, 0.1), SE2.from_xytheta(1.0, 0.0, 0.0)
+    >>> smoother = FixedLagSmoother(1.0)
+    >>> r = smoother.update([PriorFactor(key('x', 0), SE2(), noise)], {key('x', 0): SE2()},
+    ...                     {key('x', 0): 0.0})
+    >>> for i in range(1, 4):                 # a pose a second
+    ...     r = smoother.update([BetweenFactor(key('x', i - 1), key('x', i), step, noise)],
+    ...                         {key('x', i): SE2.from_xytheta(i, 0.0, 0.0)}, {key('x', i): i})
+    >>> smoother.keys(), r.marginalized_keys
+    ([x2, x3], [x1])
+    >>> smoother.estimate(key('x', 3)).equals(SE2.from_xytheta(3.0, 0.0, 0.0), 1e-9)
+    True
     """
 
     def __init__(self, lag: float, params: IncrementalParams | None = None):

@@ -26,7 +26,14 @@ _G2O_EXT = (".g2o", ".graph")
 
 def detect_format(path: str | os.PathLike, data: bytes | None = None) -> str:
     """``"g2o"``, ``"bal"``, ``"bundler"`` or ``"load2d"``; raises :class:`FileFormatError` when
-    none fits."""
+    none fits.
+
+    >>> import pathlib, tempfile
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "tiny.g2o"
+    >>> _ = path.write_text("VERTEX_SE2 0 0 0 0")
+    >>> fgopt.io.detect_format(path)
+    'g2o'
+    """
     p = os.fspath(path)
     if data is None:
         data = read_bytes(p)

@@ -35,6 +35,11 @@ class BatchKind:
     ``retract(x (n, s), delta (n, d)) -> (n, s)`` and ``local(a (n, s), b (n, s)) -> (n, d)`` are
     batched (numba) functions. ``from_storage(row)`` and ``to_storage(value)`` convert one value.
     Kinds compare by identity: there is one object per kind (``vector_kind(3)`` is cached).
+
+    >>> from fgopt.manifolds import SE2, ops_for
+    >>> kind = ops_for(SE2()).batch_kind(SE2())
+    >>> kind.name, kind.dim, kind.storage_dim               # SE(2) stored as (x, y, cos, sin)
+    ('SE2', 3, 4)
     """
 
     name: str
@@ -93,7 +98,16 @@ def kind_named(name: str) -> BatchKind:
 
 @runtime_checkable
 class ManifoldOps(Protocol):
-    """The traits protocol; see the module docstring."""
+    """The traits protocol; see the module docstring. Every value type has one
+    (:func:`ops_for`); a new type gets one with :func:`register`.
+
+    >>> from fgopt.manifolds import SE2, ops_for
+    >>> ops = ops_for(SE2())
+    >>> ops.dim(SE2()), ops.storage_dim(SE2())
+    (3, 4)
+    >>> np.round(ops.local(SE2(), SE2.from_xytheta(1.0, 2.0, 0.5)), 6)   # [theta, x, y]
+    array([0.5     , 1.479079, 1.708159])
+    """
 
     def dim(self, x: Any) -> int: ...
 
@@ -114,7 +128,25 @@ _registry: dict[type, ManifoldOps] = {}
 
 
 def register(cls: type, ops: ManifoldOps) -> None:
-    """Register ``ops`` as the manifold traits of ``cls`` (and its subclasses)."""
+    """Register ``ops`` as the manifold traits of ``cls`` (and its subclasses).
+
+    A heading angle as a 1-dimensional manifold (no batch kind: the optimizer's Python path):
+
+    >>> from fgopt.manifolds import ops_for, register
+    >>> class Heading:
+    ...     def __init__(self, angle):
+    ...         self.angle = float(angle)
+    >>> class HeadingOps:
+    ...     def dim(self, x): return 1
+    ...     def storage_dim(self, x): return 1
+    ...     def to_storage(self, x): return np.array([x.angle])
+    ...     def from_storage(self, like, data): return Heading(data[0])
+    ...     def retract(self, x, delta): return Heading(x.angle + delta[0])
+    ...     def local(self, x, y): return np.array([(y.angle - x.angle + np.pi) % (2 * np.pi) - np.pi])
+    >>> register(Heading, HeadingOps())
+    >>> np.round(ops_for(Heading(3.0)).local(Heading(3.0), Heading(-3.0)), 6)   # across +-pi
+    array([0.283185])
+    """
     missing = [m for m in ("dim", "storage_dim", "to_storage", "from_storage", "retract", "local")
                if not callable(getattr(ops, m, None))]
     if missing:
@@ -141,7 +173,13 @@ def _vector_local(a, b):
 
 @lru_cache(maxsize=None)
 def vector_kind(n: int) -> BatchKind:
-    """The batch kind of R^n values (1-D float arrays of length n)."""
+    """The batch kind of R^n values (1-D float arrays of length n).
+
+    >>> from fgopt.manifolds import vector_kind
+    >>> kind = vector_kind(3)
+    >>> kind.name, kind.dim, kind is vector_kind(3)
+    ('R3', 3, True)
+    """
     return BatchKind(
         name=f"R{n}",
         dim=n,
@@ -269,7 +307,12 @@ def _lookup(cls: type) -> ManifoldOps | None:
 
 
 def ops_for(x: Any) -> ManifoldOps:
-    """The manifold traits of value ``x``; raises :class:`ManifoldError` if it has none."""
+    """The manifold traits of value ``x``; raises :class:`ManifoldError` if it has none.
+
+    >>> from fgopt.manifolds import SE3, ops_for
+    >>> ops_for(SE3()).dim(SE3()), ops_for(np.zeros(4)).dim(np.zeros(4)), ops_for(2.0).dim(2.0)
+    (6, 4, 1)
+    """
     if isinstance(x, np.ndarray):
         if x.ndim == 1 and np.issubdtype(x.dtype, np.number):
             return _VECTOR_OPS

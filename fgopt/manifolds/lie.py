@@ -46,7 +46,13 @@ def _element(kernel, *args) -> None:
 
 
 class InvalidGroupElementError(FgoptError, ValueError):
-    """A value given to a Lie group constructor is not a group element (e.g. scale <= 0)."""
+    """A value given to a Lie group constructor is not a group element (e.g. scale <= 0).
+
+    >>> from fgopt.manifolds import SO3, Sim3
+    >>> Sim3(SO3(), np.zeros(3), -1.0)
+    Traceback (most recent call last):
+    fgopt.manifolds.lie.InvalidGroupElementError: Sim3: scale must be > 0, got -1.0
+    """
 
 
 def as_float(value: Any, what: str) -> float:
@@ -78,6 +84,16 @@ class LieGroup:
     ``_POINT_DIM`` and implement ``_normalize(data)`` (projects raw storage onto the group,
     in place, raising :class:`InvalidGroupElementError` if impossible), ``matrix()``,
     ``random(rng)`` and ``__repr__``.
+
+    The groups share its API: ``compose`` (``*``), ``inverse``, ``between``, ``exp`` / ``log``,
+    ``retract`` / ``local``, ``act`` on points, ``adjoint``, ``matrix``:
+
+    >>> from fgopt.manifolds import SE2, SO3, LieGroup
+    >>> issubclass(SE2, LieGroup), issubclass(SO3, LieGroup)
+    (True, True)
+    >>> a, b = SE2.from_xytheta(1.0, 0.0, 0.5), SE2.from_xytheta(2.0, 1.0, -0.2)
+    >>> (a * a.between(b)).equals(b), np.allclose(SE2.exp(a.log()).matrix(), a.matrix())
+    (True, True)
     """
 
     # ``_data`` is a read-only view of ``_buf``; numba receives ``_buf`` (never written), because a

@@ -79,9 +79,20 @@ def _samples(accel: Any, gyro: Any, dt: Any, who: str) -> tuple:
 class PreintegratedImu:
     """GTSAM's ``PreintegratedImuMeasurements`` (on-manifold); see the module docstring.
 
-    >>> pim = PreintegratedImu(params, ImuBias())
-    >>> pim.integrate(accel, gyro, dt)        # (n, 3), (n, 3), (n,) or scalar dt
-    >>> pim.predict(state_i, bias_i)          # NavState at the last sample
+    One second at 100 Hz of a level body yawing at 0.1 rad/s (the accelerometer reads the
+    specific force, +g up in ``make_u``'s z-up frame); ``integrate`` takes ``(n, 3)`` samples and
+    a scalar or ``(n,)`` dt, ``predict`` gives the NavState at the last sample:
+
+    >>> from fgopt import SE3
+    >>> from fgopt.navigation import ImuBias, NavState, PreintegratedImu, PreintegrationParams
+    >>> pim = PreintegratedImu(PreintegrationParams.make_u(9.81), ImuBias())
+    >>> accel, gyro = np.tile([0.0, 0.0, 9.81], (100, 1)), np.tile([0.0, 0.0, 0.1], (100, 1))
+    >>> pim = pim.integrate(accel, gyro, 0.01)
+    >>> round(pim.delta_t, 9), np.round(pim.delta_R.log(), 9)
+    (1.0, array([0. , 0. , 0.1]))
+    >>> x1 = pim.predict(NavState.from_pose_velocity(SE3(), [1.0, 0.0, 0.0]), ImuBias())
+    >>> np.round(x1.position(), 9) + 0.0, np.round(x1.velocity(), 9) + 0.0
+    (array([1., 0., 0.]), array([1., 0., 0.]))
     """
 
     _COMBINED = False

@@ -20,7 +20,17 @@ from ..errors import DimensionMismatchError, NonFiniteError, NotPositiveDefinite
 
 
 class NoiseModel:
-    """Gaussian noise with square-root information ``R`` (``dim x dim``, upper triangular)."""
+    """Gaussian noise with square-root information ``R`` (``dim x dim``, upper triangular).
+    The base of :class:`Gaussian`, :class:`Diagonal`, :class:`Isotropic` and :class:`Unit`; a
+    residual ``e`` costs ``0.5 |R e|^2``.
+
+    >>> from fgopt.noise import Diagonal
+    >>> noise = Diagonal.sigmas([0.1, 0.1, 0.05])
+    >>> isinstance(noise, fgopt.noise.NoiseModel), noise.dim
+    (True, 3)
+    >>> noise.whiten(np.array([0.1, 0.0, 0.05])), noise.cost(np.array([0.1, 0.0, 0.05]))
+    (array([1., 0., 1.]), 1.0)
+    """
 
     #: True when R is the identity: whitening can be skipped.
     is_unit: bool = False
@@ -270,6 +280,13 @@ class RobustLoss:
     """A robust loss ``rho`` wrapping a Gaussian noise model (``base``).
 
     ``base=None`` means unit noise of the factor's dimension (filled in by the factor).
+
+    >>> from fgopt.noise import Huber, Isotropic
+    >>> loss = Huber(1.0, Isotropic.sigma(2, 0.5))       # threshold 1 on the whitened residual
+    >>> isinstance(loss, fgopt.noise.RobustLoss), loss.dim
+    (True, 2)
+    >>> loss.weight(np.array([0.25, 0.0])), loss.weight(np.array([2.0, 0.0]))   # |R e| = 0.5, 4
+    (1.0, 0.25)
     """
 
     code: int = LOSS_NONE

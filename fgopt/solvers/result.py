@@ -33,6 +33,16 @@ class Status(enum.Enum):
 
 @dataclass(frozen=True)
 class IterationRecord:
+    """One iteration of a solve (``Result.iteration_records``): costs, damping, step and
+    gradient norms, whether the step was accepted, seconds since the start.
+
+    >>> sample = fgopt.datasets.manhattan_2d(num_poses=30, seed=0)
+    >>> result = fgopt.optimize(sample.graph, sample.initial)
+    >>> record = result.iteration_records[0]
+    >>> record.iteration, record.accepted, record.cost < result.initial_cost
+    (1, True, True)
+    """
+
     iteration: int
     cost: float
     """Cost after this iteration (the accepted iterate's)."""

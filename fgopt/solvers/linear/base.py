@@ -105,6 +105,13 @@ def make_linear_solver(name: "str | LinearSolver", pattern: HessianPattern | Non
     (or a solver object, returned as is).
 
     ``"auto"`` chooses from the problem's ``pattern`` and ``backend`` (:func:`choose_linear_solver`).
+
+    >>> from fgopt.solvers import make_linear_solver
+    >>> type(make_linear_solver("dense")).__name__, type(make_linear_solver("ldlt")).__name__
+    ('DenseCholeskySolver', 'LDLTSolver')
+    >>> sample = fgopt.datasets.manhattan_2d(num_poses=20, seed=0)
+    >>> fgopt.optimize(sample.graph, sample.initial, linear_solver=make_linear_solver("ldlt")).success
+    True
     """
     if not isinstance(name, str):
         return name
