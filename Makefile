@@ -14,7 +14,7 @@ APT_PACKAGES := libsuitesparse-dev libopenblas0-pthread
 
 DOCS_STAMP := $(VENV)/.fgopt-docs-installed
 
-.PHONY: setup demo test bench docs clean
+.PHONY: setup demo test test-no-cholmod bench docs clean
 
 setup: $(STAMP)
 
@@ -37,6 +37,11 @@ demo: setup
 # with empty caches (numba compiles dominate and run single-threaded).
 test: setup
 	@$(PY) -m pytest -q -n auto --maxprocesses 4 --dist loadfile
+
+# The same suite as if the CHOLMOD extra (scikit-sparse) were not installed (tests/conftest.py):
+# the fallback solvers and orderings, and the skips of CHOLMOD-only tests.
+test-no-cholmod: setup
+	@FGOPT_HIDE_EXTRAS=sksparse $(PY) -m pytest -q -n auto --maxprocesses 4 --dist loadfile
 
 # Regenerates every README table at HEAD (~75 min on 2 cores); `make bench SKIP=scale,gnc`
 # for a shorter run (skipped tables keep their saved results and say so).

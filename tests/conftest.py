@@ -4,6 +4,11 @@ cache for the whole session, and GTSAM comparisons that must run where GTSAM is 
 With ``FGOPT_REQUIRE_GTSAM=1`` (set by ``.ci/run``) a test skipped because ``gtsam`` could not be
 imported (``pytest.importorskip("gtsam")``) is reported as a failure: CI installs gtsam with the
 ``[test]`` extra, so a skipped comparison there means a broken install, not a missing wheel.
+
+With ``FGOPT_HIDE_EXTRAS=sksparse`` (comma-separated package names; ``make test-no-cholmod``) the
+suite runs as if those optional packages were not installed, in the pytest process and in every
+subprocess a test starts (``tests/_hide_extras/sitecustomize.py``): the check that ``make test``
+stays green without the ``fgopt[cholmod]`` extra, without a second environment.
 """
 
 from __future__ import annotations
@@ -14,6 +19,33 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
+
+
+def _hide_extras() -> None:
+    """Apply ``FGOPT_HIDE_EXTRAS`` here (before any test imports fgopt) and in subprocesses."""
+    names = os.environ.get("FGOPT_HIDE_EXTRAS", "")
+    if not names.strip():
+        return
+    import importlib.util
+    import sys
+
+    folder = Path(__file__).resolve().parent / "_hide_extras"
+    spec = importlib.util.spec_from_file_location("_fgopt_hide_extras", folder / "sitecustomize.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    module.hide(names)
+    path = os.environ.get("PYTHONPATH", "")
+    if str(folder) not in path.split(os.pathsep):
+        os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (str(folder), path) if p)
+    sys.modules.setdefault("_fgopt_hide_extras", module)
+
+
+_hide_extras()
+
+
+def pytest_report_header(config):
+    names = os.environ.get("FGOPT_HIDE_EXTRAS", "").strip()
+    return f"FGOPT_HIDE_EXTRAS={names}: running as if these were not installed" if names else None
 
 
 def pytest_configure(config):
