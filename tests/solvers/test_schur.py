@@ -1,5 +1,5 @@
-"""The Schur-complement solver equals the full sparse Cholesky solve, and LM with it reaches the
-same cost.
+"""The Schur-complement solver equals the full sparse Cholesky solve (CHOLMOD's, or fgopt's block
+Cholesky without the ``fgopt[cholmod]`` extra), and LM with it reaches the same cost.
 
 Problems: a synthetic BAL-style bundle adjustment (Snavely cameras in R^9, points in R^3: the
 fixed-size ``de = 3, df = 9`` kernel), a synthetic SE(3) pose / landmark graph with odometry
@@ -11,14 +11,20 @@ import numpy as np
 import pytest
 
 import fgopt
-from fgopt.errors import FgoptError, NotPositiveDefiniteError
+from fgopt.errors import FgoptError, NotPositiveDefiniteError, have_extra
 from fgopt.factors.library.bal_kernel import bal_kernel
 from fgopt.key import key
 from fgopt.problem import Problem
+from fgopt.solvers.linear.block_cholesky import BlockCholeskySolver
 from fgopt.solvers.linear.cholmod import CholmodSolver
 from fgopt.solvers.linear.schur import SchurSolver, choose_linear_solver
 
 MODES = ["dense", "sparse"]
+
+
+def full_cholesky():
+    """The reference: a sparse Cholesky of the whole H (no Schur complement)."""
+    return CholmodSolver() if have_extra("sksparse") else BlockCholeskySolver()
 
 
 def bal_graph(cams, pts, obs):
@@ -107,7 +113,7 @@ def damped_system(graph, values, ordering="amd", lam=1e-4, linear_solver=None):
 
 
 def reference_solve(P, H, rhs):
-    ref = CholmodSolver()
+    ref = full_cholesky()
     ref.analyze(P.pattern)
     ref.factorize(H)
     return ref.solve(rhs)
@@ -248,7 +254,7 @@ def test_choose_linear_solver():
 def test_lm_with_schur_matches_cholmod_synthetic():
     graph, values = synthetic_ba(nc=8, npt=80, seed=7)
     costs = []
-    for solver in (CholmodSolver(), SchurSolver(reduced="dense"), SchurSolver(reduced="sparse")):
+    for solver in (full_cholesky(), SchurSolver(reduced="dense"), SchurSolver(reduced="sparse")):
         r = fgopt.optimize(graph, values, method="lm", linear_solver=solver, max_iterations=30)
         costs.append(r.final_cost)
     assert costs[0] < 0.01 * r.initial_cost
@@ -258,7 +264,7 @@ def test_lm_with_schur_matches_cholmod_synthetic():
 def test_lm_ladybug_schur_matches_cholmod(data_file):
     graph, values = read_bal_file(data_file("bal/problem-49-7776-pre.txt"))
     kw = {"method": "lm", "max_iterations": 5, "initial_lambda": 1e-4}
-    r_chol = fgopt.optimize(graph, values, linear_solver=CholmodSolver(), **kw)
+    r_chol = fgopt.optimize(graph, values, linear_solver=full_cholesky(), **kw)
     r_schur = fgopt.optimize(graph, values, linear_solver=SchurSolver(), **kw)
     assert r_schur.final_cost < 13500.0
     assert np.isclose(r_schur.final_cost, r_chol.final_cost, rtol=1e-7), (
@@ -306,7 +312,7 @@ def test_robust_ba_rejects_gross_outliers_with_schur(loss):
     robust = fgopt.optimize(robust_graph, values, linear_solver=SchurSolver(), **kw)
     five = {"method": "lm", "max_iterations": 5}  # same iterates when the linear solves agree
     r_schur = fgopt.optimize(robust_graph, values, linear_solver=SchurSolver(), **five)
-    r_chol = fgopt.optimize(robust_graph, values, linear_solver=CholmodSolver(), **five)
+    r_chol = fgopt.optimize(robust_graph, values, linear_solver=full_cholesky(), **five)
     assert np.isclose(r_schur.final_cost, r_chol.final_cost, rtol=1e-9)
 
     # gauge-free yardstick: the inlier observations' cost at each solution
