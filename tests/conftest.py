@@ -29,6 +29,8 @@ def _hide_extras() -> None:
     import importlib.util
     import sys
 
+    if any(type(f).__name__ == "HiddenExtras" for f in sys.meta_path):
+        return  # a subprocess of a hiding run: the sitecustomize on PYTHONPATH did it already
     folder = Path(__file__).resolve().parent / "_hide_extras"
     spec = importlib.util.spec_from_file_location("_fgopt_hide_extras", folder / "sitecustomize.py")
     module = importlib.util.module_from_spec(spec)
