@@ -13,17 +13,23 @@ Damping changes only H's diagonal, so the linear solver's analysis is reused.
 
 from __future__ import annotations
 
-import math
 import time
 from typing import Any
 
-import numpy as np
-
 from .._threads import blas_threads
-from ..errors import NotPositiveDefiniteError
 from ..manifolds.base import is_vector_kind
 from ..variables import Variables
 from . import small
+from ._lm_loop import (
+    CONVERGED,
+    FAILED,
+    MAX_ITERATIONS,
+    MESSAGES,
+    STOPPED,
+    GeneralContext,
+    lm_loop,
+    loop_params,
+)
 from ._run import Callback, Run, compile_problem, refuse_constraints
 from .params import LMParams
 from .result import Result, Status
@@ -135,80 +141,15 @@ class LevenbergMarquardt:
                                     problem=problem, state=state, solver=solver))
 
     def iterate(self, run: Run) -> Result:
+        """:func:`~fgopt.solvers._lm_loop.lm_loop` on ``run`` (the loop the small-problem
+        driver compiles)."""
         p = self.params
-        problem = run.problem
-        identity, by_factor = auto_policy(problem_class(problem), p)
-        # GTSAM's defaults where LM follows GTSAM (identity damping), Ceres' where it follows Ceres
-        run.relative_tolerance = p.relative_tolerance if p.relative_tolerance is not None else (
-            1e-5 if identity else 1e-6)
-        initial_lambda = p.initial_lambda if p.initial_lambda is not None else (
-            1e-5 if identity else 1e-4)
-        diag_pos = problem.pattern.diag_pos
-        lam, nu = initial_lambda, 2.0
-        msg = run.converged_by_gradient()
-        if msg is not None:
-            return run.finish(Status.CONVERGED, msg)
-        ones = np.ones(diag_pos.shape[0]) if identity else None
-        bounded = problem.restrictions is not None and problem.restrictions.has_bounds
-        for it in range(1, p.max_iterations + 1):
-            H, g = problem.H_data, problem.g
-            D = ones if identity else np.clip(H[diag_pos], p.min_diagonal, p.max_diagonal)
-            old = run.cost
-            try:
-                delta = run.solve_damped(lam * D, -g)
-                # |delta|^2 is finite iff every entry is (unless it overflows: check those)
-                step_sq = float(delta @ delta)
-                ok = math.isfinite(step_sq) or bool(np.all(np.isfinite(delta)))
-            except NotPositiveDefiniteError:
-                ok, delta = False, None
-            if not ok:
-                stop = run.record(it, math.nan, lam, math.nan, False, old)
-                lam, nu = lam * nu, nu * 2
-                if lam > p.max_lambda:
-                    return run.finish(Status.FAILED, "damping exceeded max_lambda: the linear "
-                                      "system stays singular (is a variable unconstrained?)")
-                if stop:
-                    return run.finish(Status.STOPPED, "callback asked to stop")
-                continue
-            # predicted decrease of the model: -(g.d + 0.5 d.H.d) with (H + lam D) d = -g
-            predicted = 0.5 * float(delta @ (lam * D * delta) - g @ delta)
-            if bounded:  # the step projected into the box, and its own model decrease
-                delta, predicted = problem.restrictions.project_step(problem, run.state, delta,
-                                                                     predicted)
-                step_sq = float(delta @ delta)
-            step_norm = math.sqrt(step_sq)
-            candidate = problem.retract(run.state, delta)
-            # Linearize the trial point right away (its cost comes with it): steps are usually
-            # accepted, and then the residuals need not be evaluated a second time.
-            new_cost = problem.linearize_candidate(candidate)
-            rho = (old - new_cost) / predicted if predicted > 0 else -math.inf
-            accepted = math.isfinite(new_cost) and rho > p.min_relative_decrease
-            if accepted:
-                run.state = candidate
-                problem.accept_candidate()
-                run.cost = new_cost
-                if by_factor:
-                    lam = max(p.min_lambda, lam / p.lambda_factor)
-                else:
-                    lam = max(p.min_lambda, lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3))
-                nu = 2.0
-                done = run.converged_by_decrease(old, new_cost) or run.converged_by_gradient()
-                stop = run.record(it, new_cost, lam, step_norm, True, old)
-                if done is not None:
-                    return run.finish(Status.CONVERGED, done)
-            else:
-                problem.reject_candidate(run.state)
-                stop = run.record(it, new_cost, lam, step_norm, False, old, predicted)
-                if by_factor:
-                    lam *= p.lambda_factor
-                else:
-                    lam, nu = lam * nu, nu * 2
-                if lam > p.max_lambda:
-                    return run.finish(Status.CONVERGED if step_norm < 1e-8 else Status.FAILED,
-                                      "no step decreases the cost (damping exceeded max_lambda)")
-            done = run.converged_by_step(step_norm)
-            if done is not None:
-                return run.finish(Status.CONVERGED, done)
-            if stop:
-                return run.finish(Status.STOPPED, "callback asked to stop")
-        return run.finish(Status.MAX_ITERATIONS, f"reached max_iterations={p.max_iterations}")
+        identity, by_factor = auto_policy(problem_class(run.problem), p)
+        prm, rel_tol = loop_params(p, identity, by_factor)
+        run.relative_tolerance = rel_tol
+        status, msg, value, _, _, _ = lm_loop(GeneralContext(run, identity), prm)
+        return run.finish(_STATUS[status], MESSAGES[msg](value, p, rel_tol))
+
+
+_STATUS = {CONVERGED: Status.CONVERGED, MAX_ITERATIONS: Status.MAX_ITERATIONS,
+           FAILED: Status.FAILED, STOPPED: Status.STOPPED}

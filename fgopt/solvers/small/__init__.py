@@ -39,6 +39,7 @@ from ..._jit import numpy_budget_left
 from ...manifolds.base import is_vector_kind
 from ...manifolds.lie import group_id
 from ...problem import State
+from .._lm_loop import MESSAGES, loop_params
 from ..diagnostics import clamp_hits, warn_clamps
 from ..result import Result, compiled_result
 from . import _common, _driver
@@ -280,16 +281,6 @@ _NO_EYE = _Eye()
 #: entry keeps them, so the id stays theirs.
 _PRMS: dict[tuple, tuple] = {}
 
-_MESSAGES = {
-    1: lambda v, p, rel: f"gradient norm {v:.3g} <= {p.gradient_tolerance:g}",
-    2: lambda v, p, rel: f"absolute cost decrease {v:.3g} < {p.absolute_tolerance:g}",
-    3: lambda v, p, rel: f"relative cost decrease {v:.3g} < {rel:g}",
-    4: lambda v, p, rel: f"step norm {v:.3g} below step_tolerance",
-    5: lambda v, p, rel: ("damping exceeded max_lambda: the linear system stays singular (is a "
-                          "variable unconstrained?)"),
-    6: lambda v, p, rel: "no step decreases the cost (damping exceeded max_lambda)",
-    7: lambda v, p, rel: f"reached max_iterations={p.max_iterations}",
-}
 
 
 _lm_module: Any = None  # fgopt.solvers.lm, once optimize_small has run
@@ -337,9 +328,10 @@ def optimize_small(problem: Any, params: Any, t0: float, start: State | None = N
 
 
 def _params_array(p: Any, cls: str) -> tuple[np.ndarray, float]:
-    """The driver's ``prm`` array for LM params ``p`` on a problem of class ``cls`` (see
-    ``LM_TEMPLATE``; damping and lambda policy from :func:`~fgopt.solvers.lm.auto_policy`) and
-    the relative tolerance it holds: made once per params object and class, kept."""
+    """The driver's ``prm`` array for LM params ``p`` on a problem of class ``cls``
+    (:func:`~fgopt.solvers._lm_loop.loop_params`, the policy from
+    :func:`~fgopt.solvers.lm.auto_policy`) and the relative tolerance it holds: made once per
+    params object and class, kept."""
     prm = _PRMS.get((id(p), cls))
     if prm is not None and prm[0] is p:
         return prm[1], prm[2]
@@ -349,13 +341,8 @@ def _params_array(p: Any, cls: str) -> tuple[np.ndarray, float]:
     if _lm_module is None:  # (lm imports this module)
         from .. import lm as _lm_module
     identity, by_factor = _lm_module.auto_policy(cls, p)
-    rel_tol = p.relative_tolerance if p.relative_tolerance is not None else (
-        1e-5 if identity else 1e-6)
-    lam0 = p.initial_lambda if p.initial_lambda is not None else (1e-5 if identity else 1e-4)
-    prm = _PRMS[(id(p), cls)] = (p, np.array(
-        [p.max_iterations, rel_tol, p.absolute_tolerance, p.gradient_tolerance,
-         p.step_tolerance, lam0, p.min_lambda, p.max_lambda, p.min_diagonal, p.max_diagonal,
-         p.min_relative_decrease, float(identity), float(by_factor), p.lambda_factor]), rel_tol)
+    prm, rel_tol = loop_params(p, identity, by_factor)
+    prm = _PRMS[(id(p), cls)] = (p, np.array(prm), rel_tol)
     return prm[1], rel_tol
 
 
@@ -398,7 +385,7 @@ def _driver_result(plan: _Plan, out: tuple, hist: np.ndarray, p: Any, rel_tol: f
     if status < 0:  # -1: not finite at the start; -2: keys that do not number the variables
         return None
     STATS["solves"] += 1
-    return compiled_result(hist, its, status, _MESSAGES[msg](val, p, rel_tol), cost, init,
+    return compiled_result(hist, its, status, MESSAGES[msg](val, p, rel_tol), cost, init,
                            {"setup": t1 - t0, "lm": t2 - t1, "total": _pc() - t0}, "lm",
                            "dense cholesky (small-problem driver)", {"backend": "numba"},
                            values, state, problem)

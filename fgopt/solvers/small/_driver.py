@@ -2,7 +2,8 @@
 
 A driver linearizes a problem made of the kernels it was generated for, whatever the number of
 factors and variables (the structure comes in as arrays), and runs the dense LM of
-:data:`fgopt.solvers.small._lm_template.LM_TEMPLATE` around it, all compiled: no Python between
+:data:`fgopt.solvers.small._lm_template.LM_TEMPLATE` (the general path's
+:func:`fgopt.solvers._lm_loop.lm_loop` on dense operations) around it, all compiled: no Python between
 iterations. Each kernel is called once per linearization on its whole batch (the kernel's own
 numba function, :class:`~fgopt.factors.kernel.CompiledCall`), then whitened and added into a
 dense H by an ``_acc<slot>`` function generated with the kernel's sizes as literals (or, for a
@@ -48,7 +49,7 @@ from typing import Any
 
 
 #: Bumped when the emitted source changes meaning (part of the cache key).
-SMALL_CODEGEN_VERSION = "12"
+SMALL_CODEGEN_VERSION = "13"
 #: ``_acc`` functions with at most this many whitened Jacobian entries (``r * D``) are inlined.
 INLINE_MAX_WORK = 18
 #: What a loaded module must define (else it is regenerated).
@@ -66,11 +67,11 @@ def signature(kernel: Any) -> tuple:
 def module_key(signatures: tuple) -> str:
     # (imported here: only small problems need them)
     from ...symbolic import cache as _cache
-    from ._lm_template import LM_TEMPLATE
+    from ._lm_template import lm_source
 
     h = hashlib.sha256(repr(signatures).encode())
     h.update(SMALL_CODEGEN_VERSION.encode())
-    h.update(LM_TEMPLATE.encode())
+    h.update(lm_source("n").encode())
     h.update(_cache.package_fingerprint().encode())
     return h.hexdigest()[:20]
 

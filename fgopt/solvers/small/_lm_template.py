@@ -1,6 +1,7 @@
-"""The dense Levenberg-Marquardt loop of the small-problem driver (:mod:`fgopt.solvers.small`),
-as source: :data:`LM_TEMPLATE` is pasted into each generated driver module around its kernel
-calls and compiled with numba there (the loop runs with no Python between iterations).
+"""The dense side of the small-problem driver (:mod:`fgopt.solvers.small`), as source:
+:data:`LM_TEMPLATE` is pasted into each generated driver module around its kernel calls, with
+:func:`fgopt.solvers._lm_loop.lm_loop` (the loop the general path runs) and the dense numba
+operations it runs on, and compiled with numba there: no Python between iterations.
 """
 
 from __future__ import annotations
@@ -9,7 +10,8 @@ from __future__ import annotations
 #: The dense LM of a generated module, around its ``_lin(x, aux, H, g) -> cost``,
 #: ``_retract(x, delta, out, tmp, aux)`` and ``_envelope(aux, n)`` (per row of H the first
 #: column that can be nonzero: the Cholesky skips what lies before it); ``{n}`` is the tangent
-#: dimension's expression and ``{core_flags}`` ``_lm_core``'s extra numba options (see
+#: dimension's expression, ``{loop}`` :func:`~fgopt.solvers._lm_loop.lm_loop`'s source and
+#: ``{core_flags}`` the extra numba options of it, its operations and ``_lm_core`` (see
 #: :func:`lm_source`). :mod:`fgopt.solvers.small` generates one driver per set of kernels
 #: around it.
 LM_TEMPLATE = '''
@@ -109,30 +111,103 @@ def _record(hist, row, cost, cand, rel, lam, step, grad, acc, pred):
     hist[row, 6] = acc
 
 
+from fgopt.solvers._lm_loop import CONVERGED, FAILED, MAX_ITERATIONS, STOPPED
+
+
+# The seven operations of fgopt.solvers._lm_loop.lm_loop on the dense driver's ctx: (x, xc, aux,
+# H, g, Hc, gc, Hd, L, Dg, rhs, delta, tmp, env, hist) - the iterate's storage, the trial
+# point's, the kernels' aux, H (both triangles, its envelope) and g at the iterate and at the
+# trial point, the damped copy and its Cholesky factor, the damping diagonal, -g, the step, the
+# retraction's scratch, H's envelope and the history.
+@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, inline="always"{core_flags})
+def _lm_trial(ctx, first):
+    if not first:
+        _retract(ctx[0], ctx[11], ctx[1], ctx[12], ctx[2])
+    cost = _lin(ctx[1], ctx[2], ctx[5], ctx[6])  # (the one call site of the linearization)
+    if not (math.isfinite(cost) and _all_finite(ctx[6]) and _all_finite_env(ctx[5], ctx[13])):
+        return np.nan
+    return cost
+
+
+@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, inline="always"{core_flags})
+def _lm_accept(ctx, cost):
+    _copy(ctx[1], ctx[0])
+    _copy_env(ctx[5], ctx[3], ctx[13])
+    _copy(ctx[6], ctx[4])
+
+
+@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, inline="always"{core_flags})
+def _lm_reject(ctx):
+    pass  # (the next trial point overwrites xc)
+
+
+@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, inline="always"{core_flags})
+def _lm_gradient(ctx):
+    return _absmax(ctx[4])
+
+
+@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, inline="always"{core_flags})
+def _lm_state_norm(ctx):
+    x = ctx[0]
+    s = 0.0
+    for i in range(x.shape[0]):
+        s += x[i] * x[i]
+    return math.sqrt(s)
+
+
+@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True{core_flags})
+def _record_row(hist, g, it, cost, cand, lam, step, accepted, old, predicted):
+    rel = (old - cand) / old if old > 0 else 0.0
+    if not math.isfinite(rel):
+        rel = np.nan
+    _record(hist, it - 1, cost, cand, rel, lam, step, _absmax(g), 1.0 if accepted else 0.0,
+            predicted)
+    return False
+
+
+@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, inline="always"{core_flags})
+def _lm_record(ctx, it, cost, cand, lam, step, accepted, old, predicted):
+    return _record_row(ctx[14], ctx[4], it, cost, cand, lam, step, accepted, old, predicted)
+
+
+@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, inline="always"{core_flags})
+def _lm_step(ctx, lam, identity, min_diag, max_diag):
+    H, g, Hd, L, Dg, rhs, delta, env = (ctx[3], ctx[4], ctx[7], ctx[8], ctx[9], ctx[10], ctx[11],
+                                        ctx[13])
+    n = H.shape[0]
+    for i in range(n):
+        Dg[i] = 1.0 if identity else min(max(H[i, i], min_diag), max_diag)
+        for j in range(env[i], i + 1):  # the lower envelope: all the Cholesky reads
+            Hd[i, j] = H[i, j]
+        Hd[i, i] += lam * Dg[i]
+        rhs[i] = -g[i]
+    if not (_cholesky_solve(Hd, rhs, L, delta, env) and _all_finite(delta)):
+        return False, np.nan, np.nan
+    sn = 0.0
+    pred = 0.0
+    gd = 0.0
+    for i in range(n):
+        sn += delta[i] * delta[i]
+        pred += delta[i] * (lam * Dg[i] * delta[i])
+        gd += g[i] * delta[i]
+    return True, math.sqrt(sn), 0.5 * (pred - gd)
+
+
+@numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, inline="always"{core_flags})
+{loop}
+
 @numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True{core_flags})
 def _lm_core(x0, aux, prm, hist, H, g, zw, ew):
-    """Dense LM as fgopt.solvers.lm (same damping, gain ratio, lambda policy and stopping tests).
+    """fgopt.solvers._lm_loop.lm_loop on this module's dense operations.
 
-    The whole-problem linearization has ONE call site (the generated program is inlined once):
-    each pass of the outer loop linearizes a point, then decides, then proposes the next step.
-    prm: max_iterations, relative_tolerance, absolute_tolerance, gradient_tolerance,
-    step_tolerance, initial_lambda, min_lambda, max_lambda, min_diagonal, max_diagonal,
-    min_relative_decrease, identity damping (1/0), lambda by factor (1/0), lambda_factor.
-    hist (max_iterations, 8): cost, candidate cost, relative decrease,
-    lambda, |step|, |grad|, accepted, predicted decrease. H, g (out): the linearization at the
-    returned x (H zero on entry: only its envelope is written). zw: 2 n^2 + n scratch for
-    Hc, L and gc (zeros, unless _lin clears H and g on the envelope before it adds to them, as
-    the small drivers' does: the Cholesky reads L only where it has written it), ew:
-    2 len(x0) + n^2 + 3 n + 8 scratch (one arena each, not ten arrays); the final x is
-    ew[:len(x0)].
-    Returns (status, message, value, iterations, cost, initial cost); status 0 converged,
-    1 max iterations, 2 failed, -1 non-finite at the initial values.
+    H, g (out): the linearization at the returned x (H zero on entry: only its envelope is
+    written). zw: 2 n^2 + n scratch for Hc, L and gc (zeros, unless _lin clears H and g on
+    the envelope before it adds to them, as the small drivers' does: the Cholesky reads L
+    only where it has written it), ew: 2 len(x0) + n^2 + 3 n + 8 scratch (one arena each, not
+    ten arrays); the final x is ew[:len(x0)]. hist (max_iterations, 8): cost, candidate cost,
+    relative decrease, lambda, |step|, |grad|, accepted, predicted decrease. Returns lm_loop's
+    (status, message, value, iterations, cost, initial cost).
     """
-    max_it = int(prm[0])
-    rtol, atol, gtol, stol = prm[1], prm[2], prm[3], prm[4]
-    lam, min_lam, max_lam = prm[5], prm[6], prm[7]
-    min_diag, max_diag, min_dec = prm[8], prm[9], prm[10]
-    identity, by_factor, lam_factor = prm[11] > 0.5, prm[12] > 0.5, prm[13]
     n = {n}
     env = _envelope(aux, n)  # per row of H its first column that can be nonzero
     nx = x0.shape[0]
@@ -146,104 +221,9 @@ def _lm_core(x0, aux, prm, hist, H, g, zw, ew):
         xc[i] = x0[i]
     Hd = ew[2 * nx:2 * nx + n * n].reshape((n, n))
     o = 2 * nx + n * n
-    Dg = ew[o:o + n]
-    rhs = ew[o + n:o + 2 * n]
-    delta = ew[o + 2 * n:o + 3 * n]
-    tmp = ew[o + 3 * n:o + 3 * n + 8]
-    nu = 2.0
-    cost = 0.0
-    init = 0.0
-    it = 0
-    first = True
-    step_norm = 0.0
-    predicted = 0.0
-    while True:
-        new_cost = _lin(xc, aux, Hc, gc)
-        if first:
-            first = False
-            if not (math.isfinite(new_cost) and _all_finite(gc) and _all_finite_env(Hc, env)):
-                return -1, 0, 0.0, 0, new_cost, new_cost
-            _copy_env(Hc, H, env)
-            _copy(gc, g)
-            cost = new_cost
-            init = new_cost
-            gn = _absmax(g)
-            if gn <= gtol:
-                return 0, 1, gn, 0, cost, init
-        else:
-            row = it - 1
-            old = cost
-            if not (math.isfinite(new_cost) and _all_finite(gc) and _all_finite_env(Hc, env)):
-                new_cost = np.nan
-            rho = (old - new_cost) / predicted if predicted > 0 else -np.inf
-            accepted = math.isfinite(new_cost) and rho > min_dec
-            rel = (old - new_cost) / old if old > 0 else 0.0
-            if not math.isfinite(rel):
-                rel = np.nan
-            if accepted:
-                _copy(xc, x)
-                _copy_env(Hc, H, env)
-                _copy(gc, g)
-                cost = new_cost
-                if by_factor:
-                    lam = max(min_lam, lam / lam_factor)
-                else:
-                    lam = max(min_lam, lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3))
-                nu = 2.0
-                gn = _absmax(g)
-                _record(hist, row, cost, new_cost, rel, lam, step_norm, gn, 1.0, predicted)
-                dec = old - new_cost
-                if dec < atol:
-                    return 0, 2, dec, it, cost, init
-                if old > 0 and dec / old < rtol:
-                    return 0, 3, dec / old, it, cost, init
-                if gn <= gtol:
-                    return 0, 1, gn, it, cost, init
-            else:
-                _record(hist, row, cost, new_cost, rel, lam, step_norm, _absmax(g), 0.0, predicted)
-                if by_factor:
-                    lam = lam * lam_factor
-                else:
-                    lam = lam * nu
-                    nu = nu * 2.0
-                if lam > max_lam:
-                    return 0 if step_norm < 1e-8 else 2, 6, step_norm, it, cost, init
-            xn = 0.0
-            for i in range(x.shape[0]):
-                xn += x[i] * x[i]
-            if step_norm <= stol * (math.sqrt(xn) + stol):
-                return 0, 4, step_norm, it, cost, init
-        # propose the next step (failed factorizations retry with more damping, no linearization)
-        while True:
-            it += 1
-            if it > max_it:
-                return 1, 7, 0.0, max_it, cost, init
-            for i in range(n):
-                Dg[i] = 1.0 if identity else min(max(H[i, i], min_diag), max_diag)
-                for j in range(env[i], i + 1):  # the lower envelope: all the Cholesky reads
-                    Hd[i, j] = H[i, j]
-                Hd[i, i] += lam * Dg[i]
-                rhs[i] = -g[i]
-            ok = _cholesky_solve(Hd, rhs, L, delta, env)
-            if ok:
-                ok = _all_finite(delta)
-            if ok:
-                break
-            _record(hist, it - 1, cost, np.nan, np.nan, lam, np.nan, _absmax(g), 0.0, np.inf)
-            lam = lam * nu
-            nu = nu * 2.0
-            if lam > max_lam:
-                return 2, 5, 0.0, it, cost, init
-        sn = 0.0
-        pred = 0.0
-        gd = 0.0
-        for i in range(n):
-            sn += delta[i] * delta[i]
-            pred += delta[i] * (lam * Dg[i] * delta[i])
-            gd += g[i] * delta[i]
-        step_norm = math.sqrt(sn)
-        predicted = 0.5 * (pred - gd)
-        _retract(x, delta, xc, tmp, aux)
+    ctx = (x, xc, aux, H, g, Hc, gc, Hd, L, ew[o:o + n], ew[o + n:o + 2 * n],
+           ew[o + 2 * n:o + 3 * n], ew[o + 3 * n:o + 3 * n + 8], env, hist)
+    return lm_loop(ctx, prm)
 
 
 @numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, _nrt=True)
@@ -265,5 +245,7 @@ def lm_source(n: str, counted: bool = True) -> str:
     solve). Only for modules whose ``_envelope`` is inlined and whose ``_lin`` and
     ``_retract`` return no new array: a core without counting would never release one."""
     # (explicit both ways: numba compiles a function without its own _nrt with its caller's)
-    return LM_TEMPLATE.replace("{n}", n).replace("{core_flags}",
-                                                 ", _nrt=True" if counted else ", _nrt=False")
+    from .._lm_loop import loop_source
+
+    return (LM_TEMPLATE.replace("{n}", n).replace("{loop}", loop_source())
+            .replace("{core_flags}", ", _nrt=True" if counted else ", _nrt=False"))
