@@ -36,7 +36,18 @@ def as_points2(values: Any, what: str) -> tuple[np.ndarray, bool]:
 
 
 class Calibration:
-    """Base of the calibration models (:mod:`fgopt.cameras.calibration` lists them)."""
+    """Base of the calibration models (:mod:`fgopt.cameras.calibration` lists them).
+
+    Every model is a vector-space manifold (it can be a variable); ``PARAMS`` names its storage
+    and ``DIM`` is its tangent dimension:
+
+    >>> from fgopt.cameras import Cal3_S2, Cal3Bundler, Calibration
+    >>> issubclass(Cal3Bundler, Calibration), Cal3Bundler.PARAMS, Cal3Bundler.DIM
+    (True, ('f', 'k1', 'k2', 'u0', 'v0'), 3)
+    >>> K = Cal3_S2(500.0, 500.0, 0.0, 320.0, 240.0)
+    >>> K.retract(np.array([10.0, 0.0, 0.0, 0.0, 0.0])).fx()
+    510.0
+    """
 
     __slots__ = ("_data",)
     MODEL: ClassVar[int] = -1

@@ -56,7 +56,16 @@ class Cal3_S2(Calibration):
 class Cal3DS2(Calibration):
     """Brown-Conrady: ``g = 1 + k1 r^2 + k2 r^4``, ``pn = g (x, y) + (2 p1 xy + p2 (r^2 + 2x^2),
     2 p2 xy + p1 (r^2 + 2y^2))``, then the pinhole. Storage = tangent
-    ``(fx, fy, s, u0, v0, k1, k2, p1, p2)``."""
+    ``(fx, fy, s, u0, v0, k1, k2, p1, p2)``.
+
+    >>> from fgopt.cameras import Cal3DS2
+    >>> K = Cal3DS2(500.0, 500.0, 0.0, 320.0, 240.0, 0.1, 0.01, 0.001, 0.002)
+    >>> uv = K.uncalibrate(np.array([0.1, -0.2]))     # normalized image point -> pixels
+    >>> np.round(uv, 4), K.dim()
+    (array([370.3012, 139.5225]), 9)
+    >>> np.round(K.calibrate(uv), 9)                  # and back
+    array([ 0.1, -0.2])
+    """
 
     __slots__ = ()
     MODEL = CK.CAL3DS2
@@ -120,7 +129,16 @@ class Cal3Bundler(Calibration):
 class Cal3Fisheye(Calibration):
     """Kannala-Brandt: ``theta = atan(r)``, ``theta_d = theta (1 + k1 theta^2 + k2 theta^4 +
     k3 theta^6 + k4 theta^8)``, ``(xd, yd) = theta_d / r (x, y)``, then the pinhole. Storage =
-    tangent ``(fx, fy, s, u0, v0, k1, k2, k3, k4)``."""
+    tangent ``(fx, fy, s, u0, v0, k1, k2, k3, k4)``.
+
+    >>> from fgopt.cameras import Cal3Fisheye
+    >>> K = Cal3Fisheye(500.0, 500.0, 0.0, 320.0, 240.0, 0.1, 0.01, 0.0, 0.0)
+    >>> uv = K.uncalibrate(np.array([0.1, -0.2]))     # normalized image point -> pixels
+    >>> np.round(uv, 4), K.dim()
+    (array([369.43, 141.14]), 9)
+    >>> np.round(K.calibrate(uv), 9)                  # and back
+    array([ 0.1, -0.2])
+    """
 
     __slots__ = ()
     MODEL = CK.CAL3FISHEYE
@@ -146,7 +164,16 @@ class Cal3Fisheye(Calibration):
 
 class Cal3Unified(Calibration):
     """Mei's unified model: ``m = (x, y) / (1 + xi |(x, y, 1)|)``, then Cal3DS2. Storage =
-    tangent ``(fx, fy, s, u0, v0, k1, k2, p1, p2, xi)``, ``xi >= 0``."""
+    tangent ``(fx, fy, s, u0, v0, k1, k2, p1, p2, xi)``, ``xi >= 0``.
+
+    >>> from fgopt.cameras import Cal3Unified
+    >>> K = Cal3Unified(500.0, 500.0, 0.0, 320.0, 240.0, 0.1, 0.01, 0.0, 0.0, 0.5)
+    >>> uv = K.uncalibrate(np.array([0.1, -0.2]))     # normalized image point -> pixels
+    >>> np.round(uv, 4), K.dim()
+    (array([353.1336, 173.7328]), 10)
+    >>> np.round(K.calibrate(uv), 9)                  # and back
+    array([ 0.1, -0.2])
+    """
 
     __slots__ = ()
     MODEL = CK.CAL3UNIFIED
@@ -174,7 +201,16 @@ class DoubleSphere(Calibration):
     ``d1 = |(x, y, 1)|``, ``w = xi d1 + 1``, ``d2 = |(x, y, w)|``,
     ``(u, v) = (fx x, fy y) / (alpha d2 + (1 - alpha) w) + (cx, cy)``.
     Storage = tangent ``(fx, fy, cx, cy, xi, alpha)``, ``xi`` in ``[-1, 1]``, ``alpha`` in
-    ``[0, 1]``. ``calibrate`` is the paper's closed-form unprojection. Not a GTSAM model."""
+    ``[0, 1]``. ``calibrate`` is the paper's closed-form unprojection. Not a GTSAM model.
+
+    >>> from fgopt.cameras import DoubleSphere
+    >>> K = DoubleSphere(300.0, 300.0, 320.0, 240.0, -0.2, 0.6)  # fx, fy, cx, cy, xi, alpha
+    >>> uv = K.uncalibrate(np.array([0.1, -0.2]))     # normalized image point -> pixels
+    >>> np.round(uv, 4), K.dim()
+    (array([356.8746, 166.2508]), 6)
+    >>> np.round(K.calibrate(uv), 9)                  # and back
+    array([ 0.1, -0.2])
+    """
 
     __slots__ = ()
     MODEL = CK.DOUBLESPHERE
