@@ -33,10 +33,7 @@ PACKAGES = ["fgopt", "fgopt.noise", "fgopt.manifolds", "fgopt.factors", "fgopt.s
 
 #: Reference entries whose docstring has no example yet (what the reference does not cover).
 WITHOUT_EXAMPLE = {
-    'fgopt.cameras.GeneralSFMFactor', 'fgopt.cameras.StereoFactor',
-    'fgopt.cameras.camera_projection_kernel', 'fgopt.cameras.projection_kernel',
-    'fgopt.cameras.smart_kernel', 'fgopt.cameras.stereo_kernel', 'fgopt.constraint',
-    'fgopt.datasets.gross_error', 'fgopt.distributed.summary_table',
+    'fgopt.constraint', 'fgopt.datasets.gross_error', 'fgopt.distributed.summary_table',
     'fgopt.errors.ManifoldDeclarationError', 'fgopt.factors.FactorKernel',
     'fgopt.factors.KernelFactor', 'fgopt.factors.SymbolicFactor',
     'fgopt.factors.SymbolicFactorType', 'fgopt.factors.numerical_jacobian',
