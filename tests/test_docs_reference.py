@@ -33,10 +33,7 @@ PACKAGES = ["fgopt", "fgopt.noise", "fgopt.manifolds", "fgopt.factors", "fgopt.s
 
 #: Reference entries whose docstring has no example yet (what the reference does not cover).
 WITHOUT_EXAMPLE = {
-    'fgopt.constraint', 'fgopt.datasets.gross_error', 'fgopt.distributed.summary_table',
-    'fgopt.errors.ManifoldDeclarationError', 'fgopt.factors.FactorKernel',
-    'fgopt.factors.KernelFactor', 'fgopt.factors.SymbolicFactor',
-    'fgopt.factors.SymbolicFactorType', 'fgopt.factors.numerical_jacobian',
+    'fgopt.datasets.gross_error', 'fgopt.distributed.summary_table',
     'fgopt.incremental.LinearContainerFactor', 'fgopt.incremental.UpdateResult',
     'fgopt.io.parse_load2d', 'fgopt.io.read_bundler', 'fgopt.io.read_stereo_vo',
     'fgopt.io.reprojection_kernel', 'fgopt.navigation.CombinedImuFactor',
