@@ -33,13 +33,9 @@ PACKAGES = ["fgopt", "fgopt.noise", "fgopt.manifolds", "fgopt.factors", "fgopt.s
 
 #: Reference entries whose docstring has no example yet (what the reference does not cover).
 WITHOUT_EXAMPLE = {
-    'fgopt.datasets.gross_error', 'fgopt.distributed.summary_table',
-    'fgopt.incremental.LinearContainerFactor', 'fgopt.incremental.UpdateResult',
-    'fgopt.io.parse_load2d', 'fgopt.io.read_bundler', 'fgopt.io.read_stereo_vo',
-    'fgopt.io.reprojection_kernel', 'fgopt.navigation.CombinedImuFactor',
-    'fgopt.navigation.PreintegratedCombinedImu', 'fgopt.plot.camera_centers',
-    'fgopt.plot.plot_bundle', 'fgopt.plot.plot_cost_history', 'fgopt.plot.plot_pose_graph',
-    'fgopt.plot.save_result_plot',
+    'fgopt.navigation.CombinedImuFactor', 'fgopt.navigation.PreintegratedCombinedImu',
+    'fgopt.plot.camera_centers', 'fgopt.plot.plot_bundle', 'fgopt.plot.plot_cost_history',
+    'fgopt.plot.plot_pose_graph', 'fgopt.plot.save_result_plot',
 }
 
 _EXAMPLE = re.compile(r"^\s*>>>|::\s*$|^\s*```", re.M)
