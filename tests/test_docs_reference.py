@@ -33,7 +33,6 @@ PACKAGES = ["fgopt", "fgopt.noise", "fgopt.manifolds", "fgopt.factors", "fgopt.s
 
 #: Reference entries whose docstring has no example yet (what the reference does not cover).
 WITHOUT_EXAMPLE = {
-    'fgopt.navigation.CombinedImuFactor', 'fgopt.navigation.PreintegratedCombinedImu',
     'fgopt.plot.camera_centers', 'fgopt.plot.plot_bundle', 'fgopt.plot.plot_cost_history',
     'fgopt.plot.plot_pose_graph', 'fgopt.plot.save_result_plot',
 }
