@@ -7,8 +7,7 @@ package's reference page: an autosummary entry (autodoc renders its signature an
 ``py:data`` entry for a constant, a link for a subpackage, or, on the ``fgopt`` page, an alias
 line pointing at the same object's entry in its package. An entry's docstring must show an
 example (``>>>`` lines, a ``::`` literal block or a fenced block); the ``>>>`` examples run here
-as doctests. Names still without an example are listed in ``WITHOUT_EXAMPLE``: the list can only
-shrink (an entry that gains an example must leave it).
+as doctests.
 """
 
 from __future__ import annotations
@@ -30,12 +29,6 @@ PACKAGES = ["fgopt", "fgopt.noise", "fgopt.manifolds", "fgopt.factors", "fgopt.s
             "fgopt.symbolic", "fgopt.io", "fgopt.cameras", "fgopt.navigation",
             "fgopt.incremental", "fgopt.filters", "fgopt.distributed", "fgopt.datasets",
             "fgopt.plot", "fgopt.errors"]
-
-#: Reference entries whose docstring has no example yet (what the reference does not cover).
-WITHOUT_EXAMPLE = {
-    'fgopt.plot.camera_centers', 'fgopt.plot.plot_bundle', 'fgopt.plot.plot_cost_history',
-    'fgopt.plot.plot_pose_graph', 'fgopt.plot.save_result_plot',
-}
 
 _EXAMPLE = re.compile(r"^\s*>>>|::\s*$|^\s*```", re.M)
 
@@ -132,24 +125,16 @@ def test_api_index_lists_every_page():
 
 
 def test_every_entry_has_a_docstring_with_an_example():
-    """autodoc renders each entry's docstring: it must exist and show an example, except for
-    the entries still listed in ``WITHOUT_EXAMPLE`` (which must all still lack one)."""
-    no_doc, no_example, has_example = [], [], []
+    """autodoc renders each entry's docstring: it must exist and show an example."""
+    no_doc, no_example = [], []
     for dotted, obj in documented():
         doc = inspect.getdoc(obj) or ""
         if not doc.strip():
             no_doc.append(dotted)
         elif not _EXAMPLE.search(doc):
             no_example.append(dotted)
-        elif dotted in WITHOUT_EXAMPLE:
-            has_example.append(dotted)
     assert not no_doc, f"entries without a docstring: {no_doc}"
-    new = sorted(set(no_example) - WITHOUT_EXAMPLE)
-    assert not new, f"entries whose docstring has no example: {new}"
-    assert not has_example, f"these now have an example: remove them from WITHOUT_EXAMPLE: " \
-                            f"{sorted(has_example)}"
-    stale = sorted(WITHOUT_EXAMPLE - {d for d, _ in documented()})
-    assert not stale, f"WITHOUT_EXAMPLE names entries that do not exist: {stale}"
+    assert not no_example, f"entries whose docstring has no example: {sorted(no_example)}"
 
 
 def _doctests():
