@@ -13,6 +13,10 @@ export FGOPT_DATA ?= $(abspath ../shared/data)
 APT_PACKAGES := libsuitesparse-dev libopenblas0-pthread
 
 DOCS_STAMP := $(VENV)/.fgopt-docs-installed
+# The extras `make setup` installs; .ci/run adds `docs` so that `make docs` after `make test`
+# needs no second pip run (pip >= 21.3 installs the editable package; setuptools and wheel come
+# from the build's isolated environment, so the venv's own need no upgrade).
+EXTRAS ?= test,notebook,distributed,cholmod
 
 .PHONY: setup demo test test-no-cholmod bench docs clean
 
@@ -26,15 +30,17 @@ $(STAMP): pyproject.toml
 	fi
 	@test -x $(PY) || { echo "==> creating $(VENV)"; python3 -m venv $(VENV); }
 	@echo "==> installing fgopt and its dependencies into $(VENV)"
-	@$(PY) -m pip install -q --disable-pip-version-check --upgrade pip wheel setuptools
-	@$(PY) -m pip install -q --disable-pip-version-check -e '.[test,notebook,distributed,cholmod]'
+	@$(PY) -c 'import pip, sys; sys.exit(tuple(map(int, pip.__version__.split(".")[:2])) < (21, 3))' || \
+	  $(PY) -m pip install -q --disable-pip-version-check --upgrade pip
+	@$(PY) -m pip install -q --disable-pip-version-check -e '.[$(EXTRAS)]'
 	@touch $(STAMP)
 
 demo: setup
 	@$(PY) -m fgopt.demo
 
 # One worker per core (at most 4), a test file per worker: 10.5 min instead of 17.7 on 2 cores
-# with empty caches (numba compiles dominate and run single-threaded).
+# with empty caches (numba compiles dominate and run single-threaded). tests/conftest.py starts
+# the few long files first (LONG_FIRST) and hands out the notebooks one by one.
 test: setup
 	@$(PY) -m pytest -q -n auto --maxprocesses 4 --dist loadfile
 
@@ -57,8 +63,9 @@ bench: setup
 # on 2 cores) instead of compiling them again (~12 min); FGOPT_CACHE_DIR overrides it.
 DOCS_CACHE := $(CURDIR)/.pytest_cache/d/fgopt-kernels
 $(DOCS_STAMP): $(STAMP) pyproject.toml
-	@echo "==> installing the docs extra into $(VENV)"
-	@$(PY) -m pip install -q --disable-pip-version-check -e '.[docs]'
+	@$(PY) -c 'import sphinx, myst_nb, furo, sphinx_copybutton' 2>/dev/null || { \
+	  echo "==> installing the docs extra into $(VENV)"; \
+	  $(PY) -m pip install -q --disable-pip-version-check -e '.[docs]'; }
 	@touch $(DOCS_STAMP)
 
 docs: setup $(DOCS_STAMP)

@@ -335,7 +335,16 @@ def gross_error(rng: np.random.Generator, is3d: bool, sigma_of, max_rotation: fl
     """A relative-pose error (rotation angle uniform up to ``max_rotation`` rad, about a random
     axis in 3D; translation uniform in ``[-max_translation, max_translation]`` m per axis) whose
     squared whitened norm ``sigma_of(err)`` exceeds the chi-square 0.999 quantile (a draw the
-    noise model would call plausible is redrawn)."""
+    noise model would call plausible is redrawn).
+
+    >>> rng = np.random.default_rng(0)
+    >>> whitened = lambda e: float(np.sum(e.log() ** 2)) / 0.1 ** 2   # sigma 0.1 per axis
+    >>> errors = [fgopt.datasets.gross_error(rng, False, whitened) for _ in range(100)]
+    >>> min(whitened(e) for e in errors) > 16.27      # chi-square(3) 0.999 quantile: 16.266
+    True
+    >>> max(abs(e.theta()) for e in errors) <= 0.5
+    True
+    """
     dim = 6 if is3d else 3
     while True:
         if is3d:

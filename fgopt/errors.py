@@ -130,7 +130,21 @@ class ManifoldError(FgoptError, TypeError):
 
 class ManifoldDeclarationError(FgoptError, ValueError):
     """An ``@fgopt.manifold`` declaration is wrong (sizes, non-finite retract, ``local`` not the
-    inverse of ``retract`` to first order); the message names the method and the failing check."""
+    inverse of ``retract`` to first order); the message names the method and the failing check.
+
+    >>> from fgopt.symbolic import V2
+    >>> @fgopt.manifold
+    ... class Stretched:
+    ...     storage_dim = 2
+    ...     dim = 2
+    ...     def retract(x, d):
+    ...         return V2(x[0] + d[0], x[1] + d[1])
+    ...     def local(x, y):
+    ...         return V2(y[0] - x[0], 2 * (y[1] - x[1]))
+    ...
+    Traceback (most recent call last):
+    fgopt.errors.ManifoldDeclarationError: Stretched: local(x, retract(x, d)) is not d to first order...
+    """
 
 
 class FileFormatError(FgoptError, ValueError):

@@ -115,7 +115,15 @@ def _axes(ax: Any, dim: int):
 
 def plot_pose_graph(graph: Any, values: Any, ax: Any = None, initial: Any = None,
                     loop_closures: bool = True, title: str | None = None) -> Any:
-    """Draw the trajectory of ``values`` (and ``initial`` faintly); returns the axes."""
+    """Draw the trajectory of ``values`` (and ``initial`` faintly); returns the axes.
+
+    >>> s = fgopt.datasets.manhattan_2d(num_poses=50, seed=0)
+    >>> ax = fgopt.plot.plot_pose_graph(s.graph, s.initial)
+    >>> ax.get_title(), ax.lines[0].get_xydata().shape          # one (x, y) per pose
+    ('50 poses', (50, 2))
+    >>> [t.get_text() for t in ax.get_legend().get_texts()]
+    ['trajectory', 'loop closures (4)', 'first pose (x0)']
+    """
     keys, xyz, dim = _poses(values)
     if dim == 0:
         raise FgoptError("plot_pose_graph: the values hold no poses (SE2, SE3 or a declared "
@@ -176,7 +184,14 @@ def _equal_3d(ax: Any, xyz: np.ndarray, q: float = 1.0) -> None:
 
 
 def camera_centers(cameras: np.ndarray) -> np.ndarray:
-    """Centres ``-R(r)^T t`` of BAL cameras ``(n, 9)`` (angle-axis ``r``, translation ``t``)."""
+    """Centres ``-R(r)^T t`` of BAL cameras ``(n, 9)`` (angle-axis ``r``, translation ``t``).
+
+    >>> cameras = np.zeros((2, 9))
+    >>> cameras[1, :6] = [0.0, 0.0, np.pi / 2, 1.0, 0.0, 0.0]    # 90 deg about z, t = (1, 0, 0)
+    >>> np.round(fgopt.plot.camera_centers(cameras), 6) + 0.0
+    array([[0., 0., 0.],
+           [0., 1., 0.]])
+    """
     r, t = cameras[:, :3], cameras[:, 3:6]
     th = np.linalg.norm(r, axis=1, keepdims=True)
     k = np.where(th > 1e-12, r / np.where(th > 1e-12, th, 1.0), 0.0)
@@ -188,7 +203,13 @@ def camera_centers(cameras: np.ndarray) -> np.ndarray:
 
 def plot_bundle(values: Any, ax: Any = None, max_points: int = 20000,
                 title: str | None = None) -> Any:
-    """BAL scene: camera centres (R^9 values) and points (R^3 values); returns the axes."""
+    """BAL scene: camera centres (R^9 values) and points (R^3 values); returns the axes.
+
+    >>> graph, initial = fgopt.datasets.bal_synthetic(cameras=3, points=10, observations_per_point=2).read()
+    >>> ax = fgopt.plot.plot_bundle(initial)
+    >>> [t.get_text() for t in ax.get_legend().get_texts()]
+    ['points (10; 0 outside the view)', 'cameras (3)']
+    """
     cams = np.array([values.at(k) for k in values.keys() if _kind_name(values.at(k)) == "R9"])
     pts = _points(values, 3)
     ax = _axes(ax, 3)
@@ -215,7 +236,12 @@ def plot_bundle(values: Any, ax: Any = None, max_points: int = 20000,
 
 
 def plot_cost_history(history: Any, ax: Any = None, title: str | None = None) -> Any:
-    """Cost per iteration (a list, or a Result's ``cost_history``), log scale."""
+    """Cost per iteration (a list, or a Result's ``cost_history``), log scale.
+
+    >>> ax = fgopt.plot.plot_cost_history([100.0, 10.0, 1.0, 0.5])
+    >>> ax.get_yscale(), ax.get_title(), ax.lines[0].get_ydata().tolist()
+    ('log', 'cost 100 -> 0.5', [100.0, 10.0, 1.0, 0.5])
+    """
     costs = np.asarray(getattr(history, "cost_history", history), dtype=float)
     if ax is None:
         ax = _figure((5, 4)).add_subplot()
@@ -260,7 +286,15 @@ def plot_result(graph: Any, initial: Any, result: Any, title: str | None = None)
 
 def save_result_plot(path: str | os.PathLike, graph: Any, initial: Any, result: Any,
                      title: str | None = None, dpi: int = 110) -> None:
-    """Write :func:`plot_result` to ``path`` (format from the extension, e.g. ``.png``)."""
+    """Write :func:`plot_result` to ``path`` (format from the extension, e.g. ``.png``).
+
+    >>> import pathlib, tempfile
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / 'result.png'
+    >>> s = fgopt.datasets.manhattan_2d(num_poses=20, seed=0)
+    >>> fgopt.plot.save_result_plot(path, s.graph, s.initial, fgopt.optimize(s.graph, s.initial))
+    >>> path.read_bytes()[:4]                                    # a PNG file
+    b'\\x89PNG'
+    """
     fig = plot_result(graph, initial, result, title=title)
     fig.savefig(os.fspath(path), dpi=dpi)
 

@@ -61,6 +61,41 @@ def pytest_configure(config):
         os.environ["FGOPT_CACHE_DIR"] = str(path)
 
 
+#: ``make test``'s ``--dist loadfile`` queues files by number of tests, most first, so these files
+#: of a few long tests (their own virtual env and cold caches, notebook kernels) would start last
+#: and run alone on one core at the end; they start first instead.
+LONG_FIRST = ("tests/test_install.py", "tests/test_notebooks.py::test_notebook_runs",
+              "benchmarks/tests/test_startup_ports.py")
+#: Scheduled one test at a time rather than as a file: each notebook runs in its own kernel
+#: process, so the workers can share them.
+ONE_BY_ONE = ("tests/test_notebooks.py::test_notebook_runs",)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist loadfile`` with :data:`LONG_FIRST` queued first and :data:`ONE_BY_ONE` split."""
+    if config.getvalue("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadFileScheduling
+
+    class LongFirst(LoadFileScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            if nodeid.startswith(ONE_BY_ONE):
+                return nodeid
+            return super()._split_scope(nodeid)
+
+        def _assign_work_unit(self, node) -> None:
+            if not getattr(self, "_long_first_done", False):
+                self._long_first_done = True
+                rank = {s: next(i for i, p in enumerate(LONG_FIRST) if s.startswith(p))
+                        for s in self.workqueue if s.startswith(LONG_FIRST)}
+                for scope in sorted(rank, key=rank.get, reverse=True):
+                    self.workqueue.move_to_end(scope, last=False)
+            super()._assign_work_unit(node)
+
+    return LongFirst(config, log)
+
+
 REQUIRE_GTSAM = os.environ.get("FGOPT_REQUIRE_GTSAM", "") not in ("", "0")
 
 

@@ -7,8 +7,7 @@ package's reference page: an autosummary entry (autodoc renders its signature an
 ``py:data`` entry for a constant, a link for a subpackage, or, on the ``fgopt`` page, an alias
 line pointing at the same object's entry in its package. An entry's docstring must show an
 example (``>>>`` lines, a ``::`` literal block or a fenced block); the ``>>>`` examples run here
-as doctests. Names still without an example are listed in ``WITHOUT_EXAMPLE``: the list can only
-shrink (an entry that gains an example must leave it).
+as doctests.
 """
 
 from __future__ import annotations
@@ -30,37 +29,6 @@ PACKAGES = ["fgopt", "fgopt.noise", "fgopt.manifolds", "fgopt.factors", "fgopt.s
             "fgopt.symbolic", "fgopt.io", "fgopt.cameras", "fgopt.navigation",
             "fgopt.incremental", "fgopt.filters", "fgopt.distributed", "fgopt.datasets",
             "fgopt.plot", "fgopt.errors"]
-
-#: Reference entries whose docstring has no example yet (what the reference does not cover).
-WITHOUT_EXAMPLE = {
-    'fgopt.cameras.Cal3DS2', 'fgopt.cameras.Cal3Fisheye', 'fgopt.cameras.Cal3Unified',
-    'fgopt.cameras.Calibration', 'fgopt.cameras.DoubleSphere', 'fgopt.constraint',
-    'fgopt.datasets.gross_error', 'fgopt.OrientedPlane3', 'fgopt.SE23',
-    'fgopt.cameras.GeneralSFMFactor', 'fgopt.cameras.StereoFactor',
-    'fgopt.cameras.camera_projection_kernel', 'fgopt.cameras.projection_kernel',
-    'fgopt.cameras.smart_kernel', 'fgopt.cameras.stereo_kernel', 'fgopt.distributed.summary_table',
-    'fgopt.errors.ManifoldDeclarationError', 'fgopt.factors.FactorKernel',
-    'fgopt.factors.KernelFactor', 'fgopt.factors.SymbolicFactor',
-    'fgopt.factors.SymbolicFactorType', 'fgopt.factors.numerical_jacobian',
-    'fgopt.incremental.LinearContainerFactor', 'fgopt.incremental.UpdateResult',
-    'fgopt.io.parse_load2d', 'fgopt.io.read_bundler', 'fgopt.io.read_stereo_vo',
-    'fgopt.io.reprojection_kernel', 'fgopt.navigation.CombinedImuFactor',
-    'fgopt.navigation.PreintegratedCombinedImu', 'fgopt.plot.camera_centers',
-    'fgopt.plot.plot_bundle', 'fgopt.plot.plot_cost_history', 'fgopt.plot.plot_pose_graph',
-    'fgopt.plot.save_result_plot', 'fgopt.symbolic.Abs', 'fgopt.symbolic.DeclaredManifold',
-    'fgopt.symbolic.GeneratedFunction', 'fgopt.symbolic.LieGroupBase', 'fgopt.symbolic.M22',
-    'fgopt.symbolic.M33', 'fgopt.symbolic.M44', 'fgopt.symbolic.NavState',
-    'fgopt.symbolic.OrientedPlane3', 'fgopt.symbolic.PinholeCamera', 'fgopt.symbolic.Rot2',
-    'fgopt.symbolic.SE23', 'fgopt.symbolic.SnavelyCamera', 'fgopt.symbolic.V1',
-    'fgopt.symbolic.V2', 'fgopt.symbolic.V3', 'fgopt.symbolic.V4', 'fgopt.symbolic.V5',
-    'fgopt.symbolic.V6', 'fgopt.symbolic.V7', 'fgopt.symbolic.V8', 'fgopt.symbolic.V9',
-    'fgopt.symbolic.acos', 'fgopt.symbolic.angle_axis_rotate', 'fgopt.symbolic.asin',
-    'fgopt.symbolic.check_removable_singularity', 'fgopt.symbolic.clamp',
-    'fgopt.symbolic.jacobians_of', 'fgopt.symbolic.linearization_program', 'fgopt.symbolic.log',
-    'fgopt.symbolic.python_function', 'fgopt.symbolic.safe_div', 'fgopt.symbolic.sign_no_zero',
-    'fgopt.symbolic.snz', 'fgopt.symbolic.symbols', 'fgopt.symbolic.tangent_jacobians',
-    'fgopt.symbolic.total_ops', 'fgopt.symbolic.vector_type',
-}
 
 _EXAMPLE = re.compile(r"^\s*>>>|::\s*$|^\s*```", re.M)
 
@@ -157,24 +125,16 @@ def test_api_index_lists_every_page():
 
 
 def test_every_entry_has_a_docstring_with_an_example():
-    """autodoc renders each entry's docstring: it must exist and show an example, except for
-    the entries still listed in ``WITHOUT_EXAMPLE`` (which must all still lack one)."""
-    no_doc, no_example, has_example = [], [], []
+    """autodoc renders each entry's docstring: it must exist and show an example."""
+    no_doc, no_example = [], []
     for dotted, obj in documented():
         doc = inspect.getdoc(obj) or ""
         if not doc.strip():
             no_doc.append(dotted)
         elif not _EXAMPLE.search(doc):
             no_example.append(dotted)
-        elif dotted in WITHOUT_EXAMPLE:
-            has_example.append(dotted)
     assert not no_doc, f"entries without a docstring: {no_doc}"
-    new = sorted(set(no_example) - WITHOUT_EXAMPLE)
-    assert not new, f"entries whose docstring has no example: {new}"
-    assert not has_example, f"these now have an example: remove them from WITHOUT_EXAMPLE: " \
-                            f"{sorted(has_example)}"
-    stale = sorted(WITHOUT_EXAMPLE - {d for d, _ in documented()})
-    assert not stale, f"WITHOUT_EXAMPLE names entries that do not exist: {stale}"
+    assert not no_example, f"entries whose docstring has no example: {sorted(no_example)}"
 
 
 def _doctests():

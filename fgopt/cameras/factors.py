@@ -93,7 +93,22 @@ def _contiguous(name: str, arrays: tuple, consts: np.ndarray, widths: tuple) -> 
 def projection_kernel(model: type[Calibration], calibration_variable: bool = False,
                       cheirality: str = "reject") -> FactorKernel:
     """Kernel of ``uv(pose, point, K) - m``: args ``(SE3, R^3[, model])``, constants
-    ``m (2)`` then, for a constant calibration, its storage."""
+    ``m (2)`` then, for a constant calibration, its storage.
+
+    Example: a point 2 m ahead seen 2 pixels left of where it projects (the residual is
+    predicted minus measured):
+
+    >>> from fgopt import SE3
+    >>> from fgopt.cameras import Cal3_S2, projection_kernel
+    >>> K = Cal3_S2(500.0, 500.0, 0.0, 320.0, 240.0)
+    >>> kernel = projection_kernel(Cal3_S2)
+    >>> kernel.residual_dim, [kind.name for kind in kernel.arg_kinds], kernel.num_constants
+    (2, ['SE3', 'R3'], 7)
+    >>> args = (SE3().to_storage()[None], np.array([[0.2, -0.4, 2.0]]))   # n = 1 instance
+    >>> res, jac = kernel.linearize(args, np.array([[372.0, 140.0, *K.to_storage()]]))
+    >>> res, jac.shape
+    (array([[-2.,  0.]]), (1, 2, 9))
+    """
     reject = _check_cheirality(cheirality)
     mid, s = model.MODEL, len(model.PARAMS)
     var = bool(calibration_variable)
@@ -129,7 +144,19 @@ def projection_kernel(model: type[Calibration], calibration_variable: bool = Fal
 def camera_projection_kernel(model: type[Calibration], cheirality: str = "reject") -> FactorKernel:
     """Kernel of ``uv(camera, point) - m`` with a :class:`~fgopt.cameras.PinholeCamera`
     variable (pose and calibration in one): args ``(PinholeCamera[model], R^3)``, constants
-    ``m (2)``. Jacobian columns: pose ``[w, v]``, calibration, point."""
+    ``m (2)``. Jacobian columns: pose ``[w, v]``, calibration, point.
+
+    >>> from fgopt import SE3
+    >>> from fgopt.cameras import Cal3_S2, PinholeCamera, camera_projection_kernel
+    >>> camera = PinholeCamera(SE3(), Cal3_S2(500.0, 500.0, 0.0, 320.0, 240.0))
+    >>> kernel = camera_projection_kernel(Cal3_S2)
+    >>> [kind.name for kind in kernel.arg_kinds]
+    ['PinholeCamera[Cal3_S2]', 'R3']
+    >>> args = (camera.to_storage()[None], np.array([[0.2, -0.4, 2.0]]))
+    >>> res, jac = kernel.linearize(args, np.array([[372.0, 140.0]]))
+    >>> res, jac.shape                                     # 6 pose + 5 calibration + 3 point
+    (array([[-2.,  0.]]), (1, 2, 14))
+    """
     from .camera import PinholeCamera
 
     reject = _check_cheirality(cheirality)
@@ -154,7 +181,16 @@ def camera_projection_kernel(model: type[Calibration], cheirality: str = "reject
 @lru_cache(maxsize=None)
 def stereo_kernel(calibration_variable: bool = False, cheirality: str = "reject") -> FactorKernel:
     """Kernel of ``(uL, uR, v)(pose, point, K) - m``: args ``(SE3, R^3[, Cal3_S2Stereo])``,
-    constants ``m (3)`` then, for a constant calibration, its 6 numbers."""
+    constants ``m (3)`` then, for a constant calibration, its 6 numbers.
+
+    >>> from fgopt import SE3
+    >>> from fgopt.cameras import Cal3_S2Stereo, stereo_kernel
+    >>> K = Cal3_S2Stereo(500.0, 500.0, 0.0, 320.0, 240.0, 0.2)
+    >>> kernel = stereo_kernel()
+    >>> args = (SE3().to_storage()[None], np.array([[0.2, -0.4, 2.0]]))
+    >>> kernel.residual(args, np.array([[370.0, 321.0, 140.0, *K.to_storage()]]))  # uR 1 px off
+    array([[ 0., -1.,  0.]])
+    """
     reject = _check_cheirality(cheirality)
     var = bool(calibration_variable)
     name = f"stereo{'_selfcal' if var else ''}{'' if reject else '_allow_behind'}"
@@ -311,7 +347,18 @@ class GeneralSFMFactor(CameraKernelFactor):
     """``GeneralSFMFactor(camera, point, measured, loss)``: a pixel of ``point`` seen by a
     :class:`~fgopt.cameras.PinholeCamera` *variable* (pose and calibration in one, GTSAM's
     ``GeneralSFMFactor``; the BAL / Bundler camera form). ``model`` names the calibration class
-    of the camera variable. ``cheirality`` as ProjectionFactor's."""
+    of the camera variable. ``cheirality`` as ProjectionFactor's.
+
+    Example:
+
+    >>> from fgopt import SE3
+    >>> from fgopt.cameras import Cal3_S2, GeneralSFMFactor, PinholeCamera
+    >>> camera = PinholeCamera(SE3(), Cal3_S2(500.0, 500.0, 0.0, 320.0, 240.0))
+    >>> f = GeneralSFMFactor(key('c', 0), key('l', 0), [370.0, 140.0], model=Cal3_S2)
+    >>> values = fgopt.Variables().add(key('c', 0), camera).add(key('l', 0), np.array([0.2, -0.4, 2.0]))
+    >>> np.round(f.error(values), 6), [J.shape for J in f.jacobians(values)]   # camera: 6 + 5
+    (array([0., 0.]), [(2, 11), (2, 3)])
+    """
 
     def __init__(self, camera: int, point: int, measured: Any, loss: Any = None, *,
                  model: type[Calibration] | None = None, cheirality: str = "reject",
@@ -335,7 +382,18 @@ class GeneralSFMFactor(CameraKernelFactor):
 class StereoFactor(CameraKernelFactor):
     """``StereoFactor(pose, point, measured, loss, calibration)``: a rectified stereo
     measurement ``(uL, uR, v)`` of ``point`` from the left camera at ``pose``; ``calibration``
-    a :class:`~fgopt.cameras.Cal3_S2Stereo` or a key. ``cheirality`` as ProjectionFactor's."""
+    a :class:`~fgopt.cameras.Cal3_S2Stereo` or a key. ``cheirality`` as ProjectionFactor's.
+
+    Example: a point 2 m ahead of a stereo pair with a 0.2 m baseline:
+
+    >>> from fgopt import SE3
+    >>> from fgopt.cameras import Cal3_S2Stereo, StereoFactor
+    >>> K = Cal3_S2Stereo(500.0, 500.0, 0.0, 320.0, 240.0, 0.2)
+    >>> f = StereoFactor(key('x', 0), key('l', 0), [370.0, 320.0, 140.0], None, K)
+    >>> values = fgopt.Variables().add(key('x', 0), SE3()).add(key('l', 0), np.array([0.2, -0.4, 2.0]))
+    >>> np.round(f.error(values), 6)                       # (uL, uR, v) predicted - measured
+    array([0., 0., 0.])
+    """
 
     def __init__(self, pose: int, point: int, measured: Any, loss: Any = None,
                  calibration: Any = None, *, cheirality: str = "reject", noise: Any = UNSET):

@@ -67,7 +67,22 @@ def solve_files(paths: list[str], out_dir: str | None = None, *, method: str = "
 
 
 def summary_table(rows: list[dict]) -> str:
-    """The rows as a markdown table (errors listed under it)."""
+    """The rows as a markdown table (errors listed under it).
+
+    >>> from fgopt.distributed import summary_table
+    >>> print(summary_table([
+    ...     {"file": "a.g2o", "status": "converged", "initial cost": 12.5, "final cost": 0.25,
+    ...      "iterations": 4, "seconds": 0.0123, "output": "a_opt.g2o"},
+    ...     {"file": "b.g2o", "error": "b.g2o:3: bad line"}]))
+    | file | status | initial cost | final cost | iterations | seconds | output |
+    |---|---|---|---|---|---|---|
+    | a.g2o | converged | 12.5 | 0.25 | 4 | 0.012 | a_opt.g2o |
+    | b.g2o | — | — | — | — | — | — |
+    <BLANKLINE>
+    Errors:
+    - b.g2o: b.g2o:3: bad line
+    <BLANKLINE>
+    """
     def cell(row: dict, col: str) -> str:
         v = row.get(col)
         if v is None:

@@ -140,6 +140,19 @@ class KernelFactor(Factor):
 
     ``constants`` are the kernel's per-instance fixed inputs (e.g. a measurement's storage).
     ``error`` / ``jacobians`` on a single instance run the same kernel with ``n = 1``.
+
+    Example: the kernel of a symbolic factor with ``m`` a constant, used directly:
+
+    >>> from fgopt.factors import KernelFactor
+    >>> from fgopt.symbolic import V1
+    >>> @fgopt.factor
+    ... def offset(x: V1, m: V1) -> V1:
+    ...     return x - m
+    ...
+    >>> f = KernelFactor(offset.kernel(["x"]), [key('x', 0)], np.array([2.0]))
+    >>> values = fgopt.Variables().add(key('x', 0), np.array([5.0]))
+    >>> f.error(values), f.jacobians(values)
+    (array([3.]), [array([[1.]])])
     """
 
     def __init__(self, kernel: FactorKernel, keys: Sequence[int], constants: np.ndarray,

@@ -48,6 +48,21 @@ def constraint(fn: Callable | None = None, *, inequality: bool = False, name: st
 
     Instances are made like factor instances (keys are variables, numbers constants) but take no
     ``loss``: ``graph.add(on_plane(p=key('p', 0), plane=n))``.
+
+    Example: the point of the unit circle closest to ``(2, 0.5)``:
+
+    >>> from fgopt.noise import Isotropic
+    >>> from fgopt.symbolic import V1, V2
+    >>> @fgopt.constraint
+    ... def on_circle(p: V2) -> V1:
+    ...     return V1(p.squared_norm() - 1)
+    ...
+    >>> target = np.array([2.0, 0.5])
+    >>> graph = fgopt.FactorGraph([fgopt.PriorFactor(key('p', 0), target, Isotropic.sigma(2, 1.0))])
+    >>> _ = graph.add(on_circle(p=key('p', 0)))
+    >>> result = fgopt.optimize(graph, fgopt.Variables().add(key('p', 0), target))
+    >>> np.allclose(result.values.at(key('p', 0)), target / np.linalg.norm(target), atol=1e-6)
+    True
     """
     def wrap(f: Callable, scope: dict | None = None) -> SymbolicConstraintType:
         if scope is None:

@@ -140,7 +140,18 @@ def _ambiguous(value: Any) -> bool:
 
 
 class SymbolicFactor(KernelFactor):
-    """An instance of a :class:`SymbolicFactorType` (a kernel factor)."""
+    """An instance of a :class:`SymbolicFactorType` (a kernel factor).
+
+    >>> from fgopt.factors import SymbolicFactor
+    >>> from fgopt.symbolic import V1
+    >>> @fgopt.factor
+    ... def offset(x: V1, m: V1) -> V1:
+    ...     return x - m
+    ...
+    >>> f = offset(x=key('x', 0), m=np.array([2.0]))      # m: a constant
+    >>> isinstance(f, SymbolicFactor), f.keys, f.error(fgopt.Variables().add(key('x', 0), np.array([5.0])))
+    (True, (x0,), array([3.]))
+    """
 
     def __init__(self, factor_type: SymbolicFactorType, kernel: FactorKernel, keys: list,
                  constants: np.ndarray, loss: Any):
@@ -153,7 +164,26 @@ class SymbolicFactor(KernelFactor):
 
 
 class SymbolicFactorType:
-    """A factor type made by :func:`factor`; call it to make instances."""
+    """A factor type made by :func:`factor`; call it to make instances.
+
+    Arguments given a key are variables; numbers are constants. One kernel is derived per
+    pattern of variables:
+
+    >>> from fgopt.factors import SymbolicFactorType
+    >>> from fgopt.symbolic import V1
+    >>> @fgopt.factor
+    ... def offset(x: V1, m: V1) -> V1:
+    ...     return x - m
+    ...
+    >>> isinstance(offset, SymbolicFactorType)
+    True
+    >>> offset(x=key('x', 0), m=np.array([2.0])).kernel is offset.kernel(["x"])
+    True
+    >>> f = offset(x=key('x', 0), m=key('m', 0))         # both variables: another kernel
+    >>> values = fgopt.Variables().add(key('x', 0), np.array([5.0])).add(key('m', 0), np.array([2.0]))
+    >>> f.error(values), [J.tolist() for J in f.jacobians(values)]
+    (array([3.]), [[[1.0]], [[-1.0]]])
+    """
 
     def __init__(self, fn: Callable, *, name: str | None, method: str, engine: str,
                  hessian: bool, cache: bool, variables: Iterable[str] | None,

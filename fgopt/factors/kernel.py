@@ -64,6 +64,24 @@ class FactorKernel:
 
     Kernels compare by identity: factors sharing a kernel object (and loss kind) are batched
     together.
+
+    Example: a hand-written kernel of ``x - m`` on R^1 (NumPy here; the built-in kernels are
+    numba functions), used by two factors:
+
+    >>> from fgopt.factors import FactorKernel, KernelFactor
+    >>> from fgopt.manifolds import vector_kind
+    >>> def residual(args, consts):                  # args: ((n, 1),), consts: (n, 1)
+    ...     return args[0] - consts
+    ...
+    >>> def linearize(args, consts):
+    ...     return residual(args, consts), np.ones((len(consts), 1, 1))
+    ...
+    >>> kernel = FactorKernel("offset", (vector_kind(1),), 1, 1, residual, linearize)
+    >>> graph = fgopt.FactorGraph([KernelFactor(kernel, [key('x', 0)], np.array([m]))
+    ...                            for m in (2.0, 4.0)])
+    >>> initial = fgopt.Variables().add(key('x', 0), np.array([5.0]))
+    >>> np.round(fgopt.optimize(graph, initial).values.at(key('x', 0)), 6)   # the mean
+    array([3.])
     """
 
     name: str

@@ -35,7 +35,18 @@ class _Overlay:
 
 def numerical_jacobian(fn: Callable[[Any], np.ndarray], values: Any, k: Key,
                        delta: float = 1e-6) -> np.ndarray:
-    """Central-difference Jacobian of ``fn(values)`` w.r.t. the tangent space of key ``k``."""
+    """Central-difference Jacobian of ``fn(values)`` w.r.t. the tangent space of key ``k``.
+
+    Example: an SE(2) pose's translation moves with the pose's tangent ``[theta, x, y]`` as
+    ``[0, R]`` (the translation step is in the body frame):
+
+    >>> from fgopt.factors import numerical_jacobian
+    >>> values = fgopt.Variables().add(key('x', 0), fgopt.SE2.from_xytheta(1.0, 2.0, 0.5))
+    >>> J = numerical_jacobian(lambda v: v.at(key('x', 0)).translation(), values, key('x', 0))
+    >>> np.round(J, 6)
+    array([[ 0.      ,  0.877583, -0.479426],
+           [ 0.      ,  0.479426,  0.877583]])
+    """
     x = values.at(k)
     ops = ops_for(x)
     d = ops.dim(x)

@@ -48,6 +48,17 @@ class LinearContainerFactor(Factor):
         information: ``H``, ``(n, n)`` symmetric positive definite (``n`` = sum of the keys'
             tangent dims, rotation first as every fgopt tangent).
         gradient: ``g``, ``(n,)``: the cost's gradient at ``x0``.
+
+    Example: on R^2 the quadratic's minimum is ``x0 - H^-1 g``:
+
+    >>> from fgopt.incremental import LinearContainerFactor
+    >>> x0 = fgopt.Variables().add(key('p', 0), np.array([1.0, 2.0]))
+    >>> f = LinearContainerFactor([key('p', 0)], x0, np.diag([4.0, 1.0]), np.array([4.0, -1.0]))
+    >>> x = fgopt.Variables().add(key('p', 0), np.array([1.5, 1.0]))
+    >>> 0.5 * float(f.error(x) @ f.error(x))   # 0.5 dx'H dx + g'dx + 0.5 g'H^-1 g = 1 + 3 + 2.5
+    6.5
+    >>> np.round(fgopt.optimize(fgopt.FactorGraph([f]), x).values.at(key('p', 0)), 6)
+    array([0., 3.])
     """
 
     #: central-difference step for the Jacobian of ``local`` away from ``x0``

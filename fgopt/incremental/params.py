@@ -79,7 +79,18 @@ class IncrementalParams:
 
 @dataclass
 class UpdateResult:
-    """What one :meth:`~fgopt.incremental.IncrementalSmoother.update` did."""
+    """What one :meth:`~fgopt.incremental.IncrementalSmoother.update` did.
+
+    >>> from fgopt import SE2, BetweenFactor, PriorFactor
+    >>> from fgopt.incremental import IncrementalSmoother
+    >>> from fgopt.noise import Isotropic
+    >>> noise, step = Isotropic.sigma(3, 0.1), SE2.from_xytheta(1.0, 0.0, 0.0)
+    >>> isam = IncrementalSmoother()
+    >>> r = isam.update([PriorFactor(key('x', 0), SE2(), noise)], {key('x', 0): SE2()})
+    >>> r = isam.update([BetweenFactor(key('x', 0), key('x', 1), step, noise)], {key('x', 1): step})
+    >>> r.new_factor_indices, r.variables_reeliminated     # the second factor; both poses
+    ([1], 2)
+    """
 
     #: Handles of the new factors (pass them to ``remove=`` to delete a factor later).
     new_factor_indices: list[int] = field(default_factory=list)

@@ -42,6 +42,17 @@ def reprojection_kernel():
     (:mod:`fgopt.factors.library.reprojection`, ``camera`` and ``point`` variable) when the
     symbolic package is available, else the hand-written numba kernel of
     :mod:`fgopt.factors.library.bal_kernel` (the two agree to rounding; see the tests).
+
+    Example: a camera at the origin (BAL cameras look down -z) with ``f = 500``; the residual
+    is predicted minus measured pixels:
+
+    >>> kernel = fgopt.io.reprojection_kernel()
+    >>> [kind.name for kind in kernel.arg_kinds], kernel.residual_dim
+    (['R9', 'R3'], 2)
+    >>> camera = np.array([[0, 0, 0, 0, 0, 0, 500.0, 0, 0]])      # r, t, f, k1, k2
+    >>> res, jac = kernel.linearize((camera, np.array([[0.1, -0.2, -1.0]])), np.array([[50.0, -99.0]]))
+    >>> np.round(res, 6) + 0.0, jac.shape                          # (50, -100) predicted
+    (array([[ 0., -1.]]), (1, 2, 12))
     """
     try:
         from ..factors.library.reprojection import bal_reprojection

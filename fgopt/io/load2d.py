@@ -128,7 +128,21 @@ def _sqrt_information(v: np.ndarray, fmt: str, path: str, lines: np.ndarray) -> 
 
 
 def parse_load2d(path: str | os.PathLike, noise_format: str = "auto") -> Load2D:
-    """The records of ``path`` (see the module docstring)."""
+    """The records of ``path`` (see the module docstring).
+
+    Example: one odometry edge whose ``v1, v4, v6`` are non-zero, so read as a covariance
+    (GTSAM's guess), and one bearing-range measurement:
+
+    >>> import tempfile, pathlib
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / 'slam.txt'
+    >>> _ = path.write_text('ODOMETRY 0 1 1.0 0.0 0.0 100 0 0 100 0 1000\\n'
+    ...                     'BR 1 5 0.0 2.0 0.1 0.2\\n')
+    >>> rec = fgopt.io.parse_load2d(path)
+    >>> rec.edge_i, rec.edge_j, np.round(np.diag(rec.edge_sqrt_info[0]), 4)   # [theta, x, y]
+    (array([0]), array([1]), array([0.0316, 0.1   , 0.1   ]))
+    >>> rec.br_pose, rec.br_landmark, rec.br_range, rec.order.tolist()
+    (array([1]), array([5]), array([2.]), [[0, 0], [1, 0]])
+    """
     p = os.fspath(path)
     sc = scan(p)
     out = Load2D(p)

@@ -67,7 +67,25 @@ def read_stereo_vo(calibration: str | os.PathLike, poses: str | os.PathLike,
     """Read the three files; returns ``(graph, initial, calibration)`` (module docstring).
 
     ``sigma`` (pixels) and ``anchor_sigma`` must be finite and > 0 (``anchor_sigma`` may be
-    ``None``)."""
+    ``None``).
+
+    Example: two poses 1 m apart and one landmark 2 m ahead (its ``(X, Y, Z)`` in each
+    camera's frame):
+
+    >>> import tempfile, pathlib
+    >>> d = pathlib.Path(tempfile.mkdtemp())
+    >>> _ = (d / 'calib.txt').write_text('500 500 0 320 240 0.2\\n')      # fx fy s u0 v0 b
+    >>> _ = (d / 'poses.txt').write_text('0 1 0 0 0  0 1 0 0  0 0 1 0  0 0 0 1\\n'
+    ...                                  '1 1 0 0 1  0 1 0 0  0 0 1 0  0 0 0 1\\n')
+    >>> _ = (d / 'factors.txt').write_text('0 7 370 320 140 0.2 -0.4 2.0\\n'
+    ...                                    '1 7 120 70 140 -0.8 -0.4 2.0\\n')
+    >>> graph, initial, K = fgopt.io.read_stereo_vo(d / 'calib.txt', d / 'poses.txt',
+    ...                                             d / 'factors.txt')
+    >>> len(graph), sorted(initial.keys()), K.baseline()     # 2 stereo factors + the anchor
+    (3, [l7, x0, x1], 0.2)
+    >>> np.round(initial.at(key('l', 7)), 6), graph.error(initial)
+    (array([ 0.2, -0.4,  2. ]), 0.0)
+    """
     if not is_positive(sigma):
         raise FgoptError(f"read_stereo_vo: sigma must be a finite number of pixels > 0, got "
                          f"{sigma!r}")

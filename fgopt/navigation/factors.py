@@ -180,7 +180,25 @@ class CombinedImuFactor(ImuFactor):
     """``CombinedImuFactor(pose_i, vel_i, pose_j, vel_j, bias_i, bias_j, pim)``: as
     :class:`ImuFactor` plus the bias random walk ``bias_i - bias_j`` (GTSAM's sign); 15
     residuals with the
-    15x15 covariance of a :class:`PreintegratedCombinedImu`."""
+    15x15 covariance of a :class:`PreintegratedCombinedImu`.
+
+    Example: one second at rest; the state is consistent, only the bias moved:
+
+    >>> from fgopt import SE3
+    >>> from fgopt.navigation import (CombinedImuFactor, ImuBias, PreintegratedCombinedImu,
+    ...                               PreintegrationParams)
+    >>> params = PreintegrationParams.make_u(9.81, bias_acc_rw_sigma=0.01, bias_gyro_rw_sigma=0.001)
+    >>> pim = PreintegratedCombinedImu(params, ImuBias())
+    >>> pim = pim.integrate(np.tile([0.0, 0.0, 9.81], (100, 1)), np.zeros((100, 3)), 0.01)
+    >>> f = CombinedImuFactor(key('x', 0), key('v', 0), key('x', 1), key('v', 1), key('b', 0),
+    ...                       key('b', 1), pim)
+    >>> values = fgopt.Variables({key('x', 0): SE3(), key('v', 0): np.zeros(3), key('x', 1): SE3(),
+    ...                           key('v', 1): np.zeros(3), key('b', 0): ImuBias(),
+    ...                           key('b', 1): ImuBias([0.01, 0.0, 0.0], [0.0, 0.0, 0.0])})
+    >>> e = np.round(f.error(values), 9) + 0.0
+    >>> e[:9], e[9:]                            # [rotation, position, velocity], bias_i - bias_j
+    (array([0., 0., 0., 0., 0., 0., 0., 0., 0.]), array([-0.01,  0.  ,  0.  ,  0.  ,  0.  ,  0.  ]))
+    """
 
     _NAMES = ("pose_i", "vel_i", "pose_j", "vel_j", "bias_i", "bias_j")
 

@@ -286,7 +286,19 @@ class PreintegratedImu:
 class PreintegratedCombinedImu(PreintegratedImu):
     """GTSAM's ``PreintegratedCombinedMeasurements``: as :class:`PreintegratedImu`, with the
     15x15 ``covariance`` of ``[rotation, position, velocity, bias_acc, bias_gyro]`` that adds the
-    bias random walk (``params.bias_acc_covariance`` / ``bias_omega_covariance``, required)."""
+    bias random walk (``params.bias_acc_covariance`` / ``bias_omega_covariance``, required).
+
+    Example: one second at rest; the bias block of the covariance grows by the random walk's
+    covariance times the time:
+
+    >>> from fgopt.navigation import ImuBias, PreintegratedCombinedImu, PreintegrationParams
+    >>> params = PreintegrationParams.make_u(9.81, bias_acc_covariance=1e-4 * np.eye(3),
+    ...                                      bias_omega_covariance=1e-6 * np.eye(3))
+    >>> pim = PreintegratedCombinedImu(params, ImuBias())
+    >>> pim = pim.integrate(np.tile([0.0, 0.0, 9.81], (100, 1)), np.zeros((100, 3)), 0.01)
+    >>> pim.covariance.shape, np.round(np.diag(pim.covariance)[9:], 8)
+    ((15, 15), array([1.e-04, 1.e-04, 1.e-04, 1.e-06, 1.e-06, 1.e-06]))
+    """
 
     _COMBINED = True
 

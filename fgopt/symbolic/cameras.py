@@ -28,6 +28,11 @@ def angle_axis_rotate(r: Any, point: Any, epsilon: Any = None):
     ``R X = X cos t + (r x X) sin t / t + r (r . X) (1 - cos t) / t^2`` with
     ``t = sqrt(|r|^2 + epsilon^2)`` (``1 - cos t`` written as ``2 sin^2(t/2)``); the coefficients
     multiply terms that vanish with ``r``, so value and gradient are exact at ``r = 0``.
+
+    >>> from fgopt.symbolic import V3, angle_axis_rotate
+    >>> X = angle_axis_rotate(V3(0, 0, np.pi / 2), V3(1, 0, 0), epsilon=0)   # 90 deg about z
+    >>> [round(float(c), 6) for c in X]
+    [0.0, 1.0, 0.0]
     """
     sp = _s().sp
     r = as_vector(r, 3, "angle_axis_rotate r")
@@ -45,6 +50,11 @@ class SnavelyCamera:
     + t``, ``p = -P_xy / P_z`` (points in front of the camera have negative ``z``),
     ``r2 = |p|^2``, ``u = f (1 + k1 r2 + k2 r2^2) p``. The division by ``P_z`` is shifted by
     ``snz(P_z) epsilon`` so that it never produces inf/NaN.
+
+    >>> from fgopt.symbolic import SnavelyCamera, V3
+    >>> cam = SnavelyCamera([0, 0, 0, 0, 0, 0, 500.0, 0.1, 0])   # r = t = 0, f = 500, k1 = 0.1
+    >>> cam.project(V3(0.1, -0.2, -1.0), epsilon=0)          # 500 (1 + 0.1 * 0.05) (0.1, -0.2)
+    V2([[50.2500000000000], [-100.500000000000]])
     """
 
     STORAGE_DIM = 9
@@ -86,6 +96,10 @@ class PinholeCamera:
 
     ``project(P_cam) = [fx P_x / P_z + cx, fy P_y / P_z + cy]``; the division is shifted by
     ``snz(P_z) epsilon``.
+
+    >>> from fgopt.symbolic import PinholeCamera, V3
+    >>> PinholeCamera([500.0, 500.0, 320.0, 240.0]).project(V3(0.1, -0.2, 1.0), epsilon=0)
+    V2([[370.000000000000], [140.000000000000]])
     """
 
     STORAGE_DIM = 4

@@ -258,6 +258,12 @@ def python_function(symbols: Sequence[Any], exprs: Any, name: str = "f"):
     ``exprs`` is a list of expressions (returns a list of floats) or a
     :class:`~fgopt.symbolic.cse.Program` (returns a dict output name -> list). Uses the same
     CSE and printer as generated kernels.
+
+    >>> from fgopt.symbolic import V2, linearization_program, python_function
+    >>> p = V2.symbolic("p")
+    >>> f = python_function(list(p), linearization_program(p.squared_norm(), [p]))
+    >>> f(3.0, 4.0)
+    {'res': [25.0], 'jac': [6.0, 8.0]}
     """
     import math
 

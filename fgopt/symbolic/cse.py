@@ -128,7 +128,13 @@ _OPS_MEMO: dict[int, tuple] = {}
 
 
 def total_ops(prog: Program) -> int:
-    """``count_ops`` over every statement and output (after CSE this is the paper's measure)."""
+    """``count_ops`` over every statement and output (after CSE this is the paper's measure).
+
+    >>> from fgopt.symbolic import V2, linearization_program, total_ops
+    >>> p = V2.symbolic("p")
+    >>> total_ops(linearization_program(p.squared_norm(), [p]))   # 2 pow + 1 add, 2 mul
+    5
+    """
     shape = (len(prog.stmts), tuple(len(v) for v in prog.outputs.values()))
     hit = _OPS_MEMO.get(id(prog))
     if hit is not None and hit[0] is prog and hit[1] == shape:

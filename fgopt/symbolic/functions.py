@@ -133,7 +133,15 @@ sign = _fn("sign")
 
 
 def sign_no_zero(x: Any):
-    """``snz(x)``: 1 if ``x >= 0`` else -1 (never 0), branchless, derivative 0 (Eq. 11-12)."""
+    """``snz(x)``: 1 if ``x >= 0`` else -1 (never 0), branchless, derivative 0 (Eq. 11-12).
+
+    ``snz`` is the same function. Example:
+
+    >>> from fgopt.symbolic import sign_no_zero, snz, symbols
+    >>> x = symbols("x")
+    >>> [sign_no_zero(x).subs(x, v) for v in (-2.0, 0.0, 3.0)], snz is sign_no_zero
+    ([-1, 1, 1], True)
+    """
     return _map1(_s().snz, x)
 
 
@@ -141,7 +149,15 @@ snz = sign_no_zero
 
 
 def Abs(x: Any):
-    """``|x|`` (derivative ``sign(x)``)."""
+    """``|x|`` (derivative ``sign(x)``).
+
+    Example:
+
+    >>> from fgopt.symbolic import Abs, symbols
+    >>> x = symbols("x")
+    >>> Abs(x).subs(x, -2.5), Abs(x).diff(x)
+    (2.50000000000000, sign(x))
+    """
     return _map1(_s().sp.Abs, x)
 
 
@@ -170,7 +186,15 @@ def Max(*args: Any):
 
 
 def clamp(x: Any, lo: Any, hi: Any):
-    """``min(max(x, lo), hi)``."""
+    """``min(max(x, lo), hi)``.
+
+    Example:
+
+    >>> from fgopt.symbolic import clamp, symbols
+    >>> x = symbols("x")
+    >>> [clamp(x, -1, 1).subs(x, v) for v in (-5, 0.25, 5)]
+    [-1, 0.250000000000000, 1]
+    """
     return Min(Max(x, lo), hi)
 
 
@@ -192,7 +216,17 @@ def sqrt(x: Any, epsilon: Any = _DEFAULT):
 
 
 def log(x: Any, epsilon: Any = _DEFAULT):
-    """``log(max(x, epsilon))``."""
+    """``log(max(x, epsilon))``: finite at ``x = 0`` once ``epsilon > 0``.
+
+    Example:
+
+    >>> from fgopt.symbolic import epsilon, log, symbols
+    >>> x = symbols("x")
+    >>> log(x)
+    log(Max(epsilon, x))
+    >>> round(float(log(x).subs({x: 0, epsilon: 1e-9})), 6)   # log(1e-9), not -inf
+    -20.723266
+    """
     e = _eps(epsilon)
     sp = _s().sp
     if e == 0:
@@ -201,7 +235,15 @@ def log(x: Any, epsilon: Any = _DEFAULT):
 
 
 def acos(x: Any, epsilon: Any = _DEFAULT):
-    """``acos`` of the argument clamped to ``[-1, 1]``."""
+    """``acos`` of the argument clamped to ``[-1, 1]`` (rounding past 1 gives 0, not NaN).
+
+    Example:
+
+    >>> from fgopt.symbolic import acos, symbols
+    >>> x = symbols("x")
+    >>> float(acos(x).subs(x, 1.0000001)), round(float(acos(x).subs(x, 0.5)), 6)
+    (0.0, 1.047198)
+    """
     sp = _s().sp
     if _eps(epsilon) == 0:
         return _map1(sp.acos, x)
@@ -209,7 +251,15 @@ def acos(x: Any, epsilon: Any = _DEFAULT):
 
 
 def asin(x: Any, epsilon: Any = _DEFAULT):
-    """``asin`` of the argument clamped to ``[-1, 1]``."""
+    """``asin`` of the argument clamped to ``[-1, 1]`` (rounding past 1 gives pi/2, not NaN).
+
+    Example:
+
+    >>> from fgopt.symbolic import asin, symbols
+    >>> x = symbols("x")
+    >>> round(float(asin(x).subs(x, -1.0000001)), 6), round(float(asin(x).subs(x, 0.5)), 6)
+    (-1.570796, 0.523599)
+    """
     sp = _s().sp
     if _eps(epsilon) == 0:
         return _map1(sp.asin, x)
@@ -236,7 +286,17 @@ def atan2(y: Any, x: Any, epsilon: Any = _DEFAULT):
 
 
 def safe_div(a: Any, b: Any, epsilon: Any = _DEFAULT):
-    """``a / (b + snz(b) epsilon)``."""
+    """``a / (b + snz(b) epsilon)``: finite at ``b = 0`` once ``epsilon > 0``.
+
+    Example:
+
+    >>> from fgopt.symbolic import epsilon, safe_div, symbols
+    >>> a, b = symbols("a b")
+    >>> safe_div(a, b).subs({a: 1, b: 0, epsilon: 1e-6})
+    1000000.00000000
+    >>> safe_div(a, b).subs({a: 1, b: 4, epsilon: 0})
+    1/4
+    """
     s = _s()
     b = s.as_expr(b)
     return s.as_expr(a) / (b + s.snz(b) * _eps(epsilon))
@@ -298,7 +358,15 @@ def pow(x: Any, p: Any):
 
 
 def symbols(names: str):
-    """Real SymPy symbols, ``a, b = symbols("a b")``."""
+    """Real SymPy symbols, ``a, b = symbols("a b")``.
+
+    Example (real symbols let SymPy simplify what it could not for complex ones):
+
+    >>> from fgopt.symbolic import symbols
+    >>> a, b = symbols("a b")
+    >>> a.is_real, (a**2).is_nonnegative
+    (True, True)
+    """
     return _s().sp.symbols(names, real=True)
 
 

@@ -141,7 +141,19 @@ def generate(fn: Callable | None = None, which: Iterable[str] | None = None, *,
 
 
 class GeneratedFunction:
-    """A function compiled by :func:`generate` (see the module docstring)."""
+    """A function compiled by :func:`generate` (see the module docstring).
+
+    >>> from fgopt.symbolic import V1, V2, generate
+    >>> def sq(x: V2) -> V1:
+    ...     return V1(x.squared_norm())
+    ...
+    >>> f = generate(sq)
+    >>> f(np.array([3.0, 4.0]))                      # value and Jacobian
+    (array([25.]), array([[6., 8.]]))
+    >>> out, J = f.batch(np.array([[3.0, 4.0], [1.0, 0.0]]))   # two inputs in one call
+    >>> out.ravel(), J.shape
+    (array([25.,  1.]), (2, 1, 2))
+    """
 
     def __init__(self, fn: Callable, *, which: Iterable[str] | None, name: str | None,
                  method: str, engine: str, cache: bool, scope: dict | None = None):

@@ -52,6 +52,14 @@ def tangent_jacobians(output: Any, args: Sequence[Any], method: str = "retractio
     Returns:
         One SymPy matrix ``(len(output_storage), dim(arg))`` per argument (rows are the output's
         tangent dimension instead when ``output`` is a Lie group element).
+
+    Example: the inverse of a planar rotation has the tangent Jacobian ``-1`` (the storage
+    ``[cos, sin]`` has unit norm):
+
+    >>> from fgopt.symbolic import Rot2, tangent_jacobians
+    >>> a = Rot2.symbolic("a")
+    >>> tangent_jacobians(a.inverse(), [a])
+    [Matrix([[-a_0**2 - a_1**2]])]
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
@@ -88,6 +96,16 @@ def jacobians_of(fn: Callable, arg_types: Sequence[type], wrt: Sequence[int] | N
         wrt: indices of the arguments to differentiate by (default all).
         method: see :func:`tangent_jacobians`.
         names: storage symbol prefixes (default ``a0``, ``a1``, ...).
+
+    Example: a rotated point; at the identity, turning by ``dtheta`` moves ``p`` along its
+    perpendicular ``(-p_y, p_x)``:
+
+    >>> from fgopt.symbolic import Rot2, V2, jacobians_of
+    >>> (R, p), Rp, (J_R, J_p) = jacobians_of(lambda R, p: R * p, [Rot2, V2], names=["R", "p"])
+    >>> J_R.subs({R.c: 1, R.s: 0})
+    Matrix([
+    [-p_1],
+    [ p_0]])
     """
     names = list(names) if names is not None else [f"a{i}" for i in range(len(arg_types))]
     args = [symbolic_value(tp, n) for tp, n in zip(arg_types, names)]

@@ -31,7 +31,18 @@ def _s():
 
 
 class LieGroupBase:
-    """Shared operations of ``Rot2, Rot3, Pose2, Pose3`` (see the module docstring)."""
+    """Shared operations of ``Rot2, Rot3, Pose2, Pose3`` (see the module docstring).
+
+    Each group defines ``compose``, ``inverse``, ``exp`` and ``log``; ``between``, ``retract``
+    and ``local`` (``a.local(b) = Log(a^-1 b)``) come from here:
+
+    >>> from fgopt.symbolic import LieGroupBase, Rot2
+    >>> a, b = Rot2.from_angle(0.3), Rot2.from_angle(1.0)
+    >>> issubclass(Rot2, LieGroupBase), round(float(a.local(b, epsilon=0)[0]), 6)
+    (True, 0.7)
+    >>> round(float(a.retract([0.7], epsilon=0).angle()), 6)
+    1.0
+    """
 
     __slots__ = ()
     _DIM: int

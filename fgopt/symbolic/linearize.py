@@ -60,6 +60,13 @@ def linearization_program(output: Any, args: Sequence[Any], method: str = "retra
         method: ``"retraction"`` or ``"chain"``.
         engine: ``"auto"``, ``"tree"`` or ``"dag"``.
         hessian: also output ``J^T J`` (upper triangle and below, full) and ``J^T r``.
+
+    Example:
+
+    >>> from fgopt.symbolic import V2, linearization_program
+    >>> p = V2.symbolic("p")
+    >>> linearization_program(p.squared_norm(), [p])
+    Program(stmts=[], outputs={'res': [p_0**2 + p_1**2], 'jac': [2*p_0, 2*p_1]})
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")

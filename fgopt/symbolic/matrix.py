@@ -413,14 +413,33 @@ def _wrap(m: Any) -> Matrix:
 def _shaped(rows: int, cols: int) -> type[Matrix]:
     name = f"V{rows}" if cols == 1 else f"M{rows}{cols}" if rows < 10 and cols < 10 \
         else f"M{rows}x{cols}"
-    doc = (f"A symbolic {rows}-vector (column); storage = tangent = its {rows} entries."
-           if cols == 1 else f"A symbolic {rows}x{cols} matrix (row-major storage).")
+    # the example of the types fgopt.symbolic exports (V1 ... V9, M22, M33, M44)
+    if cols == 1 and rows <= 9:
+        doc = (f"A symbolic {rows}-vector (column); storage = tangent = its {rows} entries.\n\n"
+               f">>> from fgopt.symbolic import {name}\n"
+               f">>> v = {name}.symbolic('v')   # entries v_0 ... v_{rows - 1}\n"
+               f">>> {name}.storage_dim(), v.retract([1] * {rows})[{rows - 1}]\n"
+               f"({rows}, v_{rows - 1} + 1)\n")
+    elif cols == 1:
+        doc = f"A symbolic {rows}-vector (column); storage = tangent = its {rows} entries."
+    else:
+        doc = f"A symbolic {rows}x{cols} matrix (row-major storage)."
+        if rows == cols <= 4:
+            doc += (f"\n\n>>> from fgopt.symbolic import {name}\n"
+                    f">>> K = {name}.from_storage(range({rows * cols}))\n"
+                    f">>> K[0, 1], K[1, 0], (K * {name}.eye())[{rows - 1}, 0]\n"
+                    f"(1, {rows}, {(rows - 1) * cols})\n")
     return type(name, (Matrix,), {"__slots__": (), "SHAPE": (rows, cols), "__doc__": doc,
                                   "__module__": __name__})
 
 
 def vector_type(n: int) -> type[Matrix]:
-    """The symbolic ``n``-vector type (``V3`` for 3)."""
+    """The symbolic ``n``-vector type (``V3`` for 3).
+
+    >>> from fgopt.symbolic import V3, vector_type
+    >>> vector_type(3) is V3, vector_type(12).storage_dim()
+    (True, 12)
+    """
     return _shaped(n, 1)
 
 

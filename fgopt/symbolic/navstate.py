@@ -28,7 +28,16 @@ def _eps(epsilon: Any):
 
 
 class NavState(LieGroupBase):
-    """Attitude ``world_R_body``, position and velocity (world frame); see the module docstring."""
+    """Attitude ``world_R_body``, position and velocity (world frame); see the module docstring.
+
+    ``retract`` moves the velocity along the body axes (GTSAM's chart ``v + R dV``):
+
+    >>> from fgopt.symbolic import NavState, Rot3, V3
+    >>> x = NavState(Rot3.from_angle_axis(np.pi / 2, [0, 0, 1]), V3(1, 2, 3), V3(0.5, 0, 0))
+    >>> y = x.retract([0, 0, 0, 0, 0, 0, 1.0, 0, 0], epsilon=0)    # +1 m/s along body x
+    >>> [round(float(c), 6) for c in y.velocity()], NavState.dim()
+    ([0.5, 1.0, 0.0], 9)
+    """
 
     __slots__ = ("R", "p", "v")
     _DIM = 9

@@ -40,6 +40,13 @@ class Rot2(LieGroupBase):
     """A planar rotation. Storage ``[cos, sin]``; tangent ``[theta]``; ``Exp(t) = (cos t, sin t)``.
 
     ``Log`` is ``atan2(sin, cos)`` in (-pi, pi]. ``rot * p`` rotates a ``V2``.
+
+    >>> from fgopt.symbolic import Rot2, V2
+    >>> R = Rot2.from_angle(np.pi / 2)
+    >>> [round(float(c), 6) for c in R * V2(1, 0)]          # x axis -> y axis
+    [0.0, 1.0]
+    >>> round(float((R * R).log(epsilon=0)[0]), 6)           # 90 + 90 degrees
+    3.141593
     """
 
     __slots__ = ("c", "s")

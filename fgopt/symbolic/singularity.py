@@ -60,6 +60,17 @@ def check_removable_singularity(f: Any, x: Any, x0: Any = 0, epsilon: Any = None
         x0: the singular point.
         epsilon: the epsilon symbol (default :data:`fgopt.symbolic.epsilon`).
         orders: also check derivatives up to this order.
+
+    Example: ``sin(x) / x`` at 0. Shifting only the denominator gives ``0`` for ``epsilon > 0``
+    where the limit is 1; shifting ``x`` in both places is right:
+
+    >>> from fgopt.symbolic import check_removable_singularity, epsilon, safe_div, sin, snz, symbols
+    >>> x = symbols("x")
+    >>> check_removable_singularity(safe_div(sin(x), x), x).messages[0]
+    'value: limit in epsilon 0 != limit in x 1'
+    >>> xs = x + snz(x) * epsilon
+    >>> bool(check_removable_singularity(sin(xs) / xs, x))
+    True
     """
     sp = _s().sp
     eps = _s().epsilon if epsilon is None else epsilon

@@ -36,6 +36,15 @@ class DeclaredManifold:
     ``T(storage)`` wraps storage entries (numbers, expressions, a Matrix); ``T()`` is the
     identity. ``x[i]`` is storage entry ``i`` (a slice gives a vector), ``x.storage`` the
     storage as a ``V<storage_dim>``.
+
+    >>> from fgopt.symbolic import SE23, DeclaredManifold, symbols
+    >>> issubclass(SE23, DeclaredManifold)
+    True
+    >>> SE23()[3], SE23().storage.shape                # the identity: quaternion w = 1
+    (1, (10, 1))
+    >>> x = SE23(list(symbols("q0:4")) + [0] * 6)
+    >>> x[0:4]
+    V4([[q0], [q1], [q2], [q3]])
     """
 
     __slots__ = ("_s",)

@@ -18,6 +18,11 @@ class OrientedPlane3(Product(Unit3, Scalar, names=("normal", "distance"))):
     normal's :class:`~fgopt.symbolic.geometry.unit3.Unit3` coordinates, then the distance.
     ``retract((n, d), [v, dd]) = (n.retract(v), d + dd)`` and ``local`` likewise, as GTSAM's
     ``OrientedPlane3::retract`` / ``localCoordinates`` (the product ``Unit3 x R``).
+
+    >>> plane = fgopt.OrientedPlane3([0.0, 0.0, 1.0, -2.0])    # the plane z = 2, normal +z
+    >>> tilted = plane.retract([0.1, 0.0, 0.5])                # tilt the normal, move by 0.5
+    >>> np.round(plane.local(tilted), 6), round(float(tilted.to_storage()[3]), 6)
+    (array([0.1, 0. , 0.5]), -1.5)
     """
 
     def plane_coefficients(x) -> V4:

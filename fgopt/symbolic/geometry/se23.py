@@ -55,6 +55,15 @@ class SE23:
     ``Exp([w, a, b]) = (Exp(w), V(w) a, V(w) b)``, ``V`` the left Jacobian of SO(3) (as in
     ``Pose3``), so ``retract`` couples rotation with velocity and position (unlike the product
     ``SO(3) x R^3 x R^3``).
+
+    Turning 90 degrees about z while gaining 1 m/s along x gives the velocity ``V(w) a``:
+
+    >>> x = fgopt.SE23()                                  # R = I, v = p = 0
+    >>> y = x.retract([0, 0, np.pi / 2, 1.0, 0, 0, 0, 0, 0])
+    >>> np.round(y.to_storage()[4:7], 6)                  # 2 / pi in x and y
+    array([0.63662, 0.63662, 0.     ])
+    >>> np.allclose(x.local(y), [0, 0, np.pi / 2, 1.0, 0, 0, 0, 0, 0])
+    True
     """
 
     storage_dim = 10
