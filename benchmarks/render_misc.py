@@ -100,6 +100,11 @@ def startup(doc: dict) -> str:
             row(f"new custom factor (20 Pose3), definition to result, {what} <= {limit} s "
                 "[41.3]", d[which], g if g is not None else float("nan"), d[which] <= limit,
                 comparable=False)
+    floor = res.get("import", {}).get("numba floor")
+    if floor is not None:
+        lines += ["", (f"numba's own floor, in every process that runs one numba kernel (`import "
+                       f"numba` and the first call of one cached function, no fgopt): "
+                       f"{floor['median']:.2f} s, {floor['cpu']:.2f} s CPU.")]
     lines += ["", ("⁽ˢ⁾ GTSAM's figure is a `CustomFactor` with numerical Jacobians (no derivation "
               "step): for scale only, no ratio. Empty caches: GTSAM has no cache; its figure is "
               "its one solve of the same file. [41.n]: target n of issue 41; ports: "
