@@ -5,7 +5,9 @@ marginal covariances.
 ``x_F = L11^-T (y - L21^T x_S)``. After an update the new top is solved completely (parents
 first); an orphan subtree is re-solved only where a separator variable changed by more than the
 wildfire threshold (iSAM2's ``optimizeWildfire``): by the running-intersection property, if no
-variable of a clique changed, none of its descendants' separators did.
+variable of a clique changed, none of its descendants' separators did. The estimate keeps its
+own update ``xdelta`` the same way with a much smaller tolerance that does not accumulate
+(:func:`solve_estimate`), so ``estimate()`` re-solves only what an update can have moved.
 
 *Marginals.* The joint covariance of a clique's variables given its parent's is
 ``Sigma_FF = L11^-T L11^-1 + A Sigma_SS A^T``, ``Sigma_FS = A Sigma_SS`` with
@@ -117,13 +119,24 @@ def _mark_changes(c, var_dim, delta, var_changed, stamp, wildfire, cvpool, cnpoo
 
 
 @njit(cache=True)
-def solve_exact(vs, cs, cvpool, cnpool, x):
-    """Exact back-substitution of the whole tree into ``x`` (``delta``'s shape), leaving the
-    smoother's ``delta`` alone: what ``estimate()`` returns (no wildfire approximation)."""
-    var_dim = unpack_vs(vs)[0]
+def solve_estimate(vs, cs, cvpool, cnpool, x, xprop, tol, stamp):
+    """Back-substitute the estimate's update ``x`` where it can have changed since the last
+    call: cliques with a frontal variable re-eliminated since (``xrepl``), and cliques below a
+    separator variable that moved by more than ``tol`` (any component) from ``xprop``, its
+    value when its dependents were last re-solved; ``xprop`` is reset only when that happens,
+    so changes below ``tol`` do not add up over calls (unlike the wildfire ``delta``): every
+    clique's solution is exact for separator values within ``tol`` of the stored ones.
+    ``tol`` 0 is the exact solve. Returns the number of cliques solved and the variables to
+    retract again: those whose ``x`` changed, and those marked ``stale`` (relinearized), whose
+    flag it clears."""
+    V_ = unpack_vs(vs)
+    var_dim, var_changed, var_stale, var_xrepl = V_[0], V_[6], V_[11], V_[12]
     C_ = unpack_cs(cs)
     cl_child, cl_next, cl_voff, cl_nf, cl_ns, cl_fdim, cl_sdim, cl_poff = (
         C_[1], C_[2], C_[4], C_[5], C_[6], C_[7], C_[8], C_[9])
+    solved = 0
+    out = np.empty(16, np.int64)
+    nout = 0
     xs = np.empty(64)
     xf = np.empty(64)
     stack = np.empty(64, np.int64)
@@ -140,13 +153,25 @@ def solve_exact(vs, cs, cvpool, cnpool, x):
     while ns > 0:
         ns -= 1
         c = stack[ns]
+        vo = cl_voff[c]
+        nf = cl_nf[c]
+        hit = False
+        for k in range(nf):
+            if var_xrepl[cvpool[vo + k]] != 0:
+                hit = True
+                break
+        if not hit:
+            for k in range(cl_ns[c]):
+                if var_changed[cvpool[vo + nf + k]] == stamp:
+                    hit = True
+                    break
+        if not hit:
+            continue
         fd, sd = cl_fdim[c], cl_sdim[c]
         m = fd + sd
         if m > xs.shape[0]:
             xs = np.empty(2 * m)
             xf = np.empty(2 * m)
-        vo = cl_voff[c]
-        nf = cl_nf[c]
         o = 0
         for k in range(cl_ns[c]):
             v = cvpool[vo + nf + k]
@@ -159,9 +184,29 @@ def solve_exact(vs, cs, cvpool, cnpool, x):
         o = 0
         for k in range(nf):
             v = cvpool[vo + k]
+            var_xrepl[v] = 0
+            big = False
+            moved = var_stale[v] != 0
+            var_stale[v] = 0
             for a in range(var_dim[v]):
-                x[v, a] = xf[o + a]
+                if xf[o + a] != x[v, a]:
+                    moved = True
+                    x[v, a] = xf[o + a]
+                if abs(xf[o + a] - xprop[v, a]) > tol:
+                    big = True
+            if moved:
+                if nout >= out.shape[0]:
+                    grown = np.empty(2 * out.shape[0], np.int64)
+                    grown[:nout] = out[:nout]
+                    out = grown
+                out[nout] = v
+                nout += 1
+            if big:
+                var_changed[v] = stamp
+                for a in range(var_dim[v]):
+                    xprop[v, a] = xf[o + a]
             o += var_dim[v]
+        solved += 1
         ch = cl_child[c]
         while ch != -1:
             if ns >= stack.shape[0]:
@@ -171,6 +216,7 @@ def solve_exact(vs, cs, cvpool, cnpool, x):
             stack[ns] = ch
             ns += 1
             ch = cl_next[ch]
+    return solved, out[:nout]
 
 
 @njit(cache=True)

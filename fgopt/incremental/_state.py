@@ -41,8 +41,8 @@ META_SIZE = 9 + 3 * NCLASS
 
 # rows of VI, FI, CI, ADJ (and their fill values)
 _VI_ROWS = ("var_dim", "var_clique", "var_mark", "var_loc", "var_pos", "var_fhead",
-            "var_changed", "var_live", "var_repl")
-_VI_FILL = (0, -1, 0, 0, 0, -1, 0, 0, 0)
+            "var_changed", "var_live", "var_repl", "var_stale", "var_xrepl")
+_VI_FILL = (0, -1, 0, 0, 0, -1, 0, 0, 0, 0, 0)
 _FI_ROWS = ("fac_nv", "fac_hoff", "fac_D", "fac_mark", "fac_alive")
 _CI_ROWS = ("cl_parent", "cl_child", "cl_next", "cl_prev", "cl_voff", "cl_nf", "cl_ns",
             "cl_fdim", "cl_sdim", "cl_poff", "cl_mark", "cl_free")
@@ -52,10 +52,13 @@ _ADJ_ROWS = ("adj_next", "adj_fac", "adj_free")
 
 @njit(cache=True, inline="always")
 def unpack_vs(vs):
-    """``(dim, clique, mark, loc, pos, fhead, changed, delta, thr, live, repl)``; ``repl``
-    marks variables re-eliminated since the last back-substitution."""
+    """``(dim, clique, mark, loc, pos, fhead, changed, delta, thr, live, repl, stale, xrepl)``;
+    ``repl`` / ``xrepl`` mark variables re-eliminated since the last back-substitution of
+    ``delta`` / of the estimate's ``xdelta``, ``stale`` those whose ``xdelta`` or ``theta``
+    changed since the estimate cache last retracted them (``_values.VariableStore._refresh``)."""
     VI, delta, thr = vs
-    return VI[0], VI[1], VI[2], VI[3], VI[4], VI[5], VI[6], delta, thr, VI[7], VI[8]
+    return (VI[0], VI[1], VI[2], VI[3], VI[4], VI[5], VI[6], delta, thr, VI[7], VI[8], VI[9],
+            VI[10])
 
 
 @njit(cache=True, inline="always")
@@ -102,6 +105,10 @@ class TreeState:
         self.VI = _grow_cols(np.zeros((len(_VI_ROWS), 0), np.int64), 16, _VI_FILL)
         self.delta = np.zeros((16, 1))
         self.thr = np.zeros((16, 1))
+        # the estimate's back-substituted update, and each variable's value when its
+        # dependents were last re-solved (``_solve.solve_estimate``)
+        self.xdelta = np.zeros((16, 1))
+        self.xprop = np.zeros((16, 1))
         self.FI = np.zeros((len(_FI_ROWS), 16), np.int64)
         self.fac_vars = np.full((16, 1), -1, np.int64)
         self.ADJ = np.full((3, 16), -1, np.int64)
@@ -117,7 +124,7 @@ class TreeState:
     # ------------------------------------------------------------------ capacity
     def ensure_vars(self, n: int, maxd: int) -> None:
         if maxd > self.maxd:
-            for name in ("delta", "thr"):
+            for name in ("delta", "thr", "xdelta", "xprop"):
                 old = getattr(self, name)
                 new = np.zeros((old.shape[0], maxd))
                 new[:, :self.maxd] = old
@@ -130,6 +137,8 @@ class TreeState:
         self.VI = _grow_cols(self.VI, n, _VI_FILL)
         self.delta = _grow(self.delta, n)
         self.thr = _grow(self.thr, n)
+        self.xdelta = _grow(self.xdelta, n)
+        self.xprop = _grow(self.xprop, n)
 
     def ensure_factors(self, n: int, kmax: int) -> None:
         if kmax > self.kmax:

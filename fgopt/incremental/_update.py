@@ -95,8 +95,10 @@ def tree_finish(vs, fs, cs, meta, cvpool, cnpool, hpool, T, R, O, FL, ap, ai, gr
     info[I_NNZ] = panel_entries(cs, newcl) - panel_entries(cs, R)
     commit(vs, fs, cs, meta, cvpool, cnpool, hpool, R, newcl, O, oparent, T, T_clique, removed,
            new_facs)
-    var_repl = unpack_vs(vs)[10]
+    V_ = unpack_vs(vs)
+    var_repl, var_xrepl = V_[10], V_[12]
     for v in T:
         var_repl[v] = 1
+        var_xrepl[v] = 1
     info[I_NEW] = newcl.shape[0]
     return OK, T, R, O, FL, ap, ai, group, info, cvpool, cnpool

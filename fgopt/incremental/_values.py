@@ -32,6 +32,7 @@ class VariableStore:
         self.kinds: list[BatchKind] = []
         self._kind_id: dict[int, int] = {}
         self.theta: list[np.ndarray] = []
+        self.est: list[np.ndarray] = []     # per kind: theta (+) delta by slot (see _refresh)
         self.objects: dict[int, Any] = {}
         self.free: list[int] = []
         self.hwm = 0
@@ -107,6 +108,7 @@ class VariableStore:
                 kid = self._kind_id[id(kind)] = len(self.kinds)
                 self.kinds.append(kind)
                 self.theta.append(np.zeros((max(16, self.key_of.shape[0]), kind.storage_dim)))
+                self.est.append(np.zeros_like(self.theta[-1]))
             th = self.theta[kid]
             if slot >= th.shape[0]:
                 grown = np.zeros((max(2 * th.shape[0], slot + 1), kind.storage_dim))
@@ -119,9 +121,11 @@ class VariableStore:
         self.kind_of[slot] = kid
         tree = self.tree
         tree.ensure_vars(slot + 1, dim)
-        # VI rows: dim, clique, mark, loc, pos, fhead, changed, live, repl (see _state)
-        tree.VI[:, slot] = (dim, -1, 0, 0, 0, -1, 0, 1, 0)
+        # VI rows: dim, clique, mark, loc, pos, fhead, changed, live, repl, stale, xrepl
+        tree.VI[:, slot] = (dim, -1, 0, 0, 0, -1, 0, 1, 0, 1, 0)
         tree.delta[slot] = 0.0
+        tree.xdelta[slot] = 0.0
+        tree.xprop[slot] = 0.0
         ck = (key_char(k), id(kind), dim, tree.maxd)
         row = self._thr_rows.get(ck)
         if row is None:
@@ -174,8 +178,7 @@ class VariableStore:
 
     def live_slots(self) -> np.ndarray:
         if self._live is None:
-            self._live = np.fromiter(self.slot_of.values(), np.int64, len(self.slot_of))
-            self._live.sort()
+            self._live = np.flatnonzero(self.tree.VI[7, :self.hwm])
         return self._live
 
     def theta_value(self, slot: int) -> Any:
@@ -195,43 +198,58 @@ class VariableStore:
         # retract's output is a fresh row on the manifold: wrap it without re-normalizing
         return kind.wrap(row) if kind.wrap is not None else kind.from_storage(row)
 
-    def estimate_storages(self, delta: np.ndarray) -> tuple[list[np.ndarray], dict[int, Any]]:
-        """``theta (+) delta`` of every live variable: one array per kind (indexed by slot),
-        and the Python-manifold values."""
-        live = self.live_slots()
-        kinds = self.kind_of[live]
-        out = []
+    def _refresh(self, stale: np.ndarray) -> None:
+        """Bring the cached ``theta (+) xdelta`` of each batch kind up to date by retracting
+        ``stale`` (the variables whose ``xdelta`` or ``theta`` changed since the last call,
+        from :func:`._solve.solve_estimate`)."""
+        one = len(self.kinds) == 1 and not self.objects
+        kinds = None if one else self.kind_of[stale]
         for kid, kind in enumerate(self.kinds):
-            rows = live[kinds == kid]
-            est = np.zeros_like(self.theta[kid])
+            th = self.theta[kid]
+            est = self.est[kid]
+            if est.shape[0] != th.shape[0]:
+                grown = np.zeros_like(th)
+                grown[:est.shape[0]] = est
+                self.est[kid] = est = grown
+            rows = stale if one else stale[kinds == kid]
             if rows.shape[0]:
-                est[rows] = kind.retract(np.ascontiguousarray(self.theta[kid][rows]),
-                                         np.ascontiguousarray(delta[rows, :kind.dim]))
-            out.append(est)
-        objects = {}
-        for v in live[kinds < 0].tolist():
-            x = self.objects[v]
-            objects[v] = ops_for(x).retract(x, delta[v, :self.tree.var_dim[v]].copy())
-        return out, objects
+                est[rows] = kind.retract(th[rows], self.tree.xdelta[rows, :kind.dim])
 
-    def estimate(self, delta: np.ndarray) -> Variables:
-        """``theta (+) delta`` of every live variable, as a Variables the caller may keep.
+    def estimate_storages(self, stale: np.ndarray) -> tuple[list[np.ndarray], dict[int, Any]]:
+        """``theta (+) xdelta`` of every live variable: one array per kind (indexed by slot;
+        the smoother's cache, to read only), and the Python-manifold values."""
+        self._refresh(stale)
+        objects = {}
+        for v, x in self.objects.items():
+            objects[v] = ops_for(x).retract(x, self.tree.xdelta[v, :self.tree.var_dim[v]].copy())
+        return self.est, objects
+
+    def estimate(self, stale: np.ndarray) -> Variables:
+        """``theta (+) xdelta`` of every live variable, as a Variables the caller may keep.
 
         Values of kinds with ``wrap`` (Lie groups, vectors) go in as one bulk block of fresh,
-        read-only storage rows per kind (``Variables.add_rows``'s form): no Python per variable
-        until the caller reads values, and later updates cannot change them. Order: kinds in
-        order of first use, slots ascending within a kind, duck-typed values last.
+        read-only storage rows per kind (``Variables.add_rows``'s form), copied from the cache
+        :meth:`_refresh` keeps: no Python per variable until the caller reads values, no
+        retraction of variables whose ``delta`` did not move, and later updates cannot change
+        them. Order: kinds in order of first use, slots ascending within a kind, duck-typed
+        values last.
         """
+        self._refresh(stale)
         out = Variables()
         live = self.live_slots()
-        kinds = self.kind_of[live]
         one = len(self.kinds) == 1 and not self.objects
+        kinds = None if one else self.kind_of[live]
         for kid, kind in enumerate(self.kinds):
             rows = live if one else live[kinds == kid]
-            if rows.shape[0] == 0:
+            n = rows.shape[0]
+            if n == 0:
                 continue
-            est = kind.retract(self.theta[kid][rows], delta[rows, :kind.dim])
-            keys = self.key_of[rows]
+            if rows[n - 1] - rows[0] == n - 1:  # consecutive slots (no removals): plain copies
+                est = self.est[kid][rows[0]:rows[0] + n].copy()
+                keys = self.key_of[rows[0]:rows[0] + n].copy()
+            else:
+                est = self.est[kid][rows]
+                keys = self.key_of[rows]
             if kind.wrap is not None:
                 est.flags.writeable = False
                 out._pending.append(_Rows(keys, kind, est))
@@ -244,7 +262,7 @@ class VariableStore:
             for v in live[kinds < 0].tolist():
                 x = self.objects[v]
                 values[Key(int(self.key_of[v]))] = ops_for(x).retract(
-                    x, delta[v, :self.tree.var_dim[v]].copy())
+                    x, self.tree.xdelta[v, :self.tree.var_dim[v]].copy())
         return out
 
     # ------------------------------------------------------------------ relinearization
@@ -261,6 +279,7 @@ class VariableStore:
                 self._log.append(("theta", kid, rows, old))
             self.theta[kid][rows] = kind.retract(old, np.ascontiguousarray(
                 tree.delta[rows, :kind.dim]))
+        tree.var_stale[slots] = 1   # theta moved: the estimate retracts them again
         for v in slots[kinds < 0].tolist():
             x = self.objects[v]
             if self._log is not None:

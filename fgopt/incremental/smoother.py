@@ -50,6 +50,9 @@ from .linear_container import LinearContainerFactor
 from .params import IncrementalParams, UpdateResult
 
 _EMPTY = np.zeros(0, np.int64)
+#: ``estimate()`` re-solves a subtree when a separator variable moved by more than this (tangent
+#: units) since the subtree was last solved, or by more than ``wildfire_threshold`` if smaller.
+ESTIMATE_TOLERANCE = 1e-9
 #: Clock of ``UpdateResult.timing`` (wall time; benchmarks may swap in a CPU clock).
 _clock = time.perf_counter
 
@@ -83,8 +86,9 @@ class IncrementalSmoother:
         self._force_batch = False
         self._dirty = False
         self._constants: dict = {}  # key -> value held constant (update(constant=...))
-        #: Cliques back-substituted by the last (deferred) solve.
+        #: Cliques back-substituted by the last (deferred) solve, and by the last estimate().
         self.last_solve_cliques = 0
+        self.last_estimate_cliques = 0
 
     def _solve(self) -> None:
         """Bring ``delta`` up to date (iSAM2 defers back-substitution to the next read)."""
@@ -94,6 +98,16 @@ class IncrementalSmoother:
             self.last_solve_cliques = _solve.solve_pending(
                 t.vs, t.cs, t.cvpool, t.cnpool, self.params.wildfire_threshold, t.meta[M_STAMP])
             self._dirty = False
+
+    def _solve_estimate(self) -> np.ndarray:
+        """Bring the estimate's ``xdelta`` up to date (:func:`._solve.solve_estimate`); returns
+        the variables to retract again."""
+        t = self._tree
+        t.meta[M_STAMP] += 1
+        tol = min(float(self.params.wildfire_threshold), ESTIMATE_TOLERANCE)
+        self.last_estimate_cliques, stale = _solve.solve_estimate(
+            t.vs, t.cs, t.cvpool, t.cnpool, t.xdelta, t.xprop, tol, t.meta[M_STAMP])
+        return stale
 
     # ================================================================== public API
     def update(self, new_factors: "FactorGraph | Iterable[Factor]" = (),
@@ -154,15 +168,16 @@ class IncrementalSmoother:
     def estimate(self, key: Any = None) -> Any:
         """All current estimates as :class:`~fgopt.Variables`, or the value of one ``key``.
 
-        The estimate is ``theta (+) delta``. One key reads iSAM2's ``delta``, kept up to date by
-        wildfire back-substitution (subtrees whose separators moved less than
-        ``wildfire_threshold`` are not re-solved). All keys cost O(n) anyway, so they are
-        back-substituted exactly: the Gauss-Newton step of the current linearization. The
+        The estimate is ``theta (+) delta``, as iSAM2's ``calculateEstimate``: ``delta`` is
+        back-substituted on read, only where it can have changed (wildfire: the re-eliminated
+        cliques, and the subtrees below a separator variable that moved by more than
+        ``wildfire_threshold``; 0 gives the exact Gauss-Newton step of the current
+        linearization), and only variables whose ``delta`` moved are retracted again. The
         Variables holds one read-only array per kind (value objects are made when read) and is
         the caller's: later updates do not change it.
         """
         if key is None:
-            out = self._vars.estimate(self._exact_delta())
+            out = self._vars.estimate(self._solve_estimate())
             for k, x in self._constants.items():
                 out.add(k, x)
             return out
@@ -170,12 +185,6 @@ class IncrementalSmoother:
             return self._constants[as_key(key)]
         self._solve()
         return self._vars.estimate_value(self._vars.slot(as_key(key)))
-
-    def _exact_delta(self) -> np.ndarray:
-        t = self._tree
-        x = np.zeros_like(t.delta)
-        _solve.solve_exact(t.vs, t.cs, t.cvpool, t.cnpool, x)
-        return x
 
     def linearization_point(self) -> Variables:
         """The values ``theta`` the factors are currently linearized at."""
@@ -204,7 +213,7 @@ class IncrementalSmoother:
 
     def cost(self) -> float:
         """Total cost ``sum rho_i`` (``0.5 |r|^2`` without robust losses) at ``estimate()``."""
-        storages, objects = self._vars.estimate_storages(self._exact_delta())
+        storages, objects = self._vars.estimate_storages(self._solve_estimate())
         return self._facs.cost(storages, objects)
 
     def marginalize(self, keys: Iterable[Any]) -> list[int]:
