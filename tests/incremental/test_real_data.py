@@ -65,3 +65,61 @@ def test_m3500_prefix_close_to_batch_and_gtsam(data_file):
     g_values = fgopt.Variables({k: SE2.from_xytheta(ge.atPose2(k).x(), ge.atPose2(k).y(),
                                                      ge.atPose2(k).theta()) for k in ge.keys()})
     assert cost <= graph.error(g_values) * (1 + 1e-9)
+
+
+def test_m3500_full_estimate_after_every_update(data_file):
+    """M3500's first 300 poses, the whole estimate read after every update (GTSAM's
+    VisualISAM2Example pattern): the last read equals the exact Gauss-Newton step at the
+    smoother's linearization point to 1e-7 (a sparse solve of the batch system; the reads
+    re-solve only subtrees whose separator moved by > 1e-9), and its cost is no higher than that
+    of GTSAM ISAM2's ``calculateEstimate`` read the same way."""
+    import scipy.sparse.linalg as sla
+
+    from fgopt.problem import Problem
+
+    x0, steps = m3500_steps(data_file("pose2d/input_M3500_g2o.g2o"))
+    steps = steps[:299]
+    prior = PriorFactor(key("x", 0), x0, Diagonal.sigmas([1e-3] * 3))
+    isam = IncrementalSmoother()
+    graph = FactorGraph([prior])
+    est = None
+    for n, fs in enumerate(steps, start=1):
+        odo = next(f for f in fs if f.keys == (key("x", n - 1), key("x", n)))
+        prev = x0 if n == 1 else est.at(key("x", n - 1))     # the last read
+        values = {key("x", n): prev * SE2.from_storage(odo.constants)}
+        if n == 1:
+            values[key("x", 0)] = x0
+        isam.update(([prior] if n == 1 else []) + fs, values)
+        graph.extend(fs)
+        est = isam.estimate()
+    p = Problem(graph, isam.linearization_point())
+    st = p.initial_state()
+    p.linearize(st)
+    exact = p.values(p.retract(st, sla.spsolve(p.pattern.full(p.H_data).tocsc(), -p.g)))
+    worst = max(float(np.abs(est.at(k).local(exact.at(k))).max()) for k in exact.keys())
+    assert len(est) == 300 and worst < 1e-7
+
+    gtsam = pytest.importorskip("gtsam")
+    g_isam = gtsam.ISAM2(gtsam.ISAM2Params())
+    to_pose = lambda f: gtsam.Pose2(*f.constants[2:4], np.arctan2(f.constants[1], f.constants[0]))  # noqa: E731
+    x0g = gtsam.Pose2(x0.x(), x0.y(), x0.theta())
+    ge = None
+    for n, fs in enumerate(steps, start=1):
+        g = gtsam.NonlinearFactorGraph()
+        v = gtsam.Values()
+        if n == 1:
+            g.add(gtsam.PriorFactorPose2(key("x", 0), x0g,
+                                         gtsam.noiseModel.Diagonal.Sigmas(np.full(3, 1e-3))))
+            v.insert(key("x", 0), x0g)
+        for f in fs:
+            info = f.noise.information[np.ix_([1, 2, 0], [1, 2, 0])]
+            g.add(gtsam.BetweenFactorPose2(f.keys[0], f.keys[1], to_pose(f),
+                                           gtsam.noiseModel.Gaussian.Information(info)))
+        odo = next(f for f in fs if f.keys == (key("x", n - 1), key("x", n)))
+        prev = x0g if n == 1 else ge.atPose2(key("x", n - 1))  # the last read
+        v.insert(key("x", n), prev.compose(to_pose(odo)))
+        g_isam.update(g, v)
+        ge = g_isam.calculateEstimate()
+    g_values = fgopt.Variables({k: SE2.from_xytheta(ge.atPose2(k).x(), ge.atPose2(k).y(),
+                                                     ge.atPose2(k).theta()) for k in ge.keys()})
+    assert graph.error(est) <= graph.error(g_values) * (1 + 1e-6)
