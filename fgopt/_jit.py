@@ -192,6 +192,38 @@ def njit(*args: Any, **options: Any) -> Any:
     return wrap
 
 
+_SPECIALIZED: dict = {}
+
+
+def specialize(kernel: LazyKernel, value: int) -> LazyKernel:
+    """``kernel`` with its first argument fixed: ``specialize(k, 3)(a, b)`` is ``k(3, a, b)``.
+
+    For kernels that switch on an integer id (a calibration model, a Lie group): an id passed at
+    run time makes numba type and compile every branch, every model's code. ``kernel`` must be
+    ``inline="always"``: numba inlines it into this entry, where the id is a constant, and prunes
+    the branches the constant rules out before typing them (callees that are inlined too, with
+    the id passed on, are pruned the same way). The entry is compiled with ``kernel``'s options
+    and cached on its own, as ``<kernel>[value]``.
+    """
+    entry = _SPECIALIZED.get((kernel, value))
+    if entry is None:
+        import inspect
+
+        args = ", ".join(list(inspect.signature(kernel.py_func).parameters)[1:])
+        ns = {"KERNEL": kernel, "VALUE": value, "__name__": kernel.__module__}
+        # under the kernel's file name: numba's cache names its files after the source file
+        # and the qualified name, and stamps them with the file
+        exec(compile(f"def entry({args}):\n    return KERNEL(VALUE, {args})\n",
+                     inspect.getfile(kernel.py_func), "exec"), ns)
+        fn = ns["entry"]
+        fn.__qualname__ = f"{kernel.__qualname__}[{value}]"
+        fn.__module__ = kernel.__module__
+        fn.__doc__ = kernel.__doc__
+        options = {k: v for k, v in kernel.options.items() if k != "inline"}
+        entry = _SPECIALIZED.setdefault((kernel, value), LazyKernel(fn, options))
+    return entry
+
+
 def is_numba_loaded() -> bool:
     """Whether numba has been imported in this process."""
     return "numba" in sys.modules

@@ -1,13 +1,15 @@
 """Start-up: ``import fgopt`` loads no heavy dependency, and deferred numba kernels behave as
 numba kernels (compiled on first call, callable from other kernels, parallel ``prange``)."""
 
+import os
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
-from fgopt._jit import LazyKernel, njit, prange
+from fgopt._jit import LazyKernel, njit, prange, specialize
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -74,6 +76,39 @@ def test_parallel_kernel_uses_numba_prange():
 
     assert _parallel_double.py_func.__globals__["prange"] is numba.prange
 
+
+
+@njit(cache=False, inline="always")
+def _switch(which, x):
+    if which == 0:
+        return x + 1.0
+    return x + "a"  # does not type: the entry for 0 compiles only because it is pruned
+
+
+def test_specialize_compiles_only_the_branch_of_its_constant():
+    """``specialize(kernel, 0)`` is ``kernel(0, ...)`` compiled with the branches 0 rules out
+    pruned before typing, where a run-time 0 types every branch (and here fails)."""
+    import numba
+
+    assert specialize(_switch, 0)(1.5) == 2.5
+    assert specialize(_switch, 0) is specialize(_switch, 0)
+    with pytest.raises(numba.core.errors.TypingError):
+        _switch(0, 1.5)
+
+
+def test_a_specialized_entry_loads_from_the_cache_in_a_new_process(tmp_path):
+    """A per-group entry compiled in one process is loaded from numba's cache in the next (a
+    cache key that changed per process would compile it again every run)."""
+    code = ("import numpy as np\nfrom fgopt._jit import specialize\n"
+            "from fgopt.manifolds._kernels import dispatch, SE2_ID\n"
+            "entry = specialize(dispatch.batch_retract, SE2_ID)\n"
+            "x = np.array([[1.0, 0.0, 2.0, 3.0]])\n"
+            "assert np.allclose(entry(x, np.zeros((1, 3))), x)\n"
+            "s = entry.stats\nprint(sum(s.cache_hits.values()), sum(s.cache_misses.values()))\n")
+    env = dict(os.environ, FGOPT_CACHE_DIR=str(tmp_path), PYTHONPATH=str(REPO))
+    runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                           cwd=REPO, check=True, env=env).stdout for _ in range(2)]
+    assert runs[0].split() == ["0", "1"] and runs[1].split() == ["1", "0"]  # (hits, misses)
 
 
 def _run(code: str) -> str:

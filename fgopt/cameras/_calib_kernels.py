@@ -1,7 +1,10 @@
 """numba kernels of the calibration models: ``uncalibrate`` / ``calibrate`` and their Jacobians.
 
 One function per operation dispatches on an integer model id (like the Lie-group kernels'
-group ids), so the projection, stereo and smart-factor kernels compile once for every model.
+group ids). The dispatchers and the kernels that pass the id on are inlined (numba IR), and
+Python calls them through :func:`fgopt._jit.specialize`: an entry per model whose constant id
+prunes the other models' branches before numba types them, so a problem compiles its own
+model's code only.
 Parameter vectors are GTSAM's ``vector()`` order, stored as given to the constructors:
 
 =================  ==============================  ===  ==================================
@@ -76,7 +79,7 @@ def parameters_valid(model, k):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def tangent_dim(model):
     if model == CAL3BUNDLER:
         return 3
@@ -291,7 +294,7 @@ def _double_sphere(k, x, y, uv, Dk, Dp, with_jac):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def uncalibrate(model, k, x, y, uv, Dk, Dp, with_jac):
     """Pixel ``uv`` of intrinsic point ``(x, y)``; ``Dk (2, >= dim)``, ``Dp (2, 2)`` when
     ``with_jac``. Returns False where the model is undefined or the pixel is not finite
@@ -318,7 +321,7 @@ def uncalibrate(model, k, x, y, uv, Dk, Dp, with_jac):
     return ok and math.isfinite(uv[0]) and math.isfinite(uv[1])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def pinhole_part(model, k, out):
     """``out = (fx, fy, s, u0, v0)`` of the model's linear part (GTSAM's ``K()``)."""
     if model == CAL3BUNDLER:
@@ -364,7 +367,7 @@ def _double_sphere_unproject(k, u, v, xy):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def calibrate(model, k, u, v, tol, max_iterations, xy):
     """Intrinsic point ``xy`` of pixel ``(u, v)``: a status code (``OK``, ``NOT_CONVERGED``,
     ``INVALID``: outside the model's image, or the root found lies past a fold). Iterative models
@@ -421,7 +424,7 @@ def calibrate(model, k, u, v, tol, max_iterations, xy):
     return NOT_CONVERGED
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def uncalibrate_batch(model, k, xy, with_jac):
     """``xy (n, 2)`` -> ``uv (n, 2)``, ``uv_D_k (n, 2, dim)``, ``uv_D_xy (n, 2, 2)``,
     ``valid (n,)``."""
@@ -441,7 +444,7 @@ def uncalibrate_batch(model, k, xy, with_jac):
     return uv, Dk, Dp, valid
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def calibrate_batch(model, k, uv, tol, max_iterations, with_jac):
     """``uv (n, 2)`` -> ``xy (n, 2)``, ``xy_D_k (n, 2, dim)``, ``xy_D_uv (n, 2, 2)``,
     ``status (n,)``."""

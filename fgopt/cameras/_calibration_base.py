@@ -11,6 +11,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from .._jit import specialize
 from ..errors import CalibrationError, CheiralityError, DimensionMismatchError, NonFiniteError
 from ..manifolds.base import BatchKind, register
 from . import _calib_kernels as CK
@@ -181,7 +182,7 @@ class Calibration:
     def K(self) -> np.ndarray:
         """The 3x3 matrix of the linear (pinhole) part."""
         k5 = np.empty(5)
-        CK.pinhole_part(self.MODEL, self._data, k5)
+        CK.pinhole_part.python(self.MODEL, self._data, k5)  # five copies: no numba needed
         fx, fy, s, u0, v0 = k5
         return np.array([[fx, s, u0], [0.0, fy, v0], [0.0, 0.0, 1.0]])
 
@@ -194,7 +195,8 @@ class Calibration:
         unified and double-sphere models outside their valid region).
         """
         pts, single = as_points2(xy, f"{type(self).__name__}.uncalibrate")
-        uv, Dk, Dp, valid = CK.uncalibrate_batch(self.MODEL, self._data, pts, bool(jacobians))
+        uv, Dk, Dp, valid = specialize(CK.uncalibrate_batch, self.MODEL)(
+            self._data, pts, bool(jacobians))
         if not np.all(valid):
             i = int(np.nonzero(~valid)[0][0])
             raise CheiralityError(f"{type(self).__name__}.uncalibrate: point {i} {pts[i]} is "
@@ -222,8 +224,8 @@ class Calibration:
             raise CalibrationError(f"{what}: max_iterations must be an integer >= 0, got "
                                    f"{max_iterations!r}")
         pts, single = as_points2(uv, what)
-        xy, Dk, Dp, status = CK.calibrate_batch(self.MODEL, self._data, pts, float(tol),
-                                                int(max_iterations), bool(jacobians))
+        xy, Dk, Dp, status = specialize(CK.calibrate_batch, self.MODEL)(
+            self._data, pts, float(tol), int(max_iterations), bool(jacobians))
         bad = status != CK.OK
         if np.any(bad):
             i = int(np.nonzero(bad)[0][0])

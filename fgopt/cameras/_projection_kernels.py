@@ -3,7 +3,8 @@
 A camera pose is ``world_T_camera`` stored as SE(3) ``[qx, qy, qz, qw, tx, ty, tz]``; the camera
 looks along its +z axis (x right, y down: GTSAM's convention). A world point ``X`` is seen at
 ``p = R^T (X - t)`` and projects to the intrinsic point ``(p_x / p_z, p_y / p_z)``, then through
-the calibration (:mod:`fgopt.cameras._calib_kernels`).
+the calibration (:mod:`fgopt.cameras._calib_kernels`). The kernels that take a ``model`` id are
+inlined into per-model entries (:func:`fgopt._jit.specialize`), as the calibration's are.
 
 Jacobians, for the pose's right perturbation ``world_T_camera * Exp([w, v])`` (fgopt's SE3
 retract; rotation first) and ``X + dX``: to first order ``p -> Exp(w)^T (p - v) = p + p x w - v``,
@@ -28,6 +29,7 @@ import numpy as np
 from .._jit import njit
 
 from . import _calib_kernels as CK
+from ._calib_kernels import CAL3BUNDLER  # a bare name: numba prunes on constants
 
 OK, BEHIND, INVALID_MODEL = 0, 1, 2
 
@@ -79,7 +81,7 @@ def scratch():
     return np.empty(3), np.zeros((2, CK.MAX_TANGENT_DIM)), np.empty((2, 2)), np.empty((2, 3))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def project_core(model, R, t, k, X, reject, with_jac, uv, p, Dk, Dp, A):
     """Pixel ``uv`` of world point ``X``; fills ``p`` (camera frame), and with ``with_jac`` the
     model's ``Dk``, ``Dp`` and ``A = uv_D_p`` (2 x 3). Returns a status code."""
@@ -99,7 +101,7 @@ def project_core(model, R, t, k, X, reject, with_jac, uv, p, Dk, Dp, A):
     return OK
 
 
-@njit(cache=True, nogil=True)  # threads=N runs chunks in parallel
+@njit(cache=True, nogil=True, inline="always")  # threads=N: chunks in parallel
 def projection_batch(model, pose, point, cal, m, reject, cal_var, with_jac):
     """Reprojection errors ``uv(pose_i, point_i, cal_i) - m_i``.
 
@@ -107,7 +109,7 @@ def projection_batch(model, pose, point, cal, m, reject, cal_var, with_jac):
     ``(n, 2, 9 [+ dim])``: columns pose ``[w, v]``, point, then the calibration's tangent when
     ``cal_var``. Undefined projections give NaN residuals (see the module docstring).
     """
-    if model == CK.CAL3BUNDLER:
+    if model == CAL3BUNDLER:
         return _bundler_batch(pose, cal, 0, point, m, reject, cal_var, with_jac,
                               9 if cal_var else -1, 6, 12 if cal_var else 9)
     n = pose.shape[0]
@@ -143,7 +145,7 @@ def projection_batch(model, pose, point, cal, m, reject, cal_var, with_jac):
     return res, jac
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def project_points(model, R, t, k, X, reject, with_jac):
     """One camera, many points ``X (n, 3)``: ``uv (n, 2)``, ``uv_D_pose (n, 2, 6)``,
     ``uv_D_point (n, 2, 3)``, ``uv_D_k (n, 2, dim)``, ``status (n,)``."""
@@ -284,12 +286,12 @@ def rotation_of_storage(pose):
 
 
 
-@njit(cache=True, nogil=True)  # threads=N runs chunks in parallel
+@njit(cache=True, nogil=True, inline="always")  # threads=N: chunks in parallel
 def camera_projection_batch(model, cam, point, m, reject, with_jac):
     """Reprojection errors with one camera variable per observation: ``cam (n, 7 + s)`` =
     pose storage then calibration storage (GTSAM's ``PinholeCamera<Cal>`` manifold) -> res
     ``(n, 2)``, jac ``(n, 2, 6 + dim + 3)``: columns pose ``[w, v]``, calibration, point."""
-    if model == CK.CAL3BUNDLER:  # the camera's calibration follows its pose in its storage
+    if model == CAL3BUNDLER:  # the camera's calibration follows its pose in its storage
         return _bundler_batch(cam, cam, 7, point, m, reject, True, with_jac, 6, 9, 12)
     n = cam.shape[0]
     d = CK.tangent_dim(model)

@@ -20,15 +20,16 @@ import numpy as np
 from .._jit import njit
 
 from . import _calib_kernels as CK
+from ._calib_kernels import CAL3_S2, CAL3_S2STEREO  # bare names: numba prunes on constants
 from . import _projection_kernels as PK
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def undistort(model, k, u, v, tol, max_iterations, out):
     """``out = K calibrate(u, v)`` (the pixel a distortion-free camera would see); False if
     calibrate fails: the pixel is outside the model's image, Newton's root lies past a fold of
     the distortion, or it did not converge."""
-    if model == CK.CAL3_S2 or model == CK.CAL3_S2STEREO:
+    if model == CAL3_S2 or model == CAL3_S2STEREO:
         out[0], out[1] = u, v
         return True
     xy = np.empty(2)
@@ -41,7 +42,7 @@ def undistort(model, k, u, v, tol, max_iterations, out):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def dlt(model, Rs, ts, ks, uv, rank_tol, X):
     """DLT of ``m`` views (``Rs (m, 3, 3)``, ``ts (m, 3)``, calibrations ``ks (m, s)`` of one
     model, pixels ``uv (m, 2)``) into ``X (3,)``. Returns the rank of ``A`` (``-1`` when a pixel
@@ -156,7 +157,7 @@ def svd_n4(A, sv, V):
     return small
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def reprojection_cost(model, Rs, ts, ks, uv, X):
     """``0.5 sum |uv_i(X) - z_i|^2`` (NaN if a view cannot see ``X``)."""
     m = Rs.shape[0]
@@ -171,7 +172,7 @@ def reprojection_cost(model, Rs, ts, ks, uv, X):
     return total
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def refine(model, Rs, ts, ks, uv, X, max_iterations):
     """Levenberg-Marquardt on ``X`` (in place) from its current value; returns the iterations
     used, or -1 when the start is not visible from every view."""

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from .._jit import specialize
 from ..errors import (CheiralityError, DimensionMismatchError, FgoptError, ManifoldError,
                       NonFiniteError)
 from ..manifolds import SE3, SO3
@@ -134,8 +135,8 @@ class PinholeCamera:
         """
         pts, single = as_points3(points, "PinholeCamera.project")
         k = self._calibration
-        uv, Dpose, Dpoint, Dk, status = PK.project_points(
-            k.MODEL, self._R, np.ascontiguousarray(self._pose.translation()), k._data, pts, True,
+        uv, Dpose, Dpoint, Dk, status = specialize(PK.project_points, k.MODEL)(
+            self._R, np.ascontiguousarray(self._pose.translation()), k._data, pts, True,
             bool(jacobians))
         _raise_status(status, pts, self._pose, "PinholeCamera.project")
         if not jacobians:

@@ -39,6 +39,7 @@ from typing import Any
 
 import numpy as np
 
+from .._jit import specialize
 from ..errors import DimensionMismatchError, FgoptError, NonFiniteError
 from ..factors import FactorKernel, KernelFactor
 from ..key import as_key, key_str
@@ -110,7 +111,7 @@ def projection_kernel(model: type[Calibration], calibration_variable: bool = Fal
     (array([[-2.,  0.]]), (1, 2, 9))
     """
     reject = _check_cheirality(cheirality)
-    mid, s = model.MODEL, len(model.PARAMS)
+    batch, s = specialize(PK.projection_batch, model.MODEL), len(model.PARAMS)
     var = bool(calibration_variable)
     name = (f"projection_{model.__name__.lower()}{'_selfcal' if var else ''}"
             f"{'' if reject else '_allow_behind'}")
@@ -124,13 +125,13 @@ def projection_kernel(model: type[Calibration], calibration_variable: bool = Fal
         else:
             pose, point, c = arrs
             m, cal = np.ascontiguousarray(c[:, :2]), np.ascontiguousarray(c[:, 2:])
-        return PK.projection_batch(mid, pose, point, cal, m, reject, var, with_jac)
+        return batch(pose, point, cal, m, reject, var, with_jac)
 
     def trusted(args, consts):
         if var:
-            return PK.projection_batch(mid, args[0], args[1], args[2], consts, reject, var, True)
-        return PK.projection_batch(mid, args[0], args[1], np.ascontiguousarray(consts[:, 2:]),
-                                   np.ascontiguousarray(consts[:, :2]), reject, var, True)
+            return batch(args[0], args[1], args[2], consts, reject, var, True)
+        return batch(args[0], args[1], np.ascontiguousarray(consts[:, 2:]),
+                     np.ascontiguousarray(consts[:, :2]), reject, var, True)
 
     return FactorKernel(name, kinds, 2, 2 if var else 2 + s,
                         residual=lambda args, consts: run(args, consts, False)[0],
@@ -160,22 +161,22 @@ def camera_projection_kernel(model: type[Calibration], cheirality: str = "reject
     from .camera import PinholeCamera
 
     reject = _check_cheirality(cheirality)
-    mid, s = model.MODEL, len(model.PARAMS)
+    batch, s = specialize(PK.camera_projection_batch, model.MODEL), len(model.PARAMS)
     name = f"camera_projection_{model.__name__.lower()}{'' if reject else '_allow_behind'}"
     kinds = (PinholeCamera.batch_kind_of(model), vector_kind(3))
     widths = (7 + s, 3, 2)
 
     def run(args, consts, with_jac):
         cam, point, m = _contiguous(name, args, consts, widths)
-        return PK.camera_projection_batch(mid, cam, point, m, reject, with_jac)
+        return batch(cam, point, m, reject, with_jac)
 
     return FactorKernel(name, kinds, 2, 2,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
                         source=_SOURCE, nonfinite_hint=nonfinite_hint(reject),
                         recipe=(camera_projection_kernel, (model, cheirality)),
-                        trusted_linearize=lambda args, consts: PK.camera_projection_batch(
-                            mid, args[0], args[1], consts, reject, True))
+                        trusted_linearize=lambda args, consts: batch(
+                            args[0], args[1], consts, reject, True))
 
 
 @lru_cache(maxsize=None)

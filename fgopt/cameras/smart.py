@@ -36,6 +36,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .._jit import specialize
 from ..errors import DimensionMismatchError, FgoptError, NonFiniteError, TriangulationError
 from ..factors import FactorKernel
 from ..factors.kernel import CompiledCall
@@ -82,6 +83,7 @@ def smart_kernel(model: type[Calibration], num_views: int, triangulation: str = 
     nc = 2 * m + s + 5
     refine, zero = triangulation == "nonlinear", degenerate == "zero"
     name = f"smart_{model.__name__.lower()}_{m}views"
+    batch, hessian = specialize(SK.smart_batch, mid), specialize(SK.smart_hessian_batch, mid)
 
     def run(args, consts, with_jac):
         if len(args) != m:
@@ -92,19 +94,19 @@ def smart_kernel(model: type[Calibration], num_views: int, triangulation: str = 
         if P.ndim != 3 or P.shape[1:] != (m, 7) or c.shape != (P.shape[0], nc):
             raise DimensionMismatchError(f"{name}: expected poses (n, 7) x {m} and constants "
                                          f"(n, {nc}); got {P.shape}, {c.shape}")
-        return SK.smart_batch(mid, P, c, m, s, refine, zero, with_jac)
+        return batch(P, c, m, s, refine, zero, with_jac)
 
     return FactorKernel(name, (SE3.batch_kind(),) * m, 2 * m, nc,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
                         source=_SOURCE, nonfinite_hint=_HINT,
                         recipe=(smart_kernel, (model, m, triangulation, degenerate)),
-                        trusted_linearize=lambda args, consts: SK.smart_batch(
-                            mid, np.stack(args, axis=1), consts, m, s, refine, zero, True),
+                        trusted_linearize=lambda args, consts: batch(
+                            np.stack(args, axis=1), consts, m, s, refine, zero, True),
                         # every argument is an SE3 pose: one storage for all
                         scatter_hessian=lambda st, rows, consts, toff, pos, shift, H, g, w, cost:
-                        SK.smart_hessian_batch(mid, st[0], rows, consts, m, s, refine, zero, toff,
-                                               pos, shift, H, g, w, cost),
+                        hessian(st[0], rows, consts, m, s, refine, zero, toff, pos, shift, H, g,
+                                w, cost),
                         # the same sums from a small-problem driver (fgopt.solvers.small)
                         compiled_call=CompiledCall(SK.__name__, "smart_dense_batch",
                                                    prefix=f"{mid}, ",
@@ -178,9 +180,9 @@ class SmartProjectionFactor(CameraKernelFactor):
         """The landmark triangulated from the poses in ``values``, or ``None`` if degenerate."""
         # _gather checks every value is an SE3, as error() does
         rows = np.ascontiguousarray(np.concatenate(self._gather(values), axis=0))
-        X, ok = SK.smart_point(self.calibration.MODEL, rows, self.calibration._data,
-                               np.ascontiguousarray(self.measured), self._rank_tol,
-                               self.triangulation == "nonlinear")
+        X, ok = specialize(SK.smart_point, self.calibration.MODEL)(
+            rows, self.calibration._data, np.ascontiguousarray(self.measured), self._rank_tol,
+            self.triangulation == "nonlinear")
         return X if ok else None
 
     def describe(self) -> str:

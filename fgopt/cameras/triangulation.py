@@ -19,6 +19,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .._jit import specialize
 from ..errors import (CalibrationError, CheiralityError, DimensionMismatchError, FgoptError,
                       NonFiniteError, TriangulationError)
 from . import _triangulation_kernels as TK
@@ -100,7 +101,7 @@ def triangulate(cameras: Sequence[PinholeCamera], measurements: Any, method: str
     ts = np.ascontiguousarray([c.pose().translation() for c in cams])
     ks = np.ascontiguousarray([c.calibration()._data for c in cams])
     X = np.empty(3)
-    rank = TK.dlt(model.MODEL, Rs, ts, ks, z, float(rank_tol), X)
+    rank = specialize(TK.dlt, model.MODEL)(Rs, ts, ks, z, float(rank_tol), X)
     if rank == TK_UNDISTORT_FAILED:
         raise TriangulationError(f"triangulate: {_undistort_failure(cams, z)}")
     if rank == TK_AT_INFINITY:
@@ -113,5 +114,5 @@ def triangulate(cameras: Sequence[PinholeCamera], measurements: Any, method: str
     if view >= 0:
         raise CheiralityError(f"triangulate: the DLT point {X} is at or behind camera {view}")
     if method == "nonlinear":
-        TK.refine(model.MODEL, Rs, ts, ks, z, X, int(max_iterations))
+        specialize(TK.refine, model.MODEL)(Rs, ts, ks, z, X, int(max_iterations))
     return X

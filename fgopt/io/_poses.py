@@ -7,7 +7,7 @@ File vectors: 2D ``(x, y, theta)``; 3D ``(x, y, z, qx, qy, qz, qw)``. Storage ro
 
 from __future__ import annotations
 
-from .._jit import njit
+from .._jit import njit, specialize
 import numpy as np
 
 from ..manifolds._kernels import MAX_STORAGE_DIM, lie_compose, lie_inverse
@@ -47,7 +47,7 @@ def se3_file(storage: np.ndarray) -> np.ndarray:
     return np.column_stack([storage[:, 4:7], storage[:, :4]])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")  # specialize()d per group
 def _compose_tree(gid, poses, order, parent, rel, flip):
     """``poses[c] = poses[parent[c]] * (rel[c] or rel[c]^-1)`` in BFS ``order`` (root first)."""
     inv = np.empty(MAX_STORAGE_DIM)
@@ -100,5 +100,5 @@ def spanning_tree_guess(gid: int, identity: np.ndarray, num_nodes: int, src: np.
             else:
                 rel[c] = meas[pair_edge[(c, p)]]
                 flip[c] = True
-        _compose_tree(gid, poses, order.astype(np.int64), parent, rel, flip)
+        specialize(_compose_tree, gid)(poses, order.astype(np.int64), parent, rel, flip)
     return poses, components

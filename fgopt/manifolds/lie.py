@@ -37,12 +37,12 @@ PYTHON_ELEMENT_OPS = 50000
 _element_ops = [0]
 
 
-def _element(kernel, *args) -> None:
+def _element(kernel, gid: int, *args) -> None:
     if _element_ops[0] < PYTHON_ELEMENT_OPS and not _jit.is_numba_loaded():
         _element_ops[0] += 1
-        kernel.python(*args)
+        kernel.python(gid, *args)
     else:
-        kernel(*args)
+        _jit.specialize(kernel, gid)(*args)  # compiles this group's code only
 
 
 class InvalidGroupElementError(FgoptError, ValueError):

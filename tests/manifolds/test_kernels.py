@@ -52,15 +52,6 @@ class TestBatched:
         A, B = _rows(G, a), _rows(G, b)
         A, B = A.reshape(n, G.storage_dim()), B.reshape(n, G.storage_dim())
         exact = {"rtol": 0, "atol": 0}
-        np.testing.assert_allclose(K.batch_compose(gid, A, B),
-                                   _rows(G, [x * y for x, y in zip(a, b)]).reshape(A.shape),
-                                   **exact)
-        np.testing.assert_allclose(K.batch_inverse(gid, A),
-                                   _rows(G, [x.inverse() for x in a]).reshape(A.shape), **exact)
-        np.testing.assert_allclose(K.batch_exp(gid, d),
-                                   _rows(G, [G.exp(v) for v in d]).reshape(A.shape), **exact)
-        np.testing.assert_allclose(K.batch_log(gid, A),
-                                   np.array([x.log() for x in a]).reshape(d.shape), **exact)
         kind = G.batch_kind()
         np.testing.assert_allclose(kind.retract(A, d), _rows(G, [
             x.retract(v) for x, v in zip(a, d)]).reshape(A.shape), **exact)

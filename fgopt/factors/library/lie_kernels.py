@@ -23,7 +23,7 @@ from __future__ import annotations
 from functools import cache
 
 import numpy as np
-from ..._jit import njit
+from ..._jit import njit, specialize
 
 from ...errors import DimensionMismatchError, ManifoldError
 from ...manifolds._kernels import (
@@ -53,7 +53,7 @@ def _jac_block(jac_i, col, sign, jri, adj, d):
             jac_i[r, col + c] = sign * acc
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")  # specialize()d per group
 def lie_between_batch(gid, a, b, m, with_jac):
     """Residuals ``(n, d)`` and, if ``with_jac``, Jacobians ``(n, d, 2d)`` of Log(m^-1 a^-1 b)."""
     n = a.shape[0]
@@ -83,7 +83,7 @@ def lie_between_batch(gid, a, b, m, with_jac):
     return res, jac
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")  # specialize()d per group
 def lie_prior_batch(gid, x, m, with_jac):
     """Residuals ``(n, d)`` and, if ``with_jac``, Jacobians ``(n, d, d)`` of Log(m^-1 x)."""
     n = x.shape[0]
@@ -160,12 +160,14 @@ def between_kernel(kind: BatchKind) -> FactorKernel:
     name = f"between_{kind.name.lower()}"
     gid = group_id(kind)
     if gid is not None:
+        batch = specialize(lie_between_batch, gid)
+
         def run(args, consts, with_jac):
             (a, b), c = _prepared(name, kind, 2, args, consts)
-            return lie_between_batch(gid, a, b, c, with_jac)
+            return batch(a, b, c, with_jac)
 
         def trusted(args, consts):
-            return lie_between_batch(gid, args[0], args[1], consts, True)
+            return batch(args[0], args[1], consts, True)
         call = CompiledCall(__name__, "lie_between_batch", prefix=f"{gid}, ", suffix=", True")
     elif _is_vector_kind(kind):
         def run(args, consts, with_jac):
@@ -190,12 +192,14 @@ def prior_kernel(kind: BatchKind) -> FactorKernel:
     name = f"prior_{kind.name.lower()}"
     gid = group_id(kind)
     if gid is not None:
+        batch = specialize(lie_prior_batch, gid)
+
         def run(args, consts, with_jac):
             (x,), c = _prepared(name, kind, 1, args, consts)
-            return lie_prior_batch(gid, x, c, with_jac)
+            return batch(x, c, with_jac)
 
         def trusted(args, consts):
-            return lie_prior_batch(gid, args[0], consts, True)
+            return batch(args[0], consts, True)
         call = CompiledCall(__name__, "lie_prior_batch", prefix=f"{gid}, ", suffix=", True")
     elif _is_vector_kind(kind):
         def run(args, consts, with_jac):

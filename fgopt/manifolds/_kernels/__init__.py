@@ -15,6 +15,9 @@ Three layers, all ``@njit(cache=True)``:
 3. batched loops over ``(n, storage_dim)`` arrays (``batch_retract(gid, x, delta)``...), and
    ``<group>_retract_batch`` / ``<group>_local_batch`` entries per group for ``BatchKind``.
 
+Layers 2 and 3 are ``inline="always"``: callers reach them through an entry with a constant
+group id (:func:`fgopt._jit.specialize`), which compiles only that group's branch.
+
 Layouts (float64, 1-D), tangent order rotation first::
 
     SO2   storage [cos, sin]                    tangent [theta]
@@ -111,11 +114,7 @@ from .sim3 import sim3_log as sim3_log
 from .sim3 import sim3_w_coeffs as sim3_w_coeffs
 from .dispatch import LOCAL_BATCH as LOCAL_BATCH
 from .dispatch import RETRACT_BATCH as RETRACT_BATCH
-from .dispatch import batch_compose as batch_compose
-from .dispatch import batch_exp as batch_exp
-from .dispatch import batch_inverse as batch_inverse
 from .dispatch import batch_local as batch_local
-from .dispatch import batch_log as batch_log
 from .dispatch import batch_retract as batch_retract
 from .dispatch import retract_row as retract_row
 from .dispatch import lie_ad as lie_ad

@@ -1,5 +1,9 @@
 """Dispatch over a group id (``lie_compose(gid, ...)``...) and the batched loops over (n, storage) arrays, with the per-group ``BatchKind`` entries.
 
+The dispatchers and loops are inlined (numba IR) into entries with a constant id
+(:func:`fgopt._jit.specialize`): numba prunes the other groups' branches before typing them,
+so a problem compiles its own groups' code only (Sim(3)'s alone took ~2.5 s).
+
 Part of :mod:`fgopt.manifolds._kernels` (conventions in its docstring).
 """
 
@@ -8,7 +12,7 @@ from __future__ import annotations
 import sys
 
 import numpy as np
-from ..._jit import njit, numpy_only
+from ..._jit import njit, numpy_only, specialize
 
 from ._common import (
     GROUP_NAMES, MAX_STORAGE_DIM, SE2_ID, SE3_ID, SO2_ID, SO3_ID, storage_dim, tangent_dim,
@@ -24,7 +28,7 @@ from .sim3 import (
 )
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def lie_compose(gid, a, b, out):
     """out = a * b for group ``gid`` (out must not alias a or b)."""
     if gid == SO2_ID:
@@ -39,7 +43,7 @@ def lie_compose(gid, a, b, out):
         sim3_compose(a, b, out)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def lie_inverse(gid, a, out):
     if gid == SO2_ID:
         so2_inverse(a, out)
@@ -53,7 +57,7 @@ def lie_inverse(gid, a, out):
         sim3_inverse(a, out)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def lie_exp(gid, v, out):
     if gid == SO2_ID:
         so2_exp(v, out)
@@ -67,7 +71,7 @@ def lie_exp(gid, v, out):
         sim3_exp(v, out)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def lie_log(gid, a, out):
     if gid == SO2_ID:
         so2_log(a, out)
@@ -81,7 +85,7 @@ def lie_log(gid, a, out):
         sim3_log(a, out)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def lie_adjoint(gid, a, out):
     if gid == SO2_ID:
         so2_eye(a, out)
@@ -95,7 +99,7 @@ def lie_adjoint(gid, a, out):
         sim3_adjoint(a, out)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def lie_ad(gid, v, out):
     if gid == SO2_ID:
         so2_ad(v, out)
@@ -109,7 +113,7 @@ def lie_ad(gid, v, out):
         sim3_ad(v, out)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def lie_jr(gid, v, out):
     if gid == SO2_ID:
         so2_eye(v, out)
@@ -123,7 +127,7 @@ def lie_jr(gid, v, out):
         sim3_jr(v, out)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def lie_jrinv(gid, v, out):
     if gid == SO2_ID:
         so2_eye(v, out)
@@ -146,7 +150,7 @@ def lie_retract(gid, x, delta, out, tmp):
     lie_compose(gid, x, tmp, out)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def lie_local(gid, a, b, out, tmp1, tmp2):
     """out = Log(a^-1 * b); ``tmp1``, ``tmp2`` are scratch of length >= storage dim."""
     lie_inverse(gid, a, tmp1)
@@ -154,45 +158,10 @@ def lie_local(gid, a, b, out, tmp1, tmp2):
     lie_log(gid, tmp2, out)
 
 
-@njit(cache=True)
-def batch_compose(gid, a, b):
-    """(n, s), (n, s) -> (n, s): row-wise a * b."""
-    out = np.empty((a.shape[0], storage_dim(gid)))
-    for i in range(a.shape[0]):
-        lie_compose(gid, a[i], b[i], out[i])
-    return out
-
-
-@njit(cache=True)
-def batch_inverse(gid, a):
-    out = np.empty((a.shape[0], storage_dim(gid)))
-    for i in range(a.shape[0]):
-        lie_inverse(gid, a[i], out[i])
-    return out
-
-
-@njit(cache=True)
-def batch_exp(gid, v):
-    """(n, d) -> (n, s)."""
-    out = np.empty((v.shape[0], storage_dim(gid)))
-    for i in range(v.shape[0]):
-        lie_exp(gid, v[i], out[i])
-    return out
-
-
-@njit(cache=True)
-def batch_log(gid, a):
-    """(n, s) -> (n, d)."""
-    out = np.empty((a.shape[0], tangent_dim(gid)))
-    for i in range(a.shape[0]):
-        lie_log(gid, a[i], out[i])
-    return out
-
-
 # The common groups' exp / compose inlined into batch_retract's loop (numba IR inlining): the
 # per-row calls through lie_retract's group switch, with an array view per argument, measured
-# 3x (SE(2)) / 2.3x (SE(3)) slower on 808 rows (a pose graph's retract: 77 -> 26 us). One
-# switch per row costs ~12 % over a loop per group, and keeps one loop.
+# 3x (SE(2)) / 2.3x (SE(3)) slower on 808 rows (a pose graph's retract: 77 -> 26 us). The
+# per-group entries prune the switch; the small drivers' retract switches per row.
 def _inlined(kernel):
     return njit(inline="always")(kernel.py_func)
 
@@ -222,7 +191,7 @@ def retract_row(gid, x, delta, out, tmp):
         lie_retract(gid, x, delta, out, tmp)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def batch_retract(gid, x, delta):
     """(n, s), (n, d) -> (n, s): row-wise x * Exp(delta)."""
     out = np.empty((x.shape[0], storage_dim(gid)))
@@ -232,7 +201,7 @@ def batch_retract(gid, x, delta):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def batch_local(gid, a, b):
     """(n, s), (n, s) -> (n, d): row-wise Log(a^-1 * b)."""
     out = np.empty((a.shape[0], tangent_dim(gid)))
@@ -249,6 +218,8 @@ PYTHON_MAX_ROWS = 64
 
 
 def _entry(loop, gid: int, name: str, vectorized=None):
+    compiled = specialize(loop, gid)  # compiles group gid's code only
+
     def run(a, b):
         a = np.ascontiguousarray(a, dtype=np.float64)
         b = np.ascontiguousarray(b, dtype=np.float64)
@@ -256,7 +227,7 @@ def _entry(loop, gid: int, name: str, vectorized=None):
             return vectorized(a, b)  # NumPy backend, or numba not in use: no numba import
         if a.shape[0] <= PYTHON_MAX_ROWS and "numba" not in sys.modules:
             return loop.python(gid, a, b)
-        return loop(gid, a, b)
+        return compiled(a, b)
 
     #: True when the NumPy backend can run this without numba (``Problem(backend=)``)
     run.numpy = vectorized is not None
