@@ -195,33 +195,84 @@ def njit(*args: Any, **options: Any) -> Any:
 _SPECIALIZED: dict = {}
 
 
-def specialize(kernel: LazyKernel, value: int) -> LazyKernel:
-    """``kernel`` with its first argument fixed: ``specialize(k, 3)(a, b)`` is ``k(3, a, b)``.
+def specialize(kernel: LazyKernel, value: int) -> Callable:
+    """``kernel`` with its first argument, an integer id, fixed: ``specialize(k, 3)(a, b)`` is
+    ``k(3, a, b)``, compiled for that id only.
 
-    For kernels that switch on an integer id (a calibration model, a Lie group): an id passed at
-    run time makes numba type and compile every branch, every model's code. ``kernel`` must be
-    ``inline="always"``: numba inlines it into this entry, where the id is a constant, and prunes
-    the branches the constant rules out before typing them (callees that are inlined too, with
-    the id passed on, are pruned the same way). The entry is compiled with ``kernel``'s options
-    and cached on its own, as ``<kernel>[value]``.
+    An id passed at run time makes numba type and compile every branch that switches on it (a
+    calibration model's or Lie group's code, for every model or group). Here numba sees a
+    constant and prunes the other branches before typing them:
+
+    - an ``inline="always"`` kernel is inlined into a new entry where the id is a constant
+      (so are the inlined kernels it passes the id to);
+    - another kernel is copied with every kernel it calls under the same first parameter name
+      specialized in turn (their id argument is then ignored), so only the inlined leaves that
+      branch on the id need it constant.
+
+    Each entry has its own numba cache files (``<kernel>[value]``).
     """
     entry = _SPECIALIZED.get((kernel, value))
     if entry is None:
-        import inspect
+        if kernel.options.get("inline") == "always":
+            entry = _entry(kernel, value, keep_id=False)
+        else:
+            import functools
 
-        args = ", ".join(list(inspect.signature(kernel.py_func).parameters)[1:])
-        ns = {"KERNEL": kernel, "VALUE": value, "__name__": kernel.__module__}
-        # under the kernel's file name: numba's cache names its files after the source file
-        # and the qualified name, and stamps them with the file
-        exec(compile(f"def entry({args}):\n    return KERNEL(VALUE, {args})\n",
-                     inspect.getfile(kernel.py_func), "exec"), ns)
-        fn = ns["entry"]
-        fn.__qualname__ = f"{kernel.__qualname__}[{value}]"
-        fn.__module__ = kernel.__module__
-        fn.__doc__ = kernel.__doc__
-        options = {k: v for k, v in kernel.options.items() if k != "inline"}
-        entry = _SPECIALIZED.setdefault((kernel, value), LazyKernel(fn, options))
+            entry = functools.partial(_with_id(kernel, value), value)
+        entry = _SPECIALIZED.setdefault((kernel, value), entry)
     return entry
+
+
+def _first_parameter(fn: Callable) -> str | None:
+    code = fn.__code__
+    return code.co_varnames[0] if code.co_argcount else None
+
+
+def _with_id(kernel: LazyKernel, value: int) -> LazyKernel:
+    """``kernel`` for id ``value``, still called with an id (which it ignores)."""
+    key = (kernel, value, "id")
+    entry = _SPECIALIZED.get(key)
+    if entry is None:
+        if kernel.options.get("inline") == "always":
+            entry = _entry(kernel, value, keep_id=True)
+        else:
+            import types
+
+            fn = kernel.py_func
+            first = _first_parameter(fn)
+            g = dict(fn.__globals__)
+            for name in fn.__code__.co_names:
+                callee = g.get(name)
+                if isinstance(callee, LazyKernel) and _first_parameter(callee.py_func) == first:
+                    g[name] = _with_id(callee, value)
+            copy = types.FunctionType(fn.__code__, g, fn.__name__, fn.__defaults__,
+                                      fn.__closure__)
+            copy.__qualname__ = f"{fn.__qualname__}[{value}]"
+            copy.__module__, copy.__doc__ = fn.__module__, fn.__doc__
+            entry = LazyKernel(copy, kernel.options)
+        entry = _SPECIALIZED.setdefault(key, entry)
+    return entry
+
+
+def _entry(kernel: LazyKernel, value: int, keep_id: bool) -> LazyKernel:
+    """``entry(args) = kernel(value, args)`` (``keep_id``: ``entry(id, args)``, inlined too)."""
+    import inspect
+
+    names = list(inspect.signature(kernel.py_func).parameters)
+    args = ", ".join(names[1:])
+    params = ", ".join(names if keep_id else names[1:])
+    ns = {"KERNEL": kernel, "VALUE": value, "__name__": kernel.__module__}
+    # under the kernel's file name: numba's cache names its files after the source file and
+    # the qualified name, and stamps them with the file
+    exec(compile(f"def entry({params}):\n    return KERNEL(VALUE, {args})\n",
+                 inspect.getfile(kernel.py_func), "exec"), ns)
+    fn = ns["entry"]
+    fn.__qualname__ = f"{kernel.__qualname__}[{value}]"
+    fn.__module__, fn.__doc__ = kernel.__module__, kernel.__doc__
+    options = dict(kernel.options)
+    if not keep_id:
+        del options["inline"]
+    return LazyKernel(fn, options)
 
 
 def is_numba_loaded() -> bool:

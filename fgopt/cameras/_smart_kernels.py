@@ -29,6 +29,10 @@ from .._jit import njit
 
 from . import _projection_kernels as PK
 from . import _triangulation_kernels as TK
+# bare names: _jit.specialize swaps them for their per-model copies
+from ._projection_kernels import project_core
+from ._triangulation_kernels import dlt
+from ._triangulation_kernels import refine as refine_point  # (a parameter is named refine)
 
 
 @njit(cache=True)
@@ -38,14 +42,14 @@ def unpack(pose_rows, Rs, ts):
         ts[j, 0], ts[j, 1], ts[j, 2] = pose_rows[j, 4], pose_rows[j, 5], pose_rows[j, 6]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def triangulate_track(model, Rs, ts, ks, z, rank_tol, refine, X):
     """DLT (+ refinement) of one track into ``X``; True when non-degenerate and in front."""
-    rank = TK.dlt(model, Rs, ts, ks, z, rank_tol, X)
+    rank = dlt(model, Rs, ts, ks, z, rank_tol, X)
     if rank < 3 or TK.in_front(Rs, ts, X) >= 0:
         return False
     if refine:
-        TK.refine(model, Rs, ts, ks, z, X, 50)
+        refine_point(model, Rs, ts, ks, z, X, 50)
         if TK.in_front(Rs, ts, X) >= 0:
             return False
     return True
@@ -131,7 +135,7 @@ def _track_workspace(m, s):
             np.empty(3), np.empty(r2), np.empty((r2, 3)), np.empty((r2, 6)))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _track_system(model, Rs, ts, ks, z, c, m, s, refine, b, F, E, X):
     """Triangulate one track and fill its whitened system: ``b (2m)`` reprojection errors,
     ``F (2m x 6)`` (view ``j``'s pose Jacobian in rows ``2j, 2j+1``) and ``E (2m x 3)``
@@ -148,7 +152,7 @@ def _track_system(model, Rs, ts, ks, z, c, m, s, refine, b, F, E, X):
     if not triangulate_track(model, Rs, ts, ks, z, c[r2 + s + 4], refine, X):
         return False
     for j in range(m):
-        if PK.project_core(model, Rs[j], ts[j], ks[j], X, True, True, uv, p, Dk, Dp,
+        if project_core(model, Rs[j], ts[j], ks[j], X, True, True, uv, p, Dk, Dp,
                            A) != PK.OK:
             return False
         PK._chain(A, p, Rs[j], J9, 0, 6, 2)
@@ -164,7 +168,7 @@ def _track_system(model, Rs, ts, ks, z, c, m, s, refine, b, F, E, X):
     return True
 
 
-@njit(cache=True, nogil=True, inline="always")  # threads=N: chunks in parallel
+@njit(cache=True, nogil=True)  # threads=N runs chunks in parallel
 def smart_batch(model, P, consts, m, s, refine, zero_on_degenerate, with_jac):
     """``P (n, m, 7)`` pose storages, ``consts (n, 2m + s + 5)`` = pixels, calibration,
     the 2x2 square-root information (row major), rank tolerance -> res ``(n, 2m)``,
@@ -212,7 +216,7 @@ def _landmark_r(E, m, R):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _track_schur(model, storage, rows, i, consts, m, s, refine, ws):
     """Track ``i``'s triangulated system and landmark elimination into the workspace ``ws`` of
     :func:`_schur_workspace`: ``b``, ``F`` (:func:`_track_system`), ``V_j = F_j^T E_j R^-1``
@@ -258,7 +262,7 @@ def _schur_workspace(m, s):
             np.empty((m, 7)))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _track_step(model, storage, rows, i, consts, m, s, refine, zero_on_degenerate, ws, toff, g):
     """Track ``i``'s :func:`_track_schur`, its gradient ``g_j += F_j^T b_j - V_j y`` for each
     view ``j`` and its cost: ``(True, 0.5 |b|^2)``, or for a degenerate track ``(False, NaN)``
@@ -277,7 +281,7 @@ def _track_step(model, storage, rows, i, consts, m, s, refine, zero_on_degenerat
     return True, 0.5 * e2
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def smart_hessian_batch(model, storage, rows, consts, m, s, refine, zero_on_degenerate, toff,
                         pos, col_shift, H_data, g, weights, cost):
     """Add the batch's Schur complements straight into ``H_data`` / ``g`` (the scatter map of
@@ -323,7 +327,7 @@ def smart_hessian_batch(model, storage, rows, consts, m, s, refine, zero_on_dege
     return cost
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def smart_dense_batch(model, storage, rows, consts, m, s, refine, zero_on_degenerate, toff, H,
                       g, cost):
     """:func:`smart_hessian_batch`'s sums into a dense ``H (N, N)`` (both triangles) and ``g``,
@@ -354,7 +358,7 @@ def smart_dense_batch(model, storage, rows, consts, m, s, refine, zero_on_degene
     return cost
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def smart_point(model, pose_rows, k, z, rank_tol, refine):
     """The landmark of one track (``pose_rows (m, 7)``, ``z (m, 2)``): ``(X, ok)``."""
     m = pose_rows.shape[0]

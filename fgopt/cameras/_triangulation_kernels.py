@@ -20,7 +20,9 @@ import numpy as np
 from .._jit import njit
 
 from . import _calib_kernels as CK
-from ._calib_kernels import CAL3_S2, CAL3_S2STEREO  # bare names: numba prunes on constants
+# bare names: numba prunes on constants, _jit.specialize swaps kernels for per-model copies
+from ._calib_kernels import CAL3_S2, CAL3_S2STEREO, pinhole_part
+from ._projection_kernels import project_core
 from . import _projection_kernels as PK
 
 
@@ -42,7 +44,7 @@ def undistort(model, k, u, v, tol, max_iterations, out):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def dlt(model, Rs, ts, ks, uv, rank_tol, X):
     """DLT of ``m`` views (``Rs (m, 3, 3)``, ``ts (m, 3)``, calibrations ``ks (m, s)`` of one
     model, pixels ``uv (m, 2)``) into ``X (3,)``. Returns the rank of ``A`` (``-1`` when a pixel
@@ -56,7 +58,7 @@ def dlt(model, Rs, ts, ks, uv, rank_tol, X):
     for i in range(m):
         if not undistort(model, ks[i], uv[i, 0], uv[i, 1], 1e-10, 20, und):
             return -1
-        CK.pinhole_part(model, ks[i], K5)
+        pinhole_part(model, ks[i], K5)
         R = Rs[i]
         # M = [R^T | -R^T t], then P = K M with K = [[fx, s, u0], [0, fy, v0], [0, 0, 1]]
         for r in range(3):
@@ -157,7 +159,7 @@ def svd_n4(A, sv, V):
     return small
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def reprojection_cost(model, Rs, ts, ks, uv, X):
     """``0.5 sum |uv_i(X) - z_i|^2`` (NaN if a view cannot see ``X``)."""
     m = Rs.shape[0]
@@ -165,14 +167,14 @@ def reprojection_cost(model, Rs, ts, ks, uv, X):
     out = np.empty(2)
     p, Dk, Dp, A = PK.scratch()
     for i in range(m):
-        if PK.project_core(model, Rs[i], ts[i], ks[i], X, True, False, out, p, Dk, Dp, A) != 0:
+        if project_core(model, Rs[i], ts[i], ks[i], X, True, False, out, p, Dk, Dp, A) != 0:
             return np.nan
         e0, e1 = out[0] - uv[i, 0], out[1] - uv[i, 1]
         total += 0.5 * (e0 * e0 + e1 * e1)
     return total
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def refine(model, Rs, ts, ks, uv, X, max_iterations):
     """Levenberg-Marquardt on ``X`` (in place) from its current value; returns the iterations
     used, or -1 when the start is not visible from every view."""
@@ -193,7 +195,7 @@ def refine(model, Rs, ts, ks, uv, X, max_iterations):
         Hm[:, :] = 0.0
         g[:] = 0.0
         for i in range(m):
-            PK.project_core(model, Rs[i], ts[i], ks[i], X, True, True, out, p, Dk, Dp, A)
+            project_core(model, Rs[i], ts[i], ks[i], X, True, True, out, p, Dk, Dp, A)
             e0, e1 = out[0] - uv[i, 0], out[1] - uv[i, 1]
             # d uv / d X = A R^T
             for r in range(2):
