@@ -85,15 +85,23 @@ def _switch(which, x):
     return x + "a"  # does not type: the entry for 0 compiles only because it is pruned
 
 
+@njit(cache=False)
+def _outer(which, x):
+    return 2.0 * _switch(which, x)
+
+
 def test_specialize_compiles_only_the_branch_of_its_constant():
     """``specialize(kernel, 0)`` is ``kernel(0, ...)`` compiled with the branches 0 rules out
-    pruned before typing, where a run-time 0 types every branch (and here fails)."""
+    pruned before typing, where a run-time 0 types every branch (and here fails); a kernel
+    that is not inlined passes the constant on to the inlined kernel it calls."""
     import numba
 
     assert specialize(_switch, 0)(1.5) == 2.5
     assert specialize(_switch, 0) is specialize(_switch, 0)
-    with pytest.raises(numba.core.errors.TypingError):
-        _switch(0, 1.5)
+    assert specialize(_outer, 0)(1.5) == 5.0
+    for kernel in (_switch, _outer):
+        with pytest.raises(numba.core.errors.TypingError):
+            kernel(0, 1.5)
 
 
 def test_a_specialized_entry_loads_from_the_cache_in_a_new_process(tmp_path):
