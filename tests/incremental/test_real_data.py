@@ -25,19 +25,31 @@ def m3500_steps(path):
     return init.at(key("x", 0)), [steps[p] for p in sorted(steps)]
 
 
-def test_m3500_prefix_close_to_batch_and_gtsam(data_file):
-    x0, steps = m3500_steps(data_file("pose2d/input_M3500_g2o.g2o"))
+def replay(x0, steps, read_all):
+    """Play ``steps`` into a new smoother (a prior on the first pose, each new pose from the
+    previous estimate and its odometry); ``read_all``: read the whole estimate after every
+    update (the last read is returned) instead of the previous pose only."""
     prior = PriorFactor(key("x", 0), x0, Diagonal.sigmas([1e-3] * 3))
     isam = IncrementalSmoother()
     graph = FactorGraph([prior])
+    est = None
     for n, fs in enumerate(steps, start=1):
         odo = next(f for f in fs if f.keys == (key("x", n - 1), key("x", n)))
-        prev = x0 if n == 1 else isam.estimate(key("x", n - 1))
+        prev = x0 if n == 1 else (est.at(key("x", n - 1)) if read_all
+                                  else isam.estimate(key("x", n - 1)))
         values = {key("x", n): prev * SE2.from_storage(odo.constants)}
         if n == 1:
             values[key("x", 0)] = x0
         isam.update(([prior] if n == 1 else []) + fs, values)
         graph.extend(fs)
+        if read_all:
+            est = isam.estimate()
+    return isam, graph, est
+
+
+def test_m3500_prefix_close_to_batch_and_gtsam(data_file):
+    x0, steps = m3500_steps(data_file("pose2d/input_M3500_g2o.g2o"))
+    isam, graph, _ = replay(x0, steps, read_all=False)
     est = isam.estimate()
     cost = graph.error(est)
     best = fgopt.optimize(graph, est, relative_tolerance=1e-12, absolute_tolerance=0.0).final_cost
@@ -79,19 +91,7 @@ def test_m3500_full_estimate_after_every_update(data_file):
 
     x0, steps = m3500_steps(data_file("pose2d/input_M3500_g2o.g2o"))
     steps = steps[:299]
-    prior = PriorFactor(key("x", 0), x0, Diagonal.sigmas([1e-3] * 3))
-    isam = IncrementalSmoother()
-    graph = FactorGraph([prior])
-    est = None
-    for n, fs in enumerate(steps, start=1):
-        odo = next(f for f in fs if f.keys == (key("x", n - 1), key("x", n)))
-        prev = x0 if n == 1 else est.at(key("x", n - 1))     # the last read
-        values = {key("x", n): prev * SE2.from_storage(odo.constants)}
-        if n == 1:
-            values[key("x", 0)] = x0
-        isam.update(([prior] if n == 1 else []) + fs, values)
-        graph.extend(fs)
-        est = isam.estimate()
+    isam, graph, est = replay(x0, steps, read_all=True)
     p = Problem(graph, isam.linearization_point())
     st = p.initial_state()
     p.linearize(st)
