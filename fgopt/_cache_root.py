@@ -266,6 +266,16 @@ def _root_cache_class() -> Any:
     class RootCache(caching.FunctionCache):
         _impl_class = Impl
 
+        def load_overload(self, sig: Any, target_context: Any) -> Any:
+            # numba refreshes its whole target context before every load, importing every
+            # lowering registry (~0.7 s per process). Machine code from the cache needs only
+            # the runtime it links against; a compile refreshes the context itself.
+            from numba.core.runtime import rtsys
+
+            rtsys.initialize(target_context)
+            with self._guard_against_spurious_io_errors():
+                return self._load_overload(sig, target_context)
+
     _CACHE_CLASS.append(RootCache)
     return RootCache
 

@@ -1,7 +1,8 @@
 """Deferred numba: ``@njit`` kernels that import and compile numba only when first called.
 
-``import numba`` costs 0.25-0.4 s and its first compile or cache load initializes numba's
-target context (another 0.2-0.3 s), so fgopt's modules must not touch numba at import time.
+``import numba`` costs 0.25-0.4 s and its first compile initializes numba's target context
+(another ~0.7 s; loading cached machine code skips that, :mod:`fgopt._cache_root`), so fgopt's
+modules must not touch numba at import time.
 :func:`njit` has numba's ``njit`` signature but returns a :class:`LazyKernel`: a proxy that
 builds the real dispatcher (``numba.njit(**options)(py_func)``) on its first call. Inside other
 jitted code the proxy types as that dispatcher (numba reads ``_numba_type_``), so kernels call
