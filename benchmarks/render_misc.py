@@ -102,9 +102,8 @@ def startup(doc: dict) -> str:
                 comparable=False)
     floor = res.get("import", {}).get("numba floor")
     if floor is not None:
-        lines += ["", (f"numba's own floor, in every process that runs one numba kernel (`import "
-                       f"numba` and the first call of one cached function, no fgopt): "
-                       f"{floor['median']:.2f} s, {floor['cpu']:.2f} s CPU.")]
+        lines += ["", (f"numba's floor, in every process that runs a numba kernel (`import "
+                       f"numba` alone): {floor['median']:.2f} s, {floor['cpu']:.2f} s CPU.")]
     lines += ["", ("⁽ˢ⁾ GTSAM's figure is a `CustomFactor` with numerical Jacobians (no derivation "
               "step): for scale only, no ratio. Empty caches: GTSAM has no cache; its figure is "
               "its one solve of the same file. [41.n]: target n of issue 41; ports: "

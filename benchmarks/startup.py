@@ -4,7 +4,7 @@ Every number is the wall time of a NEW process (``subprocess``; interpreter star
 median of ``--repeats`` (5), fgopt and GTSAM interleaved so both see the same machine load:
 
 * ``import``: ``python -c "import fgopt"`` vs ``"import gtsam"`` (and ``pass``: the interpreter;
-  ``numba floor``: ``import numba`` and one cached function's first call, no fgopt);
+  ``numba floor``: ``import numba``, paid by every process that runs a numba kernel);
 * ``tiny 2D`` / ``tiny 3D``: the scripts in ``benchmarks/startup_scripts/`` (5 poses, LM);
 * ``solve FILE``: ``fgopt solve FILE --out OUT --quiet`` vs ``startup_scripts/gtsam_solve.py``
   (read, LM with each library's default stopping rules, write) on M3500, sphere2500, Ladybug-49
@@ -118,25 +118,10 @@ def interleaved(cmds: dict[str, tuple[list[str], dict]], repeats: int) -> dict[s
                 "cpu samples": cpu[k], "stdout": outs[k][-400:]} for k, v in samples.items()}
 
 
-#: A cached numba function and no fgopt: what any process that runs one numba kernel pays
-#: (numba's import, then on the first call of a cached function its lowering registries,
-#: numba.np.* and scipy.linalg's BLAS bindings among them), whatever the kernel.
-NUMBA_PROBE = """import numba
-
-
-@numba.njit(cache=True)
-def plus_one(x):
-    return x + 1.0
-"""
-
-
 def section_import(results: dict, args) -> None:
-    probe_dir = Path(WARM["NUMBA_CACHE_DIR"]).parent / "numba_probe"  # (set by main)
-    probe_dir.mkdir(parents=True, exist_ok=True)
-    (probe_dir / "numba_probe.py").write_text(NUMBA_PROBE)
-    probe = ([PY, "-c", f"import sys; sys.path.insert(0, {str(probe_dir)!r}); "
-              "import numba_probe; numba_probe.plus_one(1.0)"], _env())
-    run(*probe)  # (its cache)
+    # numba's import alone: every process that runs a numba kernel pays it (fgopt loads cached
+    # machine code without numba's lowering registries, so the import is the whole floor)
+    probe = ([PY, "-c", "import numba"], _env())
     cmds = {"python": ([PY, "-c", "pass"], _env()),
             "numba floor": probe,
             "fgopt": ([PY, "-c", "import fgopt"], _env()),
