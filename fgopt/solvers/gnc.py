@@ -259,7 +259,7 @@ class GNC:
                 break
             rounds += 1
             weights = [np.where(m, 1.0, gnc_weights(p.loss, x, mu)) for x, m in zip(s, inliers)]
-            state, cost = solver.solve(state, weights, warm=not use_chordal)
+            state, cost = solver.solve(state, weights)
             history.append(cost)
             s = scaled(state)
             if p.verbose:
@@ -323,29 +323,24 @@ class GNC:
 
 class _Solves:
     """One weighted least-squares solve of GNC: on the factors with weight >= ``active_weight``
-    (:class:`Restricted`), from the chordal relaxation of the weighted pose graph and/or the
-    current estimate (the better result)."""
+    (:class:`Restricted`), from the chordal relaxation of the weighted pose graph or the
+    current estimate."""
 
     def __init__(self, full, params, lm, use_chordal: bool, callback):
         self.full, self.lm, self.use_chordal, self.callback = full, lm, use_chordal, callback
         self.restricted = Restricted(full, params, params.active_weight)
         self.iterations = 0
 
-    def solve(self, state, weights, warm: bool = True) -> tuple[Any, float]:
-        """(new full state, weighted cost). ``warm``: also continue from ``state``."""
-        sub, sub_state = self.restricted.prepare(state, weights)
-        solver = self.restricted.solver
-        best = None
-        if warm or not self.use_chordal:
-            best = self.lm.optimize_problem(sub, sub_state, solver, self.callback)
-            self.iterations += best.iterations
-        if self.use_chordal:
+    def solve(self, state, weights, chordal: bool = True) -> tuple[Any, float]:
+        """(new full state, weighted cost): LM from the chordal relaxation of the weighted pose
+        graph (a GNC round, where many weights changed) or, with ``chordal=False`` or where
+        there is none, from ``state`` (the classification steps, which move few factors)."""
+        sub, start = self.restricted.prepare(state, weights)
+        if chordal and self.use_chordal:
             from .chordal import chordal_state
 
-            fresh = chordal_state(sub, sub_state, self.restricted.sub_weights)
-            if fresh is not None:
-                other = self.lm.optimize_problem(sub, fresh, solver, self.callback)
-                self.iterations += other.iterations
-                if best is None or other.final_cost < best.final_cost:
-                    best = other
+            fresh = chordal_state(sub, start, self.restricted.sub_weights)
+            start = start if fresh is None else fresh
+        best = self.lm.optimize_problem(sub, start, self.restricted.solver, self.callback)
+        self.iterations += best.iterations
         return self.restricted.to_full(best.state, state), best.final_cost

@@ -225,14 +225,19 @@ def test_copied_closure_inside_the_nominal_ellipse_is_rejected_at_the_real_scale
     assert graph.error(kept.values) > clean.final_cost * 1.01
 
 
+@pytest.mark.parametrize("fraction", [0.1, 0.3])
 @pytest.mark.parametrize("cholmod", [True, False], ids=["cholmod", "no-cholmod"])
-def test_gnc_on_gauge_free_m3500_with_random_pair_outliers(cholmod, monkeypatch, data_file):
-    """Issue 42: M3500 read without a prior plus 10 % random-pair wrong loop closures
+def test_gnc_on_gauge_free_m3500_with_random_pair_outliers(cholmod, fraction, monkeypatch,
+                                                           data_file):
+    """Issue 42: M3500 read without a prior plus 10 % / 30 % random-pair wrong loop closures
     (``datasets.random_loop_closures``: ~0.5 rad / 5 m errors, sigma 0.1). GNC's leverages
     factored the gauge-free H with CHOLMOD's L D L^T, whose rounding-negative pivot raised
     ``CholmodNotPositiveDefiniteError`` in ``solve_L``; now they go through the solvers' pivot
-    test (a ridge fixes the gauge). GNC ends within 1e-3 of the outlier-free optimum's cost,
-    with and without the CHOLMOD extra."""
+    test (a ridge fixes the gauge). GNC ends within 1e-3 of the outlier-free optimum's cost and
+    rejects no factor of the file, with and without the CHOLMOD extra. At 30 % one wrong
+    closure (|r_loo|^2 434, outside its family-wise ellipse 26.6, but w^2 only 6 s^2: the graph
+    predicts that pose pair loosely) stayed accepted, +1.8e-3; the consistency step now rejects
+    an accepted factor by the same ellipse rule that keeps a rejected one out."""
     import sys
 
     from fgopt.datasets import random_loop_closures
@@ -246,7 +251,9 @@ def test_gnc_on_gauge_free_m3500_with_random_pair_outliers(cholmod, monkeypatch,
     graph, values = fgopt.io.read(data_file("pose2d/input_M3500_g2o.g2o"))  # no prior
     ref = fgopt.optimize(graph, values)
     optimum = graph.error(ref.values)
-    bad, n = random_loop_closures(graph, ref.values, 0.1, seed=0)
+    bad, n = random_loop_closures(graph, ref.values, fraction, seed=0)
     assert n > 0 and len(bad) == len(graph) + n
     r = fgopt.optimize(bad, values, method="gnc")
     assert graph.error(r.values) <= optimum * (1 + 1e-3), (graph.error(r.values), optimum)
+    (weights,) = r.info["weights"][:-1]  # one batch of between factors, the added ones last
+    assert not np.any(weights[:len(graph)] < 0.5)  # no factor of the file rejected
