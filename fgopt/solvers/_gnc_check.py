@@ -18,7 +18,7 @@ from ..problem import Problem
 
 #: Below this noise scale ``s^2`` (sigmas 2x too large or more) the first-order prediction
 #: covariance, computed with the nominal models, is too wide to be trusted alone: a factor is
-#: then an inlier only if it also lies inside its family-wise ellipse (see :meth:`_Verifier._clear`).
+#: then an inlier only if it also lies inside its family-wise ellipse (:meth:`_Verifier._clear`).
 LOOSE_SCALE = 0.25
 
 
@@ -179,10 +179,10 @@ class _Verifier:
         :meth:`_clear`, so the final class of a factor does not depend on the path (M3500
         without a prior, 30 % random wrong closures: one accepted at ``|r_loo|^2 = 434``,
         ``w^2 = 6 s^2``, bending the map by 1.8e-3 of the optimal cost; the true loop closures'
-        largest ``|r_loo|^2`` there is 23.6, ``c_a^2`` 26.6). Run only after the first rule is done: while outliers still bend the estimate the
-        family-wise test also flags true factors next to them (M3500 with 10 % random wrong
-        closures, both rules at once: one outlier ended accepted). Returns
-        ``(state, weights, s^2)``.
+        largest ``|r_loo|^2`` there is 23.6, ``c_a^2`` 26.6). Run only after the first rule
+        is done: while outliers still bend the estimate the family-wise test also flags true
+        factors next to them (M3500 with 10 % random wrong closures, both rules at once: one
+        outlier ended accepted). Returns ``(state, weights, s^2)``.
         """
         from .influence import leave_one_out_sq_norms, prediction_sq_norms
 
