@@ -225,8 +225,9 @@ def test_copied_closure_inside_the_nominal_ellipse_is_rejected_at_the_real_scale
     assert graph.error(kept.values) > clean.final_cost * 1.01
 
 
-@pytest.mark.parametrize("fraction", [0.1, 0.3])
-@pytest.mark.parametrize("cholmod", [True, False], ids=["cholmod", "no-cholmod"])
+# 30 % once: the fallback factorizations are checked at 10 % (a minute less of CI)
+@pytest.mark.parametrize("cholmod, fraction", [(True, 0.1), (False, 0.1), (True, 0.3)],
+                         ids=["cholmod-10", "no-cholmod-10", "cholmod-30"])
 def test_gnc_on_gauge_free_m3500_with_random_pair_outliers(cholmod, fraction, monkeypatch,
                                                            data_file):
     """Issue 42: M3500 read without a prior plus 10 % / 30 % random-pair wrong loop closures
