@@ -21,18 +21,21 @@ import numpy as np
 
 from .._jit import njit
 from ._dense import back_substitute
-from ._state import unpack_cs, unpack_vs
+from ._state import M_STAMP, unpack_cs, unpack_vs
 
 
 @njit(cache=True)
-def solve_pending(vs, cs, cvpool, cnpool, wildfire, stamp):
+def solve_pending(vs, cs, cvpool, cnpool, wildfire, meta):
     """Back-substitute what changed since the last solve (iSAM2's ``optimizeWildfire``).
 
     Walks down from the roots: a clique is re-solved when one of its frontal variables was
     re-eliminated (``repl``) or one of its separator variables moved by more than
-    ``wildfire`` in this pass (``var_changed == stamp``); only then are its children visited.
-    Returns the number of cliques solved.
+    ``wildfire`` in this pass (``var_changed`` equal to this pass's stamp, a new
+    ``meta[M_STAMP]``); only then are its children visited. Returns the number of cliques
+    solved.
     """
+    meta[M_STAMP] += 1
+    stamp = meta[M_STAMP]
     V_ = unpack_vs(vs)
     var_dim, var_changed, delta, var_repl = V_[0], V_[6], V_[7], V_[10]
     C_ = unpack_cs(cs)
@@ -119,8 +122,9 @@ def _mark_changes(c, var_dim, delta, var_changed, stamp, wildfire, cvpool, cnpoo
 
 
 @njit(cache=True)
-def solve_estimate(vs, cs, cvpool, cnpool, x, xprop, tol, stamp):
-    """Back-substitute the estimate's update ``x`` where it can have changed since the last
+def solve_estimate(vs, cs, cvpool, cnpool, x, xprop, tol, meta, pending, wildfire):
+    """:func:`solve_pending` first when ``pending`` (one call for both: the smoother brings
+    ``delta`` up to date with the estimate), then back-substitute the estimate's update ``x`` where it can have changed since the last
     call: cliques with a frontal variable re-eliminated since (``xrepl``), and cliques below a
     separator variable that moved by more than ``tol`` (any component) from ``xprop``, its
     value when its dependents were last re-solved; ``xprop`` is reset only when that happens,
@@ -128,7 +132,12 @@ def solve_estimate(vs, cs, cvpool, cnpool, x, xprop, tol, stamp):
     clique's solution is exact for separator values within ``tol`` of the stored ones.
     ``tol`` 0 is the exact solve. Returns the number of cliques solved and the variables to
     retract again: those whose ``x`` changed, and those marked ``stale`` (relinearized), whose
-    flag it clears."""
+    flag it clears, and the number of cliques :func:`solve_pending` solved (-1: not run)."""
+    pending_solved = -1
+    if pending:
+        pending_solved = solve_pending(vs, cs, cvpool, cnpool, wildfire, meta)
+    meta[M_STAMP] += 1
+    stamp = meta[M_STAMP]
     V_ = unpack_vs(vs)
     var_dim, var_changed, var_stale, var_xrepl = V_[0], V_[6], V_[11], V_[12]
     C_ = unpack_cs(cs)
@@ -216,7 +225,7 @@ def solve_estimate(vs, cs, cvpool, cnpool, x, xprop, tol, stamp):
             stack[ns] = ch
             ns += 1
             ch = cl_next[ch]
-    return solved, out[:nout]
+    return solved, out[:nout], pending_solved
 
 
 @njit(cache=True)

@@ -30,6 +30,7 @@ class VariableStore:
         self.key_of = np.zeros(16, np.int64)
         self.kind_of = np.full(16, -2, np.int64)       # kind id, -1 Python manifold, -2 free
         self.kinds: list[BatchKind] = []
+        self._retract: list = []                        # per kind: its batched retract
         self._kind_id: dict[int, int] = {}
         self.theta: list[np.ndarray] = []
         self.est: list[np.ndarray] = []     # per kind: theta (+) delta by slot (see _refresh)
@@ -107,6 +108,8 @@ class VariableStore:
             if kid is None:
                 kid = self._kind_id[id(kind)] = len(self.kinds)
                 self.kinds.append(kind)
+                # fancy-indexed rows are C-contiguous float64: the compiled loop needs no checks
+                self._retract.append(getattr(kind.retract, "compiled", kind.retract))
                 self.theta.append(np.zeros((max(16, self.key_of.shape[0]), kind.storage_dim)))
                 self.est.append(np.zeros_like(self.theta[-1]))
             th = self.theta[kid]
@@ -189,12 +192,14 @@ class VariableStore:
 
     def estimate_value(self, slot: int) -> Any:
         kid = int(self.kind_of[slot])
-        d = self.tree.var_dim[slot]
+        tree = self.tree
+        d = int(tree.VI[0, slot])
         if kid < 0:
             x = self.objects[slot]
-            return ops_for(x).retract(x, self.tree.delta[slot, :d].copy())
+            return ops_for(x).retract(x, tree.delta[slot, :d].copy())
         kind = self.kinds[kid]
-        row = kind.retract(self.theta[kid][slot:slot + 1], self.tree.delta[slot:slot + 1, :d])[0]
+        row = self._retract[kid](self.theta[kid][slot:slot + 1],
+                                 np.ascontiguousarray(tree.delta[slot:slot + 1, :d]))[0]
         # retract's output is a fresh row on the manifold: wrap it without re-normalizing
         return kind.wrap(row) if kind.wrap is not None else kind.from_storage(row)
 
@@ -213,7 +218,7 @@ class VariableStore:
                 self.est[kid] = est = grown
             rows = stale if one else stale[kinds == kid]
             if rows.shape[0]:
-                est[rows] = kind.retract(th[rows], self.tree.xdelta[rows, :kind.dim])
+                est[rows] = self._retract[kid](th[rows], self.tree.xdelta[rows, :kind.dim])
 
     def estimate_storages(self, stale: np.ndarray) -> tuple[list[np.ndarray], dict[int, Any]]:
         """``theta (+) xdelta`` of every live variable: one array per kind (indexed by slot;
@@ -236,8 +241,16 @@ class VariableStore:
         """
         self._refresh(stale)
         out = Variables()
-        live = self.live_slots()
         one = len(self.kinds) == 1 and not self.objects
+        if one and not self.free and self.hwm:   # every slot below hwm is live: one copy
+            kind = self.kinds[0]
+            est = self.est[0][:self.hwm].copy()
+            keys = self.key_of[:self.hwm].copy()
+            if kind.wrap is not None:
+                est.flags.writeable = False
+                out._pending.append(_Rows(keys, kind, est))
+                return out
+        live = self.live_slots()
         kinds = None if one else self.kind_of[live]
         for kid, kind in enumerate(self.kinds):
             rows = live if one else live[kinds == kid]

@@ -94,19 +94,21 @@ class IncrementalSmoother:
         """Bring ``delta`` up to date (iSAM2 defers back-substitution to the next read)."""
         if self._dirty:
             t = self._tree
-            t.meta[M_STAMP] += 1
             self.last_solve_cliques = _solve.solve_pending(
-                t.vs, t.cs, t.cvpool, t.cnpool, self.params.wildfire_threshold, t.meta[M_STAMP])
+                t.vs, t.cs, t.cvpool, t.cnpool, float(self.params.wildfire_threshold), t.meta)
             self._dirty = False
 
     def _solve_estimate(self) -> np.ndarray:
-        """Bring the estimate's ``xdelta`` up to date (:func:`._solve.solve_estimate`); returns
-        the variables to retract again."""
+        """Bring the estimate's ``xdelta`` up to date (:func:`._solve.solve_estimate`), and
+        ``delta`` (:meth:`_solve`) in the same call; returns the variables to retract again."""
         t = self._tree
-        t.meta[M_STAMP] += 1
-        tol = min(float(self.params.wildfire_threshold), ESTIMATE_TOLERANCE)
-        self.last_estimate_cliques, stale = _solve.solve_estimate(
-            t.vs, t.cs, t.cvpool, t.cnpool, t.xdelta, t.xprop, tol, t.meta[M_STAMP])
+        wildfire = float(self.params.wildfire_threshold)
+        self.last_estimate_cliques, stale, solved = _solve.solve_estimate(
+            t.vs, t.cs, t.cvpool, t.cnpool, t.xdelta, t.xprop, min(wildfire, ESTIMATE_TOLERANCE),
+            t.meta, self._dirty, wildfire)
+        if solved >= 0:
+            self.last_solve_cliques = solved
+            self._dirty = False
         return stale
 
     # ================================================================== public API

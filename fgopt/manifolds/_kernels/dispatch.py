@@ -231,6 +231,9 @@ def _entry(loop, gid: int, name: str, vectorized=None):
 
     #: True when the NumPy backend can run this without numba (``Problem(backend=)``)
     run.numpy = vectorized is not None
+    #: The compiled loop alone, for callers that already hold C-contiguous float64 rows and use
+    #: numba anyway (the incremental smoother: ~3 us less per call than ``run``'s checks)
+    run.compiled = compiled
     run.__name__ = run.__qualname__ = name
     run.__doc__ = f"Batched {name.split('_')[1]} of {GROUP_NAMES[gid]} over (n, storage) rows."
     return run
