@@ -25,6 +25,7 @@ from ..factors.base import Factor
 from ..key import Key
 from ..noise import RobustLoss
 from . import _pool
+from ._pool import alloc
 from ._state import M_HP_HEAD, M_HP_TOP, TreeState
 from ._values import VariableStore
 
@@ -64,6 +65,7 @@ class _Batch:
     free: list = field(default_factory=list)
     hwm: int = 0
     linearize: Any = None                         # compiled_linearize(kernel)
+    D: int = 0                                    # tangent dims of the arguments, summed
 
     def grow(self, n: int) -> None:
         cap = self.fac.shape[0]
@@ -96,8 +98,11 @@ class _ThetaView:
 
 
 @njit(cache=True)
-def _local_systems(res, jac, R, code, k, shape, hpool, hoff):
-    """Write each instance's local system at ``hpool[hoff[i]:]`` (see the module docstring)."""
+def _local_systems(res, jac, R, code, k, shape, hpool, meta, fac_hoff, slots):
+    """Write the local system of each instance ``i`` (see the module docstring) in a new block
+    of ``hpool`` whose offset goes to ``fac_hoff[slots[i]]``; returns ``(all finite, hpool)``
+    (the pool may have grown). Allocation and writing in one call: an update linearizes one
+    to a few factors, where each numba call counts."""
     n, m = res.shape
     D = jac.shape[2]
     r = np.empty(m)
@@ -106,8 +111,9 @@ def _local_systems(res, jac, R, code, k, shape, hpool, hoff):
     gl = np.empty(D)
     ok = True
     for i in range(n):
+        h, hpool = alloc(hpool, meta, M_HP_TOP, M_HP_HEAD, D * D + D)
+        fac_hoff[slots[i]] = h
         asm._local_system(res[i], jac[i], R[i], False, code, k, shape, r, Jw, Hl, gl)
-        h = hoff[i]
         for a in range(D):
             for b in range(D):
                 x = Hl[a, b]
@@ -118,7 +124,7 @@ def _local_systems(res, jac, R, code, k, shape, hpool, hoff):
             hpool[h + D * D + a] = gl[a]
             if not np.isfinite(gl[a]):
                 ok = False
-    return ok
+    return ok, hpool
 
 
 class FactorStore:
@@ -137,6 +143,7 @@ class FactorStore:
         self.hwm = 0
         self._log: list | None = None
         self._release: tuple | None = None
+        self._loss_cache: dict = {}
 
     # ------------------------------------------------------------------ transactions
     def begin(self) -> None:
@@ -209,10 +216,25 @@ class FactorStore:
             batch = _Batch(kernel, code, k, shape, tuple(kids),
                            np.zeros((16, len(kernel.arg_kinds)), np.int64),
                            np.zeros((16, kernel.num_constants)), np.zeros((16, r, r)),
-                           np.full(16, -1, np.int64), linearize=compiled_linearize(kernel))
+                           np.full(16, -1, np.int64), linearize=compiled_linearize(kernel),
+                           D=sum(kind.dim for kind in kernel.arg_kinds))
             b = self._batch_of[key] = len(self.batches)
             self.batches.append(batch)
         return b
+
+    def _batch_of_loss(self, kernel: Any, loss: Any) -> tuple[int, np.ndarray]:
+        """``(batch, sqrt_information)`` of a kernel factor, cached per (kernel, loss object):
+        online factors mostly share a few noise models. The cache holds both objects, so their
+        ids cannot be reused while they key an entry."""
+        hit = self._loss_cache.get((id(kernel), id(loss)))
+        if hit is not None:
+            return hit[0], hit[1]
+        R, code, k, shape = loss_parts(loss)
+        b = self._batch_for(kernel, code, k, shape)
+        if len(self._loss_cache) >= 256:
+            self._loss_cache.clear()
+        self._loss_cache[(id(kernel), id(loss))] = (b, R, kernel, loss)
+        return b, R
 
     def add(self, f: Factor, var_slots: list[int]) -> tuple[int, int]:
         """Store ``f`` over variable slots ``var_slots``; returns ``(slot, handle)``."""
@@ -223,14 +245,11 @@ class FactorStore:
         nv = len(var_slots)
         tree.ensure_factors(slot + 1, nv)
         tree.fac_vars[slot, :nv] = var_slots
-        dims = tree.VI[0]
-        # FI rows: nv, hoff, D, mark, alive (alive becomes 1 at commit)
-        tree.FI[:, slot] = (nv, 0, sum([dims[v] for v in var_slots]), 0, 0)
         b, row = -1, -1
         if f.kernel is not None:
-            R, code, k, shape = loss_parts(f.loss)
-            b = self._batch_for(f.kernel, code, k, shape)
+            b, R = self._batch_of_loss(f.kernel, f.loss)
             batch = self.batches[b]
+            D = batch.D
             if batch.free:
                 row = batch.free.pop()
             else:
@@ -245,6 +264,10 @@ class FactorStore:
             self.fac_row[slot] = row
         else:
             self.python[slot] = f
+            dims = tree.VI[0]
+            D = sum([int(dims[v]) for v in var_slots])
+        # FI rows: nv, hoff, D, mark, alive (alive becomes 1 at commit)
+        tree.FI[:, slot] = (nv, 0, D, 0, 0)
         self.fac_batch[slot] = b
         self.handle_of_slot[slot] = handle
         self.slot_of_handle[handle] = slot
@@ -299,14 +322,13 @@ class FactorStore:
         if slots.shape[0] == 0:
             return
         tree = self.tree
-        D = tree.fac_D[slots]
-        size = D * D + D
-        if self._log is not None:
-            self._log.append(("hoff", slots, tree.fac_hoff[slots].copy()))
-        if slots.shape[0] > fresh:
-            self._release = (tree.fac_hoff[slots[fresh:]].copy(), size[fresh:])
-        hoff, tree.hpool = _pool.alloc_many(tree.hpool, tree.meta, M_HP_TOP, M_HP_HEAD, size)
-        tree.fac_hoff[slots] = hoff
+        if slots.shape[0] > fresh:  # relinearized: their old blocks are freed after success
+            old = slots[fresh:]
+            hoff = tree.FI[1][old].copy()
+            D = tree.FI[2][old]
+            self._release = (hoff, D * D + D)
+            if self._log is not None:
+                self._log.append(("hoff", old, hoff))
         fb = self.fac_batch[slots]
         b0 = int(fb[0])
         if slots.shape[0] == 1 or not np.any(fb != b0):     # the common case: one batch
@@ -324,8 +346,8 @@ class FactorStore:
             vs = batch.var_slots[rows]
             args = tuple([theta[kid][vs[:, j]] for j, kid in enumerate(self._kids(batch))])
             res, jac = batch.linearize(args, batch.consts[rows])
-            ok = _local_systems(res, jac, batch.R[rows], batch.code, batch.k, batch.shape,
-                                tree.hpool, tree.fac_hoff[sel])
+            ok, tree.hpool = _local_systems(res, jac, batch.R[rows], batch.code, batch.k,
+                                            batch.shape, tree.hpool, tree.meta, tree.FI[1], sel)
             if not ok:
                 bad = sel[~np.all(np.isfinite(res), axis=1) |
                           ~np.all(np.isfinite(jac.reshape(jac.shape[0], -1)), axis=1)]
@@ -345,9 +367,9 @@ class FactorStore:
         J = np.concatenate(f.checked_jacobians(view), axis=1)
         R, code, k, shape = loss_parts(f.loss)
         tree = self.tree
-        h = int(tree.fac_hoff[slot])
-        ok = _local_systems(e[None], J[None], np.ascontiguousarray(R)[None], code, k, shape,
-                            tree.hpool, np.array([h], np.int64))
+        ok, tree.hpool = _local_systems(e[None], J[None], np.ascontiguousarray(R)[None], code, k,
+                                        shape, tree.hpool, tree.meta, tree.FI[1],
+                                        np.array([slot], np.int64))
         if not ok:
             raise NonFiniteError(f"{f.describe()}: non-finite local system at the "
                                  "linearization point")

@@ -373,6 +373,8 @@ class IncrementalSmoother:
         return items
 
     def _check_remove(self, remove: Iterable[int]) -> np.ndarray:
+        if isinstance(remove, (tuple, list)) and not remove:
+            return _EMPTY
         slots = []
         seen = set()
         for h in remove:
@@ -444,7 +446,7 @@ class IncrementalSmoother:
                 marked = np.concatenate((marked, extra_marked))
             n_live = len(vars_) - unused.shape[0]
             tree.ensure_cliques(int(tree.meta[M_CL_HWM]) + n_live + 2)
-            tree.ensure_adjacency(int(tree.fac_nv[new_facs].sum()) if new_facs.shape[0] else 0)
+            tree.ensure_adjacency(len(obs))  # one entry per (new factor, variable)
             frac = 0.0 if self._force_batch else p.batch_threshold
             out = _update.tree_update(
                 tree.vs, tree.fs, tree.cs, tree.meta, tree.cvpool, tree.cnpool, tree.hpool,
