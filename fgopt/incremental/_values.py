@@ -81,9 +81,10 @@ class VariableStore:
     def __contains__(self, k: object) -> bool:
         return k in self.slot_of
 
-    def add(self, k: Key, value: Any) -> int:
-        ops = ops_for(value)
-        kind = ops.batch_kind(value)
+    def add(self, k: Key, value: Any, kind: Any = False) -> int:
+        """A new variable; ``kind``: its batch kind if known (``None``: a Python manifold)."""
+        if kind is False:
+            kind = ops_for(value).batch_kind(value)
         hwm = self.hwm
         reused = bool(self.free)
         if reused:
@@ -101,7 +102,7 @@ class VariableStore:
             self._log.append(("add", k, slot, hwm, reused))
         if kind is None:
             kid = -1
-            dim = int(ops.dim(value))
+            dim = int(ops_for(value).dim(value))
             self.objects[slot] = value
         else:
             kid = self._kind_id.get(id(kind))

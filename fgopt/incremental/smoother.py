@@ -334,7 +334,8 @@ class IncrementalSmoother:
             out[k] = given[k]
         return out
 
-    def _check_values(self, new_values: Any, factors: list[Factor]) -> list[tuple[Key, Any]]:
+    def _check_values(self, new_values: Any, factors: list[Factor]) -> list[tuple[Key, Any, Any]]:
+        """``(key, value, batch kind)`` of each new value, checked against the factors."""
         items = self._values_items(new_values)
         known = self._vars.slot_of
         new_kind = {}
@@ -370,7 +371,7 @@ class IncrementalSmoother:
                 raise NotPositiveDefiniteError(
                     f"update: new variable {key_str(k)} has no factor, so the system would be "
                     "indefinite: add a factor on it in the same update")
-        return items
+        return [(k, v, new_kind[k]) for k, v in items]
 
     def _check_remove(self, remove: Iterable[int]) -> np.ndarray:
         if isinstance(remove, (tuple, list)) and not remove:
@@ -406,8 +407,8 @@ class IncrementalSmoother:
         vars_.begin()
         facs.begin()
         try:
-            for k, x in values:
-                vars_.add(k, x)
+            for k, x, kind in values:
+                vars_.add(k, x, kind)
             slot_of = vars_.slot_of
             new_facs = np.empty(len(factors), np.int64)
             handles = []
