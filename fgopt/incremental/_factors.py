@@ -329,13 +329,25 @@ class FactorStore:
             self._release = (hoff, D * D + D)
             if self._log is not None:
                 self._log.append(("hoff", old, hoff))
+        theta = self.vars.theta
+        if slots.shape[0] == 1:  # the common online case: row slices, no fancy indexing
+            s = int(slots[0])
+            b = int(self.fac_batch[s])
+            if b < 0:
+                self._linearize_python(s)
+                return
+            batch = self.batches[b]
+            r = int(self.fac_row[s])
+            args = tuple([theta[kid][v:v + 1]
+                          for v, kid in zip(batch.var_slots[r].tolist(), self._kids(batch))])
+            self._run(batch, slots, args, batch.consts[r:r + 1], batch.R[r:r + 1])
+            return
         fb = self.fac_batch[slots]
         b0 = int(fb[0])
-        if slots.shape[0] == 1 or not np.any(fb != b0):     # the common case: one batch
+        if not np.any(fb != b0):     # one batch
             groups = [(b0, slots)]
         else:
             groups = [(b, slots[fb == b]) for b in np.unique(fb).tolist()]
-        theta = self.vars.theta
         for b, sel in groups:
             if b < 0:
                 for s in sel.tolist():
@@ -345,15 +357,22 @@ class FactorStore:
             rows = self.fac_row[sel]
             vs = batch.var_slots[rows]
             args = tuple([theta[kid][vs[:, j]] for j, kid in enumerate(self._kids(batch))])
-            res, jac = batch.linearize(args, batch.consts[rows])
-            ok, tree.hpool = _local_systems(res, jac, batch.R[rows], batch.code, batch.k,
-                                            batch.shape, tree.hpool, tree.meta, tree.FI[1], sel)
-            if not ok:
-                bad = sel[~np.all(np.isfinite(res), axis=1) |
-                          ~np.all(np.isfinite(jac.reshape(jac.shape[0], -1)), axis=1)]
-                where = self.describe(int(bad[0])) if bad.shape[0] else batch.kernel.name
-                raise NonFiniteError(f"{where} has a non-finite residual or Jacobian at the "
-                                     "linearization point: check its measurement and variables")
+            self._run(batch, sel, args, batch.consts[rows], batch.R[rows])
+
+    def _run(self, batch: _Batch, sel: np.ndarray, args: tuple, consts: np.ndarray,
+             R: np.ndarray) -> None:
+        """Linearize factors ``sel`` of ``batch`` (their gathered arguments, constants and
+        square-root informations) into new hpool blocks."""
+        tree = self.tree
+        res, jac = batch.linearize(args, consts)
+        ok, tree.hpool = _local_systems(res, jac, R, batch.code, batch.k, batch.shape,
+                                        tree.hpool, tree.meta, tree.FI[1], sel)
+        if not ok:
+            bad = sel[~np.all(np.isfinite(res), axis=1) |
+                      ~np.all(np.isfinite(jac.reshape(jac.shape[0], -1)), axis=1)]
+            where = self.describe(int(bad[0])) if bad.shape[0] else batch.kernel.name
+            raise NonFiniteError(f"{where} has a non-finite residual or Jacobian at the "
+                                 "linearization point: check its measurement and variables")
 
     def _kids(self, batch: _Batch) -> tuple[int, ...]:
         if -1 in batch.kids:      # kinds that first appeared after the batch was made
