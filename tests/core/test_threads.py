@@ -26,3 +26,24 @@ def test_optimize_with_threads_option():
     r1 = fgopt.optimize(data.graph, data.initial)
     r2 = fgopt.optimize(data.graph, data.initial, threads=2)
     assert r2.success and np.isclose(r1.final_cost, r2.final_cost, rtol=1e-9)
+
+
+def test_kernel_mode_flags_are_per_thread():
+    """``python_mode`` / ``numpy_mode`` set their flag for their own thread only; a thread that
+    never set one reads False (the flags' class defaults, read on every kernel call)."""
+    import threading
+
+    from fgopt import _jit
+
+    seen = {}
+
+    def other():
+        seen["python"], seen["numpy"] = _jit._mode.python, _jit.numpy_only()
+
+    with _jit.python_mode(), _jit.numpy_mode():
+        assert _jit._mode.python and _jit.numpy_only()
+        t = threading.Thread(target=other)
+        t.start()
+        t.join()
+    assert seen == {"python": False, "numpy": False}
+    assert not _jit._mode.python and not _jit.numpy_only()

@@ -58,6 +58,8 @@ class TestBatched:
         np.testing.assert_allclose(kind.local(A, B), np.array([
             x.local(y) for x, y in zip(a, b)]).reshape(d.shape), **exact)
         np.testing.assert_allclose(K.batch_retract(gid, A, d), kind.retract(A, d), **exact)
+        # the compiled loop alone (the incremental smoother's entry for contiguous rows)
+        np.testing.assert_allclose(kind.retract.compiled(A, d), kind.retract(A, d), **exact)
         np.testing.assert_allclose(K.batch_local(gid, A, B), kind.local(A, B), **exact)
 
     def test_wrap_all_builds_what_wrap_builds_row_by_row(self, G):
