@@ -125,9 +125,10 @@ def _mark_changes(c, var_dim, delta, var_changed, stamp, wildfire, cvpool, cnpoo
 def solve_estimate(vs, cs, cvpool, cnpool, x, xprop, tol, meta, pending, wildfire):
     """:func:`solve_pending` first when ``pending`` (one call for both: the smoother brings
     ``delta`` up to date with the estimate), then back-substitute the estimate's update ``x``
-    where it can have changed since the last call: cliques with a frontal variable re-eliminated since (``xrepl``), and cliques below a
-    separator variable that moved by more than ``tol`` (any component) from ``xprop``, its
-    value when its dependents were last re-solved; ``xprop`` is reset only when that happens,
+    where it can have changed since the last call: cliques with a frontal variable
+    re-eliminated since (``xrepl``), and cliques below a separator variable that moved by more
+    than ``tol`` (any component) from ``xprop``, its value when its dependents were last
+    re-solved; ``xprop`` is reset only when that happens,
     so changes below ``tol`` do not add up over calls (unlike the wildfire ``delta``): every
     clique's solution is exact for separator values within ``tol`` of the stored ones.
     ``tol`` 0 is the exact solve. Returns the number of cliques solved and the variables to
