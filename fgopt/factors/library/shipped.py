@@ -13,9 +13,9 @@ Regenerate (the test checks the committed bytes equal a fresh run)::
 
     python -m fgopt.factors.library.shipped
 
-SymPy's CSE orders statements by set iteration, which follows Python's per-process string hash
-seed: the script re-runs itself with ``PYTHONHASHSEED=0`` so its output is the same bytes on
-every run (any order is equally correct; only the bytes would differ).
+The derivative engines iterate SymPy's symbol sets, whose order follows Python's per-process
+string hash seed: the script re-runs itself with ``PYTHONHASHSEED=0`` so its output is the same
+bytes on every run (any order is equally correct; only the bytes would differ).
 """
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ def generate(folder: Path) -> list[Path]:
 def main(argv: list[str] | None = None) -> int:
     """Regenerate :data:`SHIPPED_DIR` (stale files are removed)."""
     argv = sys.argv[1:] if argv is None else argv
-    if os.environ.get("PYTHONHASHSEED") != "0":  # deterministic CSE order (module docstring)
+    if os.environ.get("PYTHONHASHSEED") != "0":  # deterministic order (module docstring)
         import subprocess
 
         env = dict(os.environ, PYTHONHASHSEED="0")
