@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import FgoptError
+from ._sym import as_expr
 from .codegen import ArgLayout, module_source
 from .cse import Program, optimize, total_ops
 from .functions import recording_clamps
@@ -116,12 +117,13 @@ def derive_source(ftype: Any, pattern: tuple) -> str:
         if not is_var:
             offset += len(symbols)
     var_args = [a for a, v in zip(sym_args, pattern) if v]
-    res_prog = optimize(Program([], {"res": res}))
-    lin_prog = linearization_program(res, var_args, method=ftype.method, engine=ftype.engine)
+    res_prog = optimize(Program([], {"res": [as_expr(e) for e in res]}))
+    lin_prog = linearization_program(res, var_args, method=ftype.method, engine=ftype.engine,
+                                     value=res_prog)
     hess_prog = None
     if ftype.hessian:
         hess_prog = linearization_program(res, var_args, method=ftype.method,
-                                          engine=ftype.engine, hessian=True)
+                                          engine=ftype.engine, hessian=True, value=res_prog)
     variables = [n for (n, _), v in zip(ftype.params, pattern) if v]
     meta = {
         "name": ftype.name,

@@ -50,7 +50,8 @@ def _s():
 
 
 def linearization_program(output: Any, args: Sequence[Any], method: str = "retraction",
-                          engine: str = "auto", hessian: bool = False) -> Program:
+                          engine: str = "auto", hessian: bool = False,
+                          value: Program | None = None) -> Program:
     """Program computing ``res`` and ``jac`` (and ``hess``/``rhs`` if ``hessian``).
 
     Args:
@@ -60,6 +61,7 @@ def linearization_program(output: Any, args: Sequence[Any], method: str = "retra
         method: ``"retraction"`` or ``"chain"``.
         engine: ``"auto"``, ``"tree"`` or ``"dag"``.
         hessian: also output ``J^T J`` (upper triangle and below, full) and ``J^T r``.
+        value: ``optimize(Program([], {"res": output's storage}))`` if the caller has it.
 
     Example:
 
@@ -76,7 +78,8 @@ def linearization_program(output: Any, args: Sequence[Any], method: str = "retra
     res = [_s().as_expr(e) for e in output_storage(output)]
     if engine == "auto" and _is_small_algebraic(res):
         engine = "tree"
-    value = optimize(Program([], {"res": res})) if engine != "tree" else None
+    if engine != "tree" and value is None:
+        value = optimize(Program([], {"res": res}))
     if engine == "tree":
         jacs = tangent_jacobians(output, args, method) if len(args) > 0 else []
         jac = sp.Matrix.hstack(*jacs) if len(jacs) > 0 else sp.zeros(len(res), 0)

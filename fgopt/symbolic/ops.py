@@ -107,11 +107,22 @@ def storage_of(value: Any) -> list:
     return [_s().as_expr(value)]
 
 
+#: ``storage_D_tangent`` by (type, storage): both derivative engines of a derivation ask for
+#: each argument's (a Jacobian of the retraction: ~0.1 s of SymPy for a Pose3).
+_SDT_MEMO: dict = {}
+
+
 def storage_D_tangent_of(value: Any):
     """``d S(value (+) v) / dv`` at 0 as a SymPy matrix (identity for vectors and scalars)."""
-    if isinstance(value, _MANIFOLD_VALUES):
-        return value.storage_D_tangent()
-    return _s().sp.eye(len(storage_of(value)))
+    if not isinstance(value, _MANIFOLD_VALUES):
+        return _s().sp.eye(len(storage_of(value)))
+    key = (type(value), tuple(storage_of(value)))
+    D = _SDT_MEMO.get(key)
+    if D is None:
+        if len(_SDT_MEMO) >= 64:
+            _SDT_MEMO.clear()
+        D = _SDT_MEMO[key] = value.storage_D_tangent()
+    return D.copy()
 
 
 def tangent_D_storage_of(value: Any):

@@ -19,8 +19,10 @@ class NumbaPrinter(PythonCodePrinter):
     printmethod = "_fgopt_numba"
 
     def __init__(self, settings: dict | None = None):
+        # order "none": terms in their argument order (SymPy's, which the CSE keeps), not
+        # sorted again per expression (that sort was 60 % of printing a kernel's twin)
         super().__init__({"fully_qualified_modules": True, "standard": "python3",
-                          **(settings or {})})
+                          "order": "none", **(settings or {})})
 
     # -- atoms
     def _print_Symbol(self, expr: Any) -> str:
