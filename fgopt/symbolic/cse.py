@@ -318,13 +318,15 @@ def optimize(prog: Program, prefix: str = "_tmp") -> Program:
     """Global CSE over a program; returns a new program with temporaries ``_tmpN``.
 
     Statements not needed by an output are dropped; statements whose value is a symbol or a
-    number are substituted. Temporaries are numbered in order of definition (a depth-first
-    walk from the outputs in order), so the output is deterministic.
+    number are substituted. Temporaries are numbered in order of definition (the input's
+    statements in order, then the outputs, each after what it needs), so the output is
+    deterministic.
 
     >>> from fgopt.symbolic import V3
     >>> a, b = V3.symbolic("a"), V3.symbolic("b")
-    >>> optimize(Program([], {"out": [a.dot(b) + 1, 2 * a.dot(b)]})).stmts
-    [(_tmp0, a_0*b_0 + a_1*b_1 + a_2*b_2)]
+    >>> from fgopt.symbolic import cos, sin
+    >>> optimize(Program([], {"out": [sin(a.dot(b)), cos(a.dot(b))]}))
+    Program(stmts=[(_tmp0, a_0*b_0 + a_1*b_1 + a_2*b_2)], outputs={'out': [sin(_tmp0), cos(_tmp0)]})
     """
     sp = _s().sp
     Basic, Expr = sp.Basic, sp.Expr
@@ -362,7 +364,11 @@ def optimize(prog: Program, prefix: str = "_tmp") -> Program:
     new: dict = {}
     emitted = []
     names = temp_symbols(prefix)
-    for r in roots:
+    # the input's statements first, in their order, then the outputs: the program keeps the
+    # input's order of evaluation (a depth-first walk from the outputs alone made kernels
+    # ~5-10 % slower for the same operations)
+    live = [dag.ids[s] for s, _ in stmts if dag.ids.get(s) in uses]
+    for r in live + roots:
         stack = [] if r is None else [r]
         active = set()
         while stack:
