@@ -62,9 +62,9 @@ def cache_dir() -> Path:
 
 #: Modules whose source defines what generated kernels compute (hashed into every key). Other
 #: files in this package (e.g. another back end) do not invalidate cached kernels.
-FINGERPRINT_MODULES = ("_ir", "_sym", "cameras", "codegen", "cse", "derive", "functions",
-                       "jacobians", "lie", "linearize", "matrix", "ops", "pose", "printer", "rot",
-                       "runtime")
+FINGERPRINT_MODULES = ("_count", "_ir", "_sym", "cameras", "codegen", "cse", "derive",
+                       "functions", "jacobians", "lie", "linearize", "matrix", "ops", "pose",
+                       "printer", "rot", "runtime")
 
 
 @lru_cache(maxsize=1)
