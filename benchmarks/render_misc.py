@@ -351,13 +351,13 @@ def gnc(doc: dict) -> str:
                     ratios.append(ratio)
             row.append(" / ".join(cells))
         lines.append(_row(row))
+    summary = [f"cost missed on: {'; '.join(missed)}." if missed else "every cost met."]
+    if ratios:
+        summary.append(f"Time over 10x in {sum(x > 10 for x in ratios)} of {len(ratios)} cases "
+                       f"({min(ratios):.0f}-{max(ratios):.0f}x).")
     lines += ["", "CPU seconds (multiple of plain LM on the clean graph). Targets: cost over "
               "the file's own edges within 1e-3 of the outlier-free optimum, at most 10x plain "
-              "LM's time on the clean graph. "
-              + "Generated summary: "
-              + (f"cost missed on: {'; '.join(missed)}. " if missed else "every cost met. ")
-              + (f"Time over 10x in {sum(x > 10 for x in ratios)} of {len(ratios)} cases "
-                 f"({min(ratios):.0f}-{max(ratios):.0f}x)." if ratios else "")]
+              "LM's time on the clean graph. Generated summary: " + " ".join(summary)]
     return "\n".join(lines)
 
 

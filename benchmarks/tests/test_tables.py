@@ -56,6 +56,7 @@ def _gnc_doc() -> dict:
     recs = [{"graph": "m3500", "generator": "random", "fraction": f, "method": "GNC-tls",
              "optimum": 68.9574, "relative": rel, "cpu": cpu}
             for f, rel, cpu in ((0.1, -1e-10, 9.7), (0.3, 2e-3, 31.0))]
+    recs.append({"graph": "m3500", "method": "LM (clean graph)", "cpu": 0.5})
     meta = {"bench": "gnc", "commit": "abc1234+dirty", "date": "2026-11-25 01:02",
             "loadavg": [0.5, 1.25], "cores": 2, "command": "python -m benchmarks.gnc --no-plain",
             "duration_s": 90.0, "protocol": {"includes": "CPU time.", "stopping": "GNC's own."}}
@@ -64,17 +65,19 @@ def _gnc_doc() -> dict:
 
 def test_render_fixture_gives_the_expected_block():
     """A small GNC results document renders to exactly this block: caption from the declared
-    protocol, the table, the generated misses line, and the commit line."""
+    protocol, the table (GNC's time as a multiple of plain LM on the clean graph), the
+    generated misses line (cost and the 10x time target), and the commit line."""
     expected = [
         "Timing: CPU time. Stopping: GNC's own.",
         "",
-        "| graph (optimum) | random 10% / 30% |",
-        "|---|---|",
-        "| m3500 (68.9574) | exact, 9.7 s / **+2.0e-03**, 31.0 s |",
+        "| graph (optimum) | LM, clean graph | random 10% / 30% |",
+        "|---|---|---|",
+        "| m3500 (68.9574) | 0.50 s | exact, 9.7 s (19x) / **+2.0e-03**, 31.0 s (62x) |",
         "",
-        ("CPU seconds. Targets: cost over the file's own edges within 1e-3 of the outlier-free "
-        "optimum, in under 30 s. Generated summary: targets missed on: m3500 random 30% (cost "
-        "+2.0e-03)."),
+        ("CPU seconds (multiple of plain LM on the clean graph). Targets: cost over the file's "
+         "own edges within 1e-3 of the outlier-free optimum, at most 10x plain LM's time on the "
+         "clean graph. Generated summary: cost missed on: m3500 random 30% (cost +2.0e-03). "
+         "Time over 10x in 2 of 2 cases (19-62x)."),
         "",
         ("_Measured at commit `abc1234+dirty` on 2026-11-25 01:02, 1-min load average 0.5 at the "
         "start, 1.2 at the end (2 cores), 1.5 min: `python -m benchmarks.gnc --no-plain`. "
