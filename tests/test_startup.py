@@ -114,27 +114,29 @@ _CACHED_ENTRY = (
     "      'numba.np.arraymath' in sys.modules)\n")
 
 
-def _cached_entry_twice(tmp_path) -> list:
+@pytest.fixture(scope="module")
+def cached_entry_twice(tmp_path_factory) -> list:
     """(hits, misses, lowering registries imported) of :data:`_CACHED_ENTRY` in two processes
-    sharing an empty cache."""
-    env = dict(os.environ, FGOPT_CACHE_DIR=str(tmp_path), PYTHONPATH=str(REPO))
+    sharing an empty cache (run once for the tests that read it)."""
+    cache = tmp_path_factory.mktemp("entry-cache")
+    env = dict(os.environ, FGOPT_CACHE_DIR=str(cache), PYTHONPATH=str(REPO))
     return [subprocess.run([sys.executable, "-c", _CACHED_ENTRY], capture_output=True,
                            text=True, cwd=REPO, check=True, env=env).stdout.split()
             for _ in range(2)]
 
 
-def test_a_specialized_entry_loads_from_the_cache_in_a_new_process(tmp_path):
+def test_a_specialized_entry_loads_from_the_cache_in_a_new_process(cached_entry_twice):
     """A per-group entry compiled in one process is loaded from numba's cache in the next (a
     cache key that changed per process would compile it again every run)."""
-    runs = _cached_entry_twice(tmp_path)
+    runs = cached_entry_twice
     assert runs[0][:2] == ["0", "1"] and runs[1][:2] == ["1", "0"]  # (hits, misses)
 
 
-def test_loading_cached_machine_code_imports_no_lowering_registries(tmp_path):
+def test_loading_cached_machine_code_imports_no_lowering_registries(cached_entry_twice):
     """A new process that only loads cached kernels skips numba's lowering registries (~0.7 s
     of imports that only a compile needs), and the loaded kernel, which allocates its result
     through numba's runtime, still computes the retraction (a pure translation step here)."""
-    runs = _cached_entry_twice(tmp_path)
+    runs = cached_entry_twice
     assert runs[0][2] == "True"  # compiling needs them
     assert runs[1] == ["1", "0", "False"]
 
