@@ -133,6 +133,35 @@ def section_first_use(results: dict, args, files: dict[str, Path], out_dir: Path
         save()
 
 
+def section_first_use_built(results: dict, args, files: dict[str, Path], out_dir: Path,
+                            save=lambda: None) -> None:
+    """One fresh install, ``fgopt cache build`` in it (timed: the one-time cost), then each
+    first-use job's first run and ``--repeats`` warm runs in that install. Jobs run in order, so
+    a job may also load what an earlier job compiled: its first line on stderr shows it."""
+    only = set(args.first_jobs.split(",")) if getattr(args, "first_jobs", "") else None
+    root, env = fresh_install()
+    try:
+        built = _timed([PY, "-m", "fgopt.cli", "cache", "build"], env, root)
+        results["cache build"] = {k: built[k] for k in ("wall", "cpu", "stderr")}
+        print(f"  fgopt cache build: {built['wall']:.1f} s", file=sys.stderr, flush=True)
+        save()
+        for name, cmd in first_use_jobs(files, out_dir).items():
+            if only and not any(o in name for o in only):
+                continue
+            cold = _timed(cmd, env, root)
+            warm = [_timed(cmd, env, root) for _ in range(args.repeats)]
+            results[f"built first use {name}"] = {
+                "cold": cold["wall"], "warm": statistics.median(r["wall"] for r in warm),
+                "cold cpu": cold["cpu"], "warm cpu": statistics.median(r["cpu"] for r in warm),
+                "cold stderr": cold["stderr"], "cold stdout": cold["stdout"],
+                "warm samples": [r["wall"] for r in warm]}
+            print(f"  after the build, first use {name}: cold {cold['wall']:.1f} s",
+                  file=sys.stderr, flush=True)
+            save()
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+
+
 def section_ports(results: dict, args, interleaved, env_of) -> None:
     """Each port's fgopt script vs GTSAM's, warm caches (one untimed run warms them)."""
     for port in PORTS:

@@ -5,7 +5,8 @@ loaded from fgopt's cache (:mod:`fgopt._cache_root`). When that work runs longer
 :data:`NOTICE_AFTER_SECONDS`, the ``fgopt`` logger says so, at most once per process::
 
     fgopt: compiling machine code for pose3_between (first use on this machine, cached in
-    /home/me/.cache/fgopt; later runs load it)
+    /home/me/.cache/fgopt; later runs load it; `fgopt cache build` compiles the built-in
+    families at once)
 
 Logging, not ``print``: with no logging configured Python prints a WARNING on stderr (its
 last-resort handler), so a script's user sees the line, and an application silences or
@@ -41,7 +42,8 @@ def _say(what: str) -> None:
         where = f"cached in {root()}"
     except Exception:  # noqa: BLE001 - the notice never fails the work it describes
         where = "cached"
-    _log.warning("fgopt: %s (first use on this machine, %s; later runs load it)", what, where)
+    _log.warning("fgopt: %s (first use on this machine, %s; later runs load it; `fgopt cache "
+                 "build` compiles the built-in families at once)", what, where)
 
 
 @contextmanager

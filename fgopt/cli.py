@@ -67,6 +67,8 @@ def _positive_int(text: str) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from ._cache_build import FAMILIES
+
     p = argparse.ArgumentParser(prog="fgopt", description="Factor-graph optimization on "
                                 "manifolds: solve or inspect g2o / TORO / BAL files.")
     sub = p.add_subparsers(dest="command", required=True,
@@ -128,10 +130,16 @@ def build_parser() -> argparse.ArgumentParser:
     file_options(i)
     i.set_defaults(run=cmd_info)
 
-    c = sub.add_parser("cache", help="the kernel cache: where it is, what it holds; clear it")
-    c.add_argument("action", choices=["info", "clear"],
-                   help="info: root, entries, sizes, verification; clear: remove every entry "
-                   "and numba's cache")
+    c = sub.add_parser("cache", help="the kernel cache: where it is, what it holds; build or "
+                       "clear it")
+    c.add_argument("action", choices=["info", "build", "clear"],
+                   help="info: root, entries, sizes, verification; build: compile the built-in "
+                   "families' kernels now (once per machine) instead of on their first use; "
+                   "clear: remove every entry and numba's cache")
+    c.add_argument("--jobs", type=_positive_int, default=None,
+                   help="build: processes at a time (default: one per core)")
+    c.add_argument("--only", default=None, metavar="FAMILY[,FAMILY...]",
+                   help=f"build: these families only (default: all of {', '.join(FAMILIES)})")
     c.set_defaults(run=cmd_cache)
     return p
 
@@ -151,6 +159,11 @@ def cmd_cache(args: argparse.Namespace) -> int:
     from . import _cache_root
     from .symbolic import cache
 
+    if args.action == "build":
+        from ._cache_build import build
+
+        build(only=args.only.split(",") if args.only else None, jobs=args.jobs)
+        return 0
     root = _cache_root.root()
     if args.action == "clear":
         removed = cache.clear()

@@ -68,3 +68,20 @@ def test_first_use_table_marks_the_3_s_target():
     assert "| 2.50 | yes | — |" in rows[0]
     assert "| 8.50 | **no** | — | `fgopt: preparing kernels` |" in rows[1]
     assert "Targets missed: g2o solve M3500." in out
+
+
+def test_first_use_table_has_the_jobs_after_the_build_with_the_builds_own_time():
+    """After-build rows come in their own table under a line with the build's one-time wall and
+    CPU seconds; each row is judged against the same 3 s target."""
+    from benchmarks.render_misc import startup_first_use
+
+    res = {"first use port imu": {"cold": 40.0, "warm": 1.5, "cold stderr": ""},
+           "cache build": {"wall": 181.3, "cpu": 235.7},
+           "built first use port imu": {"cold": 1.9, "warm": 1.5, "cold cpu": 2.0,
+                                        "warm cpu": 1.6, "cold stderr": ""}}
+    out = startup_first_use({"results": {"meta": {}, "results": res}})
+    before, after = out.split("After `fgopt cache build`")
+    assert "| port imu | 40.00 | 1.50 | 38.50 | **no** |" in before
+    assert "181.3 s wall, 235.7 s CPU" in after
+    assert "| port imu | 1.90 | 1.50 | 0.40 | yes | 0.40 | — |" in after
+    assert "Targets missed" not in after

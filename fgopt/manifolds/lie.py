@@ -96,8 +96,10 @@ class LieGroup:
     (True, True)
     """
 
-    # ``_data`` is a read-only view of ``_buf``; numba receives ``_buf`` (never written), because a
-    # read-only array is a different numba type and would double every kernel's compilation.
+    # ``_buf`` and ``_data`` are the same read-only array (two slots because the C-level row
+    # wrapper below sets them). Every value's storage is read-only, new values' and values read
+    # from a Variables alike: numba types a read-only array apart from a writable one, and a
+    # mix would compile every element operation twice.
     __slots__ = ("_buf", "_data")
     _GID: int
     _DIM: int
@@ -117,7 +119,7 @@ class LieGroup:
     @classmethod
     def _wrap_readonly(cls, data: np.ndarray):
         """:meth:`_wrap` of an owned array that is already read-only (``BatchKind.wrap``'s
-        contract): no view needed, 2.5x faster (Problem.values, Variables.add_rows)."""
+        contract): no flag to set (Problem.values, Variables.add_rows)."""
         obj = object.__new__(cls)
         object.__setattr__(obj, "_buf", data)
         object.__setattr__(obj, "_data", data)
@@ -135,10 +137,9 @@ class LieGroup:
         return objs
 
     def _set(self, data: np.ndarray) -> None:
-        view = data.view()
-        view.flags.writeable = False
+        data.flags.writeable = False  # an owned array (see the slots' comment)
         object.__setattr__(self, "_buf", data)
-        object.__setattr__(self, "_data", view)
+        object.__setattr__(self, "_data", data)
 
     @classmethod
     def _normalize(cls, data: np.ndarray) -> None:  # pragma: no cover - overridden

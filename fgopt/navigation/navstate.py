@@ -68,10 +68,10 @@ class NavState:
 
     # ---------------------------------------------------------------- construction
     def _set(self, data: np.ndarray) -> None:
-        view = data.view()
-        view.flags.writeable = False
+        # an owned array, read-only like a stored value's: one numba type for both
+        data.flags.writeable = False
         object.__setattr__(self, "_buf", data)
-        object.__setattr__(self, "_data", view)
+        object.__setattr__(self, "_data", data)
 
     @classmethod
     def _wrap(cls, data: np.ndarray) -> NavState:

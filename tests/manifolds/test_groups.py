@@ -340,3 +340,28 @@ class TestAgainstGtsam:
             v2 = C.random_tangent(SE2, rng, angle)
             g2 = gtsam.Pose2.Expmap(np.r_[v2[1:], v2[0]])  # GTSAM's Pose2 tangent: [v, theta]
             np.testing.assert_allclose(SE2.exp(v2).matrix(), g2.matrix(), atol=1e-12)
+
+
+def test_new_and_stored_values_share_one_compiled_element_operation():
+    """A new value and a value read from a Variables reach numba with the same array type (both
+    read-only), so ``stored * new`` after ``new * new`` compiles no second signature of the
+    group's compose (a mix of writable and read-only storage compiled every element operation
+    once per combination)."""
+    import numba  # noqa: F401 - element operations run compiled once numba is loaded
+
+    from fgopt import Variables
+    from fgopt._jit import specialize
+    from fgopt.manifolds import _kernels as K
+
+    compose = specialize(K.lie_compose, SE2._GID)
+    new = SE2.from_xytheta(1.0, 2.0, 0.3)
+    step = SE2.from_xytheta(0.5, 0.0, -0.1)
+    expected = (new * step).matrix()
+    stored = Variables()
+    stored.add(0, new)
+    signatures = len(compose.signatures)
+    assert np.allclose((stored.at(0) * step).matrix(), expected, atol=1e-12)
+    assert np.allclose((step.inverse() * stored.at(0)).matrix(),
+                       (step.inverse() * new).matrix(), atol=1e-12)
+    assert len(compose.signatures) == max(signatures, 1)
+    assert new.to_storage().flags.writeable  # to_storage is still a copy the user owns
