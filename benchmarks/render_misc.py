@@ -119,19 +119,22 @@ def startup_first_use(doc: dict) -> str:
     then, when measured, the same jobs' first runs after ``fgopt cache build``."""
     res = doc["results"]["results"]
     blocks = []
-    for prefix, title in (("first use ", None), ("built first use ", "after")):
+    for prefix in ("first use ", "built first use "):
         keys = [k for k in res if k.startswith(prefix)]
         if not keys:
             continue
-        if title:
+        if prefix == "first use ":
+            blocks += ["On a fresh install (empty caches), each job's first run vs its warm runs:",
+                       ""]
+        else:
             b = res.get("cache build", {})
-            blocks += ["", f"After `fgopt cache build` in a fresh install (the build itself, once: "
+            blocks += [f"After `fgopt cache build` in a fresh install (the build itself, once: "
                        f"{b.get('wall', float('nan')):.1f} s wall, {b.get('cpu', float('nan')):.1f}"
                        " s CPU), each job's first run vs its warm runs:", ""]
-        blocks.append(_first_use_rows(res, keys, len(prefix)))
+        blocks += [_first_use_rows(res, keys, len(prefix)), ""]
     if not blocks:
         return "(Not measured in this run: `python -m benchmarks.startup --only first,built`.)"
-    return "\n".join(blocks)
+    return "\n".join(blocks).rstrip()
 
 
 def _first_use_rows(res: dict, keys: list[str], cut: int) -> str:

@@ -231,8 +231,7 @@ def render(results: dict, meta: dict) -> str:
              f"`{meta['command']}`; {meta['machine']}; load average at start {meta['load']}.",
              "Seconds, wall clock of new processes, median of the samples.", "", startup(doc)]
     if any(k.startswith(("first use ", "built first use ")) for k in results):
-        lines += ["", "First use on a fresh install (empty caches) vs the warm run:", "",
-                  startup_first_use(doc)]
+        lines += ["", "First use:", "", startup_first_use(doc)]
     if any(k.startswith("overheads ") for k in results):
         lines += ["", "Per-process overheads (inside one process):", "", startup_overheads(doc)]
     if "import" in results:
