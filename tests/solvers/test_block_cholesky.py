@@ -181,3 +181,48 @@ def test_auto_picks_dense_only_for_small_and_mostly_full_systems(monkeypatch):
     assert choose_linear_solver(p, backend="numpy") == "dense"
     s = sfm_cube(smart=True, seed=3)
     assert fgopt.optimize(s.graph, s.initial).linear_solver == "dense"
+
+
+_LAPACK_ROUTE = """
+import importlib.util, sys
+import numpy as np
+if sys.argv[1] == "cython":  # as if scipy were not a wheel (conda, a distro): no scipy.libs
+    real = importlib.util.find_spec
+    importlib.util.find_spec = lambda name, *a: None if name == "scipy" else real(name, *a)
+from fgopt.solvers.linear import _block_kernels as K
+sys.path.insert(0, sys.argv[2])
+from test_block_cholesky import random_block_system
+from fgopt.solvers.linear.block_cholesky import BlockCholeskySolver
+pattern, data, dense = random_block_system(3, num_vars=40)
+s = BlockCholeskySolver(small_panel=0, tile_panel=0, small_syrk=0)  # LAPACK/BLAS calls only
+s.analyze(pattern)
+s.factorize(data)
+b = np.arange(pattern.size, dtype=float)
+print(K._OPENBLAS is not None, "scipy.linalg" in sys.modules,
+      float(np.linalg.norm(s.solve(b) - np.linalg.solve(dense, b))))
+"""
+
+
+@pytest.mark.parametrize("route", ["openblas", "cython"])
+def test_lapack_routines_bound_without_scipy_linalg_or_through_it(route, tmp_path):
+    """In a scipy wheel the block Cholesky binds dpotrf / dtrsm / dsyrk / dgemm from scipy's
+    bundled OpenBLAS by path, so a new process that factors with them never imports
+    scipy.linalg (0.2-0.4 s); where that library is not found it binds scipy's cython_lapack
+    wrappers instead. Both routes solve a system whose panels go through LAPACK/BLAS only
+    (checked in a second process: the first may compile, and compiling imports scipy.linalg)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import scipy
+
+    wheel = (Path(scipy.__file__).parents[1] / "scipy.libs").is_dir()
+    if route == "openblas" and not wheel:
+        pytest.skip("scipy is not a wheel here (no scipy.libs): only the cython route applies")
+    for _ in range(2):  # the second process loads the kernels (a compile imports numba's
+        # lowering registries, scipy.linalg among them)
+        out = subprocess.run([sys.executable, "-c", _LAPACK_ROUTE, route,
+                              str(Path(__file__).parent)], capture_output=True, text=True,
+                             check=True, cwd=tmp_path).stdout.split()
+    assert out[:2] == (["True", "False"] if route == "openblas" else ["False", "True"])
+    assert float(out[2]) < 1e-9

@@ -8,12 +8,17 @@ LAPACK/BLAS (``dpotrf`` on the diagonal block, ``dtrsm`` below), then its whole 
 contiguous rows. Narrow panels use numba loops (factorization) and LLVM-IR register tiles (update,
 ``_block_simd.py``) instead of BLAS calls.
 
-BLAS/LAPACK come from scipy's ``cython_blas`` / ``cython_lapack`` (its bundled OpenBLAS). They
-are bound as named external symbols, so the compiled kernels stay cacheable (``cache=True``):
-the addresses are registered with LLVM when this module is imported, before any kernel runs.
+BLAS/LAPACK are scipy's: the Fortran routines its ``cython_blas`` / ``cython_lapack`` wrap (its
+bundled OpenBLAS in a wheel). They are bound as named external symbols, so the compiled kernels
+stay cacheable (``cache=True``): the addresses are registered with LLVM when this module is
+imported, before any kernel runs.
 """
 
 from __future__ import annotations
+
+import ctypes
+import importlib.util
+from pathlib import Path
 
 import llvmlite.binding as _llvm
 import numpy as np
@@ -25,9 +30,33 @@ from ._block_simd import syrk_tile as _syrk_tile
 from ._block_simd import syrk_tile_sub as _syrk_tile_sub
 
 
+def _scipy_openblas() -> ctypes.CDLL | None:
+    """The OpenBLAS a scipy wheel bundles (``scipy.libs/libscipy_openblas-*.so``, 32-bit
+    integers, symbols ``scipy_<routine>_``), loaded by path: the same library and routines as
+    ``cython_lapack``'s, without importing ``scipy.linalg`` (0.2-0.4 s of a new process, most
+    of a small incremental script's). ``None`` for a scipy built otherwise (conda, a distro):
+    then the cython wrappers are used."""
+    spec = importlib.util.find_spec("scipy")
+    if spec is None or spec.origin is None:
+        return None
+    libs = sorted((Path(spec.origin).parents[1] / "scipy.libs").glob("libscipy_openblas-*.so"))
+    try:
+        lib = ctypes.CDLL(str(libs[0])) if len(libs) == 1 else None
+        return lib if lib is not None and hasattr(lib, "scipy_dpotrf_") else None
+    except OSError:
+        return None
+
+
+_OPENBLAS = _scipy_openblas()
+
+
 def _bind(module: str, name: str, nargs: int) -> types.ExternalFunction:
     symbol = "fgopt_block_" + name
-    _llvm.add_symbol(symbol, get_cython_function_address(module, name))
+    if _OPENBLAS is not None:
+        address = ctypes.cast(getattr(_OPENBLAS, f"scipy_{name}_"), ctypes.c_void_p).value
+    else:
+        address = get_cython_function_address(module, name)
+    _llvm.add_symbol(symbol, address)
     return types.ExternalFunction(symbol, types.void(*([types.intp] * nargs)))
 
 
