@@ -63,7 +63,7 @@ BENCHES: dict[str, Bench] = {
         "peers.json", 15),
     "startup": Bench("benchmarks.startup", (
         "--repeats", "5", "--ba-repeats", "1", "--overhead-repeats", "1", "--cold-repeats", "1"),
-        ("--out", "{dir}"), "startup-*.json", 40),
+        ("--out", "{dir}"), "startup-*.json", 47),
     "navigation": Bench("benchmarks.navigation", (), ("--out", "{dir}/navigation"),
                         "navigation.json", 1.5),
     "numpy-backend": Bench("benchmarks.numpy_backend", ("--repeats", "3"), ("--out", "{dir}"),
