@@ -155,4 +155,7 @@ def module_trusted_linearize(raw: Callable, residual_dim: int, tangent_dim: int)
         raw(*args, consts, res, jac)
         return res, jac
 
+    # for callers that allocate ``res`` / ``jac`` themselves (the incremental smoother)
+    linearize.raw = raw
+    linearize.dims = (residual_dim, tangent_dim)
     return linearize

@@ -30,6 +30,14 @@ from ._state import M_HP_HEAD, M_HP_TOP, TreeState
 from ._values import VariableStore
 
 
+def _dispatcher(kernel: Any) -> Any:
+    """The numba dispatcher of a :class:`fgopt._jit.LazyKernel` once built (calling it directly
+    saves the proxy's ~0.7 us per call; the smoother's kernels always run on numba), else
+    ``kernel`` itself (first call, or not a lazy kernel)."""
+    d = getattr(kernel, "_dispatcher", None)
+    return kernel if d is None else d
+
+
 def loss_parts(loss: Any) -> tuple[np.ndarray, int, float, float]:
     """``(sqrt_information, code, k, shape)`` of a noise model or robust loss."""
     if isinstance(loss, RobustLoss):
@@ -66,6 +74,8 @@ class _Batch:
     hwm: int = 0
     linearize: Any = None                         # compiled_linearize(kernel)
     D: int = 0                                    # tangent dims of the arguments, summed
+    raw: Any = None                               # linearize's numba kernel, if it has one
+    fi_col: np.ndarray = field(default=None)      # a new factor's FI column
 
     def grow(self, n: int) -> None:
         cap = self.fac.shape[0]
@@ -213,11 +223,14 @@ class FactorStore:
                 kid = self.vars._kind_id.get(id(kind))
                 kids.append(-1 if kid is None else kid)
             r = kernel.residual_dim
+            D = sum(kind.dim for kind in kernel.arg_kinds)
+            lin = compiled_linearize(kernel)
             batch = _Batch(kernel, code, k, shape, tuple(kids),
                            np.zeros((16, len(kernel.arg_kinds)), np.int64),
                            np.zeros((16, kernel.num_constants)), np.zeros((16, r, r)),
-                           np.full(16, -1, np.int64), linearize=compiled_linearize(kernel),
-                           D=sum(kind.dim for kind in kernel.arg_kinds))
+                           np.full(16, -1, np.int64), linearize=lin, D=D,
+                           raw=getattr(lin, "raw", None),
+                           fi_col=np.array((len(kernel.arg_kinds), 0, D, 0, 0), np.int64))
             b = self._batch_of[key] = len(self.batches)
             self.batches.append(batch)
         return b
@@ -240,16 +253,21 @@ class FactorStore:
         """Store ``f`` over variable slots ``var_slots``; returns ``(slot, handle)``."""
         slot, hwm, reused = self._new_slot()
         handle = self.next_handle
-        self.next_handle += 1
+        self.next_handle = handle + 1
         tree = self.tree
         nv = len(var_slots)
-        tree.ensure_factors(slot + 1, nv)
+        if slot >= tree.FI.shape[1] or nv > tree.kmax:
+            tree.ensure_factors(slot + 1, nv)
         tree.fac_vars[slot, :nv] = var_slots
         b, row = -1, -1
-        if f.kernel is not None:
-            b, R = self._batch_of_loss(f.kernel, f.loss)
+        kernel = f.kernel
+        if kernel is not None:
+            hit = self._loss_cache.get((id(kernel), id(f.loss)))
+            if hit is not None:
+                b, R = hit[0], hit[1]
+            else:
+                b, R = self._batch_of_loss(kernel, f.loss)
             batch = self.batches[b]
-            D = batch.D
             if batch.free:
                 row = batch.free.pop()
             else:
@@ -262,18 +280,33 @@ class FactorStore:
             batch.R[row] = R
             batch.fac[row] = slot
             self.fac_row[slot] = row
+            # FI rows: nv, hoff, D, mark, alive (alive becomes 1 at commit)
+            tree.FI[:, slot] = batch.fi_col
         else:
             self.python[slot] = f
             dims = tree.VI[0]
             D = sum([int(dims[v]) for v in var_slots])
-        # FI rows: nv, hoff, D, mark, alive (alive becomes 1 at commit)
-        tree.FI[:, slot] = (nv, 0, D, 0, 0)
+            tree.FI[:, slot] = (nv, 0, D, 0, 0)
         self.fac_batch[slot] = b
         self.handle_of_slot[slot] = handle
         self.slot_of_handle[handle] = slot
         if self._log is not None:
             self._log.append(("add", slot, handle, hwm, reused, b, row))
         return slot, handle
+
+    def add_all(self, factors: list[Factor], slot_of: dict) -> tuple[np.ndarray, list, list]:
+        """:meth:`add` each of ``factors`` (keys -> slots by ``slot_of``); returns their slots,
+        handles, and the variable slots of each in turn (concatenated)."""
+        new = np.empty(len(factors), np.int64)
+        handles = []
+        observed = []
+        add = self.add
+        for i, f in enumerate(factors):
+            vsl = [slot_of[k] for k in f.keys]
+            new[i], h = add(f, vsl)
+            handles.append(h)
+            observed += vsl
+        return new, handles, observed
 
     def drop(self, slots: np.ndarray) -> None:
         """Forget factors (after commit removed them from the tree)."""
@@ -355,18 +388,34 @@ class FactorStore:
                 continue
             batch = self.batches[b]
             rows = self.fac_row[sel]
-            vs = batch.var_slots[rows]
+            n = rows.shape[0]
+            r0 = int(rows[0])
+            if rows.tolist() == list(range(r0, r0 + n)):  # e.g. new factors: slices (views)
+                vs = batch.var_slots[r0:r0 + n]
+                consts, R = batch.consts[r0:r0 + n], batch.R[r0:r0 + n]
+            else:
+                vs = batch.var_slots[rows]
+                consts, R = batch.consts[rows], batch.R[rows]
             args = tuple([theta[kid][vs[:, j]] for j, kid in enumerate(self._kids(batch))])
-            self._run(batch, sel, args, batch.consts[rows], batch.R[rows])
+            self._run(batch, sel, args, consts, R)
 
     def _run(self, batch: _Batch, sel: np.ndarray, args: tuple, consts: np.ndarray,
              R: np.ndarray) -> None:
         """Linearize factors ``sel`` of ``batch`` (their gathered arguments, constants and
         square-root informations) into new hpool blocks."""
         tree = self.tree
-        res, jac = batch.linearize(args, consts)
-        ok, tree.hpool = _local_systems(res, jac, R, batch.code, batch.k, batch.shape,
-                                        tree.hpool, tree.meta, tree.FI[1], sel)
+        raw = batch.raw
+        if raw is not None:   # the compiled kernel itself (no wrapper per call)
+            n = consts.shape[0]
+            r, D = batch.linearize.dims
+            res = np.empty((n, r))
+            jac = np.empty((n, r, D))
+            _dispatcher(raw)(*args, consts, res, jac)
+        else:
+            res, jac = batch.linearize(args, consts)
+        ok, tree.hpool = _dispatcher(_local_systems)(res, jac, R, batch.code, batch.k,
+                                                     batch.shape, tree.hpool, tree.meta,
+                                                     tree.FI[1], sel)
         if not ok:
             bad = sel[~np.all(np.isfinite(res), axis=1) |
                       ~np.all(np.isfinite(jac.reshape(jac.shape[0], -1)), axis=1)]

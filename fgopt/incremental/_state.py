@@ -175,6 +175,10 @@ class TreeState:
                         self.CI)
         return self._tuples
 
+    def tuples(self) -> tuple:
+        """``(vs, fs, cs)``."""
+        return self._tuples or self._build_tuples()
+
     @property
     def vs(self) -> tuple:
         return (self._tuples or self._build_tuples())[0]

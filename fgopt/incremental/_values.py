@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import FgoptError, KeyNotFoundError
-from ..key import Key, key_char, key_str
+from ..key import _CHAR_SHIFT, Key, key_char, key_str
 from ..manifolds.base import BatchKind, ops_for
 from ..variables import Variables, _Rows
 from ._state import TreeState
@@ -39,6 +39,7 @@ class VariableStore:
         self.hwm = 0
         self._thresholds = thresholds
         self._thr_rows: dict = {}
+        self._vi_new: dict[int, np.ndarray] = {}        # tangent dim -> a new slot's VI column
         self._live: np.ndarray | None = None
         self._log: list | None = None
 
@@ -85,13 +86,13 @@ class VariableStore:
         """A new variable; ``kind``: its batch kind if known (``None``: a Python manifold)."""
         if kind is False:
             kind = ops_for(value).batch_kind(value)
-        hwm = self.hwm
-        reused = bool(self.free)
+        free = self.free
+        reused = bool(free)
         if reused:
-            slot = self.free.pop()
+            slot = free.pop()
         else:
             slot = self.hwm
-            self.hwm += 1
+            self.hwm = slot + 1
         if slot >= self.key_of.shape[0]:
             n = max(2 * self.key_of.shape[0], slot + 1)
             self.key_of = np.resize(self.key_of, n)
@@ -99,7 +100,7 @@ class VariableStore:
             kinds[:self.kind_of.shape[0]] = self.kind_of
             self.kind_of = kinds
         if self._log is not None:
-            self._log.append(("add", k, slot, hwm, reused))
+            self._log.append(("add", k, slot, slot, reused))  # hwm before: the slot if new
         if kind is None:
             kid = -1
             dim = int(ops_for(value).dim(value))
@@ -124,13 +125,17 @@ class VariableStore:
         self.key_of[slot] = k
         self.kind_of[slot] = kid
         tree = self.tree
-        tree.ensure_vars(slot + 1, dim)
-        # VI rows: dim, clique, mark, loc, pos, fhead, changed, live, repl, stale, xrepl
-        tree.VI[:, slot] = (dim, -1, 0, 0, 0, -1, 0, 1, 0, 1, 0)
+        if slot >= tree.VI.shape[1] or dim > tree.maxd:
+            tree.ensure_vars(slot + 1, dim)
+        col = self._vi_new.get(dim)
+        if col is None:
+            # VI rows: dim, clique, mark, loc, pos, fhead, changed, live, repl, stale, xrepl
+            col = self._vi_new[dim] = np.array((dim, -1, 0, 0, 0, -1, 0, 1, 0, 1, 0), np.int64)
+        tree.VI[:, slot] = col
         tree.delta[slot] = 0.0
         tree.xdelta[slot] = 0.0
         tree.xprop[slot] = 0.0
-        ck = (key_char(k), id(kind), dim, tree.maxd)
+        ck = (k >> _CHAR_SHIFT, id(kind), dim, tree.maxd)  # the key's character, kind, sizes
         row = self._thr_rows.get(ck)
         if row is None:
             row = self._thr_rows[ck] = self._threshold_row(k, kind, dim, tree.maxd)

@@ -43,7 +43,7 @@ from ..manifolds.base import ops_for
 from ..solvers.linear._block_kernels import blas_workspace
 from ..variables import Variables
 from . import _constants, _marginal, _ordering, _pool, _solve, _top, _update
-from ._factors import FactorStore
+from ._factors import FactorStore, _dispatcher
 from ._state import M_CL_HWM, M_HP_HEAD, M_HP_TOP, M_NCLIQUES, M_STAMP, TreeState
 from ._values import VariableStore
 from .linear_container import LinearContainerFactor
@@ -135,25 +135,25 @@ class IncrementalSmoother:
         """
         t0 = _clock()
         factors = self._check_factors(new_factors)
-        consts = self._check_constant(constant, new_values)
+        consts = {} if type(constant) is tuple and not constant else \
+            self._check_constant(constant, new_values)
         if consts or self._constants:
             every = {**self._constants, **consts}
             factors = [_constants.substitute(f, every) for f in factors]
             new_values = {k: v for k, v in self._values_items(new_values) if k not in consts}
         values = self._check_values(new_values, factors)
         removed = self._check_remove(remove)
+        p = self.params
         self._count += 1
-        relin = (self.params.enable_relinearization
-                 and self._count % int(self.params.relinearize_skip) == 0)
+        relin = p.enable_relinearization and self._count % int(p.relinearize_skip) == 0
         try:
             result = self._step(factors, values, removed, relin, t0)
         except BaseException:
             self._count -= 1
             raise
-        self._constants.update(consts)
-        for _ in range(int(self.params.extra_steps)):
-            if not self.params.enable_relinearization:
-                break
+        if consts:
+            self._constants.update(consts)
+        for _ in range(int(p.extra_steps) if p.enable_relinearization else 0):
             extra = self._step([], [], _EMPTY, True, _clock())
             if extra.variables_relinearized == 0:
                 break
@@ -401,25 +401,16 @@ class IncrementalSmoother:
         before all others (group 0), ``extra_marked``: variables to re-eliminate anyway."""
         tree, vars_, facs = self._tree, self._vars, self._facs
         p = self.params
-        res = UpdateResult()
-        timing = res.timing
+        timing = {}
         meta0 = tree.meta.copy()
         vars_.begin()
         facs.begin()
         try:
+            add = vars_.add
             for k, x, kind in values:
-                vars_.add(k, x, kind)
-            slot_of = vars_.slot_of
-            new_facs = np.empty(len(factors), np.int64)
-            handles = []
-            obs = []
-            for i, f in enumerate(factors):
-                vsl = [slot_of[k] for k in f.keys]
-                new_facs[i], h = facs.add(f, vsl)
-                handles.append(h)
-                obs += vsl
+                add(k, x, kind)
+            new_facs, handles, obs = facs.add_all(factors, vars_.slot_of)
             observed = np.array(sorted(set(obs)), np.int64) if obs else _EMPTY
-            res.new_factor_indices = handles
             t1 = _clock()
             timing["check"] = t1 - t0
             # fluid relinearization
@@ -445,24 +436,27 @@ class IncrementalSmoother:
                 marked = np.concatenate((marked, rem_vars))
             if extra_marked.shape[0]:
                 marked = np.concatenate((marked, extra_marked))
-            n_live = len(vars_) - unused.shape[0]
-            tree.ensure_cliques(int(tree.meta[M_CL_HWM]) + n_live + 2)
+            n_live = len(vars_.slot_of) - unused.shape[0]
+            meta = tree.meta
+            if tree.CI.shape[1] < int(meta[M_CL_HWM]) + n_live + 2:
+                tree.ensure_cliques(int(meta[M_CL_HWM]) + n_live + 2)
             tree.ensure_adjacency(len(obs))  # one entry per (new factor, variable)
+            vs, fs, cs = tree.tuples()
             frac = 0.0 if self._force_batch else p.batch_threshold
-            out = _update.tree_update(
-                tree.vs, tree.fs, tree.cs, tree.meta, tree.cvpool, tree.cnpool, tree.hpool,
-                marked, unused, new_facs, removed, observed, first, n_live, frac,
-                p.pivot_tolerance, self._iw, self._fw, _ordering.BITSET_LIMIT)
-            status, T, R, O, FL, ap, ai, group, info, tree.cvpool, tree.cnpool = out
+            status, info, tree.cvpool, tree.cnpool = _dispatcher(_update.tree_update)(
+                vs, fs, cs, meta, tree.cvpool, tree.cnpool, tree.hpool, marked, unused,
+                new_facs, removed, observed, first, n_live, frac, p.pivot_tolerance, self._iw,
+                self._fw, _ordering.BITSET_LIMIT)
             if status == _update.NEED_ORDER:
                 t3 = _clock()
+                T, R, O, FL, ap, ai, group = _update.unpack_top(info)
                 order = _ordering.amd_groups(T.shape[0], ap, ai, group)
                 timing["order"] = _clock() - t3
-                out = _update.tree_finish(
-                    tree.vs, tree.fs, tree.cs, tree.meta, tree.cvpool, tree.cnpool, tree.hpool,
-                    T, R, O, FL, ap, ai, group, order, new_facs, removed, p.pivot_tolerance,
-                    self._iw, self._fw, info)
-                status, tree.cvpool, tree.cnpool = out[0], out[9], out[10]
+                info = info[:_update.N_INFO]
+                status, _, tree.cvpool, tree.cnpool = _update.tree_finish(
+                    vs, fs, cs, meta, tree.cvpool, tree.cnpool, tree.hpool, T, R, O, FL, ap, ai,
+                    group, order, new_facs, removed, p.pivot_tolerance, self._iw, self._fw,
+                    info)
             if status == _update.FAILED:
                 raise NotPositiveDefiniteError(
                     f"update: {vars_.describe(int(info[_update.I_FAIL]))} is not constrained "
@@ -475,33 +469,31 @@ class IncrementalSmoother:
             vars_.rollback()
             raise
         # committed: forget removed factors and variables
+        removed_keys = []
         if removed.shape[0]:
             facs.drop(removed)
         if unused.shape[0]:
-            res.removed_keys = [Key(int(vars_.key_of[v])) for v in unused]
+            removed_keys = [Key(int(vars_.key_of[v])) for v in unused]
             vars_.remove(unused)
         facs.release()
         vars_.end()
         facs.end()
         self._dirty = True
         timing["tree"] = _clock() - t2
-        t = int(info[_update.I_T])
-        self._nnz += int(info[_update.I_NNZ])
-        n = len(vars_)
-        batch = bool(info[_update.I_BATCH])
+        t, nnz, new_cliques, _, batch, _ = info[:_update.N_INFO].tolist()
+        self._nnz += nnz
+        n = len(vars_.slot_of)
         if batch:
             self._nnz_per_var_ref = self._nnz / max(n, 1)
             self._force_batch = False
         elif n > 64 and self._nnz > p.fill_refresh * self._nnz_per_var_ref * n:
             self._force_batch = True
-        res.variables_relinearized = int(J.shape[0])
-        res.relinearized_keys = vars_.key_of[J] if J.shape[0] else _EMPTY
-        res.variables_reeliminated = t
-        res.factors_relinearized = int(to_lin.shape[0])
-        res.cliques_reeliminated = int(info[_update.I_NEW])
-        res.cliques = int(tree.meta[M_NCLIQUES])
-        res.batch = batch
-        return res
+        return UpdateResult(  # every field given: no default factories to run
+            new_factor_indices=handles, variables_relinearized=int(J.shape[0]),
+            variables_reeliminated=t, factors_relinearized=int(to_lin.shape[0]),
+            cliques_reeliminated=new_cliques, cliques=int(tree.meta[M_NCLIQUES]),
+            batch=bool(batch), removed_keys=removed_keys, marginalized_keys=[],
+            relinearized_keys=vars_.key_of[J] if J.shape[0] else _EMPTY, timing=timing)
 
     def _unused(self, rem_vars: np.ndarray, removed: np.ndarray,
                 observed: np.ndarray) -> np.ndarray:
