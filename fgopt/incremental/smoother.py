@@ -94,8 +94,9 @@ class IncrementalSmoother:
         """Bring ``delta`` up to date (iSAM2 defers back-substitution to the next read)."""
         if self._dirty:
             t = self._tree
-            self.last_solve_cliques = _solve.solve_pending(
-                t.vs, t.cs, t.cvpool, t.cnpool, float(self.params.wildfire_threshold), t.meta)
+            vs, _, cs = t.tuples()
+            self.last_solve_cliques = _dispatcher(_solve.solve_pending)(
+                vs, cs, t.cvpool, t.cnpool, float(self.params.wildfire_threshold), t.meta)
             self._dirty = False
 
     def _solve_estimate(self) -> np.ndarray:
@@ -103,8 +104,9 @@ class IncrementalSmoother:
         ``delta`` (:meth:`_solve`) in the same call; returns the variables to retract again."""
         t = self._tree
         wildfire = float(self.params.wildfire_threshold)
-        self.last_estimate_cliques, stale, solved = _solve.solve_estimate(
-            t.vs, t.cs, t.cvpool, t.cnpool, t.xdelta, t.xprop, min(wildfire, ESTIMATE_TOLERANCE),
+        vs, _, cs = t.tuples()
+        self.last_estimate_cliques, stale, solved = _dispatcher(_solve.solve_estimate)(
+            vs, cs, t.cvpool, t.cnpool, t.xdelta, t.xprop, min(wildfire, ESTIMATE_TOLERANCE),
             t.meta, self._dirty, wildfire)
         if solved >= 0:
             self.last_solve_cliques = solved
