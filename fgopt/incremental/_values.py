@@ -145,10 +145,7 @@ class VariableStore:
         if col is None:
             # VI rows: dim, clique, mark, loc, pos, fhead, changed, live, repl, stale, xrepl
             col = self._vi_new[dim] = np.array((dim, -1, 0, 0, 0, -1, 0, 1, 0, 1, 0), np.int64)
-        tree.VI[:, slot] = col
-        tree.delta[slot] = 0.0
-        tree.xdelta[slot] = 0.0
-        tree.xprop[slot] = 0.0
+        tree.VI[:, slot] = col   # (delta, xdelta, xprop: zero in free slots, see remove)
         ck = (k >> _CHAR_SHIFT, id(kind), dim, tree.maxd)  # the key's character, kind, sizes
         row = self._thr_rows.get(ck)
         if row is None:
@@ -168,7 +165,9 @@ class VariableStore:
             tree.var_clique[v] = -1
             tree.var_fhead[v] = -1
             tree.var_live[v] = 0
-            tree.delta[v] = 0.0
+            tree.delta[v] = 0.0  # as a new slot's (add does not write them)
+            tree.xdelta[v] = 0.0
+            tree.xprop[v] = 0.0
             self.free.append(v)
         self._live = None
 
@@ -237,9 +236,15 @@ class VariableStore:
                 grown[:est.shape[0]] = est
                 self.est[kid] = est = grown
             rows = stale if one else stale[kinds == kid]
-            if rows.shape[0]:
-                est[rows] = _dispatcher(self._retract[kid])(
-                    th.take(rows, 0), _take_rows(self.tree.xdelta, rows, kind.dim))
+            n = rows.shape[0]
+            if n:
+                new = _dispatcher(self._retract[kid])(th.take(rows, 0),
+                                                      _take_rows(self.tree.xdelta, rows, kind.dim))
+                if n <= 4:  # (most reads: a row's basic indexing costs less than a scatter)
+                    for i, v in enumerate(rows.tolist()):
+                        est[v] = new[i]
+                else:
+                    est[rows] = new
 
     def estimate_storages(self, stale: np.ndarray) -> tuple[list[np.ndarray], dict[int, Any]]:
         """``theta (+) xdelta`` of every live variable: one array per kind (indexed by slot;
