@@ -18,9 +18,13 @@ import numpy as np
 
 from ..errors import FgoptError, KeyNotFoundError
 from ..key import _CHAR_SHIFT, Key, key_char, key_str
+from ..manifolds._kernels import retract_rows
 from ..manifolds.base import BatchKind, ops_for
 from ..variables import Variables, _Rows
 from ._state import TreeState
+
+
+_ROW0 = np.zeros(1, np.int64)
 
 
 def _take_rows(a: np.ndarray, rows: np.ndarray, d: int) -> np.ndarray:
@@ -45,6 +49,7 @@ class VariableStore:
         self.kind_of = np.full(16, -2, np.int64)       # kind id, -1 Python manifold, -2 free
         self.kinds: list[BatchKind] = []
         self._retract: list = []                        # per kind: its batched retract
+        self._retract_rows: list = []   # per kind: retract_rows of its Lie group, else None
         self._kind_id: dict[int, int] = {}
         self.theta: list[np.ndarray] = []
         self.est: list[np.ndarray] = []     # per kind: theta (+) delta by slot (see _refresh)
@@ -126,6 +131,8 @@ class VariableStore:
                 self.kinds.append(kind)
                 # fancy-indexed rows are C-contiguous float64: the compiled loop needs no checks
                 self._retract.append(getattr(kind.retract, "compiled", kind.retract))
+                gid = getattr(kind.retract, "gid", None)
+                self._retract_rows.append(None if gid is None else retract_rows(gid))
                 self.theta.append(np.zeros((max(16, self.key_of.shape[0]), kind.storage_dim)))
                 self.est.append(np.zeros_like(self.theta[-1]))
             th = self.theta[kid]
@@ -217,8 +224,16 @@ class VariableStore:
             x = self.objects[slot]
             return ops_for(x).retract(x, tree.delta[slot, :d].copy())
         kind = self.kinds[kid]
-        row = _dispatcher(self._retract[kid])(
-            self.theta[kid][slot:slot + 1], np.ascontiguousarray(tree.delta[slot:slot + 1, :d]))[0]
+        rows = self._retract_rows[kid]
+        if rows is not None:  # (rows of one-row views: the kernel the cache uses)
+            out = np.empty((1, kind.storage_dim))
+            _dispatcher(rows)(self.theta[kid][slot:slot + 1], tree.delta[slot:slot + 1], _ROW0,
+                              out)
+            row = out[0]
+        else:
+            row = _dispatcher(self._retract[kid])(
+                self.theta[kid][slot:slot + 1],
+                np.ascontiguousarray(tree.delta[slot:slot + 1, :d]))[0]
         # retract's output is a fresh row on the manifold: wrap it without re-normalizing
         return kind.wrap(row) if kind.wrap is not None else kind.from_storage(row)
 
@@ -237,14 +252,19 @@ class VariableStore:
                 self.est[kid] = est = grown
             rows = stale if one else stale[kinds == kid]
             n = rows.shape[0]
-            if n:
-                new = _dispatcher(self._retract[kid])(th.take(rows, 0),
-                                                      _take_rows(self.tree.xdelta, rows, kind.dim))
-                if n <= 4:  # (most reads: a row's basic indexing costs less than a scatter)
-                    for i, v in enumerate(rows.tolist()):
-                        est[v] = new[i]
-                else:
-                    est[rows] = new
+            if n == 0:
+                continue
+            in_place = self._retract_rows[kid]
+            if in_place is not None:  # gather, retract, scatter: one call
+                _dispatcher(in_place)(th, self.tree.xdelta, rows, est)
+                continue
+            new = _dispatcher(self._retract[kid])(th.take(rows, 0),
+                                                  _take_rows(self.tree.xdelta, rows, kind.dim))
+            if n <= 4:  # (most reads: a row's basic indexing costs less than a scatter)
+                for i, v in enumerate(rows.tolist()):
+                    est[v] = new[i]
+            else:
+                est[rows] = new
 
     def estimate_storages(self, stale: np.ndarray) -> tuple[list[np.ndarray], dict[int, Any]]:
         """``theta (+) xdelta`` of every live variable: one array per kind (indexed by slot;
@@ -311,11 +331,15 @@ class VariableStore:
             rows = slots[kinds == kid]
             if rows.shape[0] == 0:
                 continue
-            old = self.theta[kid][rows].copy()
+            old = self.theta[kid][rows]
             if self._log is not None:
                 self._log.append(("theta", kid, rows, old))
-            self.theta[kid][rows] = kind.retract(old, np.ascontiguousarray(
-                tree.delta[rows, :kind.dim]))
+            in_place = self._retract_rows[kid]
+            if in_place is not None:
+                _dispatcher(in_place)(self.theta[kid], tree.delta, rows, self.theta[kid])
+            else:
+                self.theta[kid][rows] = kind.retract(old, np.ascontiguousarray(
+                    tree.delta[rows, :kind.dim]))
         tree.var_stale[slots] = 1   # theta moved: the estimate retracts them again
         for v in slots[kinds < 0].tolist():
             x = self.objects[v]

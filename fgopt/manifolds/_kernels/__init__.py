@@ -115,6 +115,7 @@ from .sim3 import sim3_w_coeffs as sim3_w_coeffs
 from .dispatch import LOCAL_BATCH as LOCAL_BATCH
 from .dispatch import RETRACT_BATCH as RETRACT_BATCH
 from .dispatch import batch_local as batch_local
+from .dispatch import retract_rows as retract_rows
 from .dispatch import batch_retract as batch_retract
 from .dispatch import retract_row as retract_row
 from .dispatch import lie_ad as lie_ad

@@ -202,6 +202,19 @@ def batch_retract(gid, x, delta):
 
 
 @njit(cache=True, inline="always")
+def batch_retract_rows(gid, x, delta, rows, out):
+    """``out[v] = x[v] * Exp(delta[v])`` for each ``v`` of ``rows``, in place (``out`` may be
+    ``x``; ``delta`` may have more columns than the tangent dim): the incremental smoother's
+    gather, retract and scatter of a few rows in one call, where each NumPy step cost more
+    than the retraction."""
+    tmp = np.empty(MAX_STORAGE_DIM)
+    row = np.empty(storage_dim(gid))
+    for v in rows:
+        row[:] = x[v]
+        retract_row(gid, row, delta[v], out[v], tmp)
+
+
+@njit(cache=True, inline="always")
 def batch_local(gid, a, b):
     """(n, s), (n, s) -> (n, d): row-wise Log(a^-1 * b)."""
     out = np.empty((a.shape[0], tangent_dim(gid)))
@@ -241,6 +254,15 @@ def _entry(loop, gid: int, name: str, vectorized=None):
 
 RETRACT_BATCH = tuple(_entry(batch_retract, g, f"{GROUP_NAMES[g].lower()}_retract_batch",
                              RETRACT_NUMPY[g]) for g in range(5))
+for _g, _run in enumerate(RETRACT_BATCH):
+    _run.gid = _g  # (for retract_rows)
+
+
+def retract_rows(gid: int):
+    """``batch_retract_rows`` of group ``gid``, compiled for it alone:
+    ``retract_rows(gid)(x, delta, rows, out)`` (C-contiguous float64 arrays, int64 rows; no
+    checks)."""
+    return specialize(batch_retract_rows, gid)
 
 
 LOCAL_BATCH = tuple(_entry(batch_local, g, f"{GROUP_NAMES[g].lower()}_local_batch")
