@@ -62,6 +62,29 @@ class TestBatched:
         np.testing.assert_allclose(kind.retract.compiled(A, d), kind.retract(A, d), **exact)
         np.testing.assert_allclose(K.batch_local(gid, A, B), kind.local(A, B), **exact)
 
+    def test_retract_rows_in_place_equals_the_batched_retract(self, G):
+        """``retract_rows`` (the incremental smoother's gather-retract-scatter) writes, bit for
+        bit, what the batched retract returns, in the selected rows only, also in place and
+        with ``delta`` wider than the tangent dim."""
+        rng = np.random.default_rng(11)
+        n, gid, kind = 9, G._GID, G.batch_kind()
+        X = _rows(G, [G.random(rng) for _ in range(n)])
+        wide = np.zeros((n, G.dim() + 2))
+        wide[:, :G.dim()] = [C.random_tangent(G, rng, rng.choice(C.SPECIAL_ANGLES))
+                             for _ in range(n)]
+        wide[:, G.dim():] = np.nan   # never read
+        rows = np.array([7, 2, 4], np.int64)
+        expect = kind.retract.compiled(X[rows], np.ascontiguousarray(wide[rows, :G.dim()]))
+        out = np.full_like(X, -5.0)
+        K.retract_rows(gid)(X, wide, rows, out)
+        np.testing.assert_array_equal(out[rows], expect)
+        others = np.setdiff1d(np.arange(n), rows)
+        assert np.all(out[others] == -5.0)
+        Y = X.copy()
+        K.retract_rows(gid)(Y, wide, rows, Y)
+        np.testing.assert_array_equal(Y[rows], expect)
+        np.testing.assert_array_equal(Y[others], X[others])
+
     def test_wrap_all_builds_what_wrap_builds_row_by_row(self, G):
         # the bulk constructor behind result values and Variables' bulk rows
         rng = np.random.default_rng(5)
