@@ -136,9 +136,10 @@ class FactorStore:
         self.batches: list[_Batch] = []
         self._batch_of: dict[tuple, int] = {}
         self.python: dict[int, Factor] = {}            # slot -> Python factor
-        self.fac_batch = np.full(16, -2, np.int64)     # slot -> batch (-1 Python, -2 free)
-        self.fac_row = np.zeros(16, np.int64)
-        self.handle_of_slot = np.full(16, -1, np.int64)
+        # Python lists (read and written from Python only, one entry at a time)
+        self.fac_batch: list[int] = [-2] * 16     # slot -> batch (-1 Python, -2 free)
+        self.fac_row: list[int] = [0] * 16
+        self.handle_of_slot: list[int] = [-1] * 16
         self.slot_of_handle: dict[int, int] = {}
         self.next_handle = 0
         self.free: list[int] = []
@@ -195,15 +196,12 @@ class FactorStore:
             return self.free.pop(), hwm, True
         self.hwm += 1
         slot = hwm
-        if slot >= self.fac_batch.shape[0]:
-            n = max(2 * self.fac_batch.shape[0], slot + 1)
-            fb = np.full(n, -2, np.int64)
-            fb[:self.fac_batch.shape[0]] = self.fac_batch
-            self.fac_batch = fb
-            self.fac_row = np.resize(self.fac_row, n)
-            hs = np.full(n, -1, np.int64)
-            hs[:self.handle_of_slot.shape[0]] = self.handle_of_slot
-            self.handle_of_slot = hs
+        n = len(self.fac_batch)
+        if slot >= n:
+            grow = max(n, slot + 1 - n)
+            self.fac_batch += [-2] * grow
+            self.fac_row += [0] * grow
+            self.handle_of_slot += [-1] * grow
         return slot, hwm, False
 
     def _batch_for(self, kernel: Any, code: int, k: float, shape: float) -> int:
@@ -303,13 +301,13 @@ class FactorStore:
     def drop(self, slots: np.ndarray) -> None:
         """Forget factors (after commit removed them from the tree)."""
         for s in slots.tolist():
-            handle = int(self.handle_of_slot[s])
+            handle = self.handle_of_slot[s]
             del self.slot_of_handle[handle]
             self.handle_of_slot[s] = -1
-            b = int(self.fac_batch[s])
+            b = self.fac_batch[s]
             if b >= 0:
                 batch = self.batches[b]
-                row = int(self.fac_row[s])
+                row = self.fac_row[s]
                 batch.fac[row] = -1
                 batch.free.append(row)
             else:
@@ -355,37 +353,40 @@ class FactorStore:
             if self._log is not None:
                 self._log.append(("hoff", old, hoff))
         theta = self.vars.theta
-        if slots.shape[0] == 1:  # the common online case: row slices, no fancy indexing
-            s = int(slots[0])
-            b = int(self.fac_batch[s])
+        fac_batch, fac_row = self.fac_batch, self.fac_row
+        sl = slots.tolist()
+        if len(sl) == 1:  # the common online case: row slices, no fancy indexing
+            s = sl[0]
+            b = fac_batch[s]
             if b < 0:
                 self._linearize_python(s)
                 return
             batch = self.batches[b]
-            r = int(self.fac_row[s])
+            r = fac_row[s]
             args = tuple([theta[kid][v:v + 1]
                           for v, kid in zip(batch.var_slots[r].tolist(), self._kids(batch))])
             self._run(batch, slots, args, batch.consts[r:r + 1], batch.R[r:r + 1])
             return
-        fb = self.fac_batch.take(slots)
-        b0 = int(fb[0])
-        if not np.any(fb != b0):     # one batch
-            groups = [(b0, slots)]
+        fb = [fac_batch[s] for s in sl]
+        if fb.count(fb[0]) == len(fb):     # one batch
+            groups = [(fb[0], slots, sl)]
         else:
-            groups = [(b, slots[fb == b]) for b in np.unique(fb).tolist()]
-        for b, sel in groups:
+            fba = np.array(fb, np.int64)
+            groups = [(b, slots[fba == b]) for b in sorted(set(fb))]
+            groups = [(b, sel, sel.tolist()) for b, sel in groups]
+        for b, sel, sell in groups:
             if b < 0:
-                for s in sel.tolist():
+                for s in sell:
                     self._linearize_python(s)
                 continue
             batch = self.batches[b]
-            rows = self.fac_row.take(sel)
-            n = rows.shape[0]
-            r0 = int(rows[0])
-            if rows.tolist() == list(range(r0, r0 + n)):  # e.g. new factors: slices (views)
+            rows = [fac_row[s] for s in sell]
+            n, r0 = len(rows), rows[0]
+            if rows == list(range(r0, r0 + n)):  # e.g. new factors: slices (views)
                 vs = batch.var_slots[r0:r0 + n]
                 consts, R = batch.consts[r0:r0 + n], batch.R[r0:r0 + n]
             else:  # (``take``: a third of fancy indexing's cost on a few rows)
+                rows = np.array(rows, np.int64)
                 vs = batch.var_slots.take(rows, 0)
                 consts, R = batch.consts.take(rows, 0), batch.R.take(rows, 0)
             args = tuple([theta[kid].take(vs[:, j], 0)
