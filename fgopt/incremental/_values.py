@@ -291,7 +291,7 @@ class VariableStore:
             kind = self.kinds[0]
             if kind.wrap is not None:
                 est = self.est[0][:self.hwm].copy()
-                est.flags.writeable = False
+                est.setflags(write=False)
                 return Variables._of_rows(_Rows(self.key_of[:self.hwm].copy(), kind, est))
         out = Variables()
         live = self.live_slots()
@@ -308,7 +308,7 @@ class VariableStore:
                 est = self.est[kid][rows]
                 keys = self.key_of[rows]
             if kind.wrap is not None:
-                est.flags.writeable = False
+                est.setflags(write=False)
                 out._pending.append(_Rows(keys, kind, est))
                 continue
             values = out._values  # (turns earlier blocks into values: keeps the order)

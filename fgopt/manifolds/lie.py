@@ -37,12 +37,24 @@ PYTHON_ELEMENT_OPS = 50000
 _element_ops = [0]
 
 
+#: (kernel, group id) -> numba dispatcher of the group's entry, once built: one dict lookup per
+#: operation instead of the entry lookup and its proxy (~1 us of a ~5 us compose)
+_DISPATCHERS: dict = {}
+
+
 def _element(kernel, gid: int, *args) -> None:
-    if _element_ops[0] < PYTHON_ELEMENT_OPS and not _jit.is_numba_loaded():
+    d = _DISPATCHERS.get((kernel, gid))
+    if d is not None and not _jit._mode.python:
+        d(*args)
+    elif _element_ops[0] < PYTHON_ELEMENT_OPS and not _jit.is_numba_loaded():
         _element_ops[0] += 1
         kernel.python(gid, *args)
     else:
-        _jit.specialize(kernel, gid)(*args)  # compiles this group's code only
+        entry = _jit.specialize(kernel, gid)  # compiles this group's code only
+        entry(*args)
+        built = getattr(entry, "_dispatcher", None)
+        if built is not None:
+            _DISPATCHERS[(kernel, gid)] = built
 
 
 class InvalidGroupElementError(FgoptError, ValueError):
@@ -113,7 +125,9 @@ class LieGroup:
     def _wrap(cls, data: np.ndarray):
         """Wrap an owned float64 array as a value without checks (it becomes read-only)."""
         obj = object.__new__(cls)
-        obj._set(data)
+        data.setflags(write=False)  # (half the cost of ``flags.writeable = False``)
+        _SET_BUF(obj, data)
+        _SET_DATA(obj, data)
         return obj
 
     @classmethod
@@ -137,7 +151,7 @@ class LieGroup:
         return objs
 
     def _set(self, data: np.ndarray) -> None:
-        data.flags.writeable = False  # an owned array (see the slots' comment)
+        data.setflags(write=False)  # an owned array (see the slots' comment)
         object.__setattr__(self, "_buf", data)
         object.__setattr__(self, "_data", data)
 

@@ -206,3 +206,26 @@ class TestHelpers:
             assert (K.STORAGE_DIMS[gid], K.TANGENT_DIMS[gid]) == (G.storage_dim(), G.dim())
             assert (K.storage_dim(gid), K.tangent_dim(gid)) == (G.storage_dim(), G.dim())
         assert SE3.batch_kind().retract is K.se3_retract_batch
+
+
+def test_group_operations_keep_python_mode_once_their_dispatcher_is_cached(monkeypatch):
+    """A group operation goes straight to its numba dispatcher once built (a cached lookup),
+    with the same result as the entry, and still runs the pure-Python kernel inside
+    ``python_mode``."""
+    from fgopt import _jit
+    from fgopt.manifolds import SE2, lie
+
+    a, b = SE2.from_xytheta(1.0, 2.0, 0.3), SE2.from_xytheta(-0.5, 0.2, 2.9)
+    monkeypatch.setattr(lie, "_element_ops", [lie.PYTHON_ELEMENT_OPS])  # numba from now on
+    expect = a * b
+    d = lie._DISPATCHERS.get((K.lie_compose, SE2._GID))
+    assert d is not None and d is _jit.specialize(K.lie_compose, SE2._GID)._dispatcher
+    np.testing.assert_array_equal((a * b).to_storage(), expect.to_storage())
+    calls = []
+    monkeypatch.setitem(lie._DISPATCHERS, (K.lie_compose, SE2._GID),
+                        lambda *args: calls.append(1))
+    a * b
+    assert calls == [1]  # the cached dispatcher is what runs
+    with _jit.python_mode():
+        got = a * b
+    assert calls == [1] and np.array_equal(got.to_storage(), expect.to_storage())
