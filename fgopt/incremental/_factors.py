@@ -129,6 +129,11 @@ def _local_systems(res, jac, R, code, k, shape, hpool, meta, fac_hoff, slots):
     return ok, hpool
 
 
+#: :meth:`FactorStore.linearize`'s "nothing deferred" (empty arrays of the types it defers)
+NO_LINEARIZATION = (np.zeros((0, 1)), np.zeros((0, 1, 1)), np.zeros((0, 1, 1)), 0, 0.0, 0.0,
+                    np.zeros(0, np.int64))
+
+
 class FactorStore:
     def __init__(self, tree: TreeState, variables: VariableStore):
         self.tree = tree
@@ -147,6 +152,7 @@ class FactorStore:
         self._log: list | None = None
         self._release: tuple | None = None
         self._loss_cache: dict = {}
+        self._deferred: tuple | None = None
 
     # ------------------------------------------------------------------ transactions
     def begin(self) -> None:
@@ -338,12 +344,17 @@ class FactorStore:
         return f"{name}({keys})"
 
     # ------------------------------------------------------------------ linearization
-    def linearize(self, slots: np.ndarray, fresh: int) -> None:
+    def linearize(self, slots: np.ndarray, fresh: int, defer: bool = False) -> tuple:
         """(Re)linearize ``slots`` at the current theta into new hpool blocks (logged). The
         first ``fresh`` are new factors; the old blocks of the others are kept until
-        :meth:`release` (after the update succeeded)."""
+        :meth:`release` (after the update succeeded).
+
+        ``defer``: the local systems of the last kernel batch are not written; returns
+        ``(res, jac, R, code, k, shape, slots)`` for :func:`_local_systems` (the smoother's
+        ``tree_update`` writes them: one numba call less per update; a non-finite one is then
+        reported by :meth:`raise_nonfinite`), else :data:`NO_LINEARIZATION`."""
         if slots.shape[0] == 0:
-            return
+            return NO_LINEARIZATION
         tree = self.tree
         if slots.shape[0] > fresh:  # relinearized: their old blocks are freed after success
             old = slots[fresh:]
@@ -360,13 +371,12 @@ class FactorStore:
             b = fac_batch[s]
             if b < 0:
                 self._linearize_python(s)
-                return
+                return NO_LINEARIZATION
             batch = self.batches[b]
             r = fac_row[s]
             args = tuple([theta[kid][v:v + 1]
                           for v, kid in zip(batch.var_slots[r].tolist(), self._kids(batch))])
-            self._run(batch, slots, args, batch.consts[r:r + 1], batch.R[r:r + 1])
-            return
+            return self._run(batch, slots, args, batch.consts[r:r + 1], batch.R[r:r + 1], defer)
         fb = [fac_batch[s] for s in sl]
         if fb.count(fb[0]) == len(fb):     # one batch
             groups = [(fb[0], slots, sl)]
@@ -374,8 +384,9 @@ class FactorStore:
             fba = np.array(fb, np.int64)
             groups = [(b, slots[fba == b]) for b in sorted(set(fb))]
             groups = [(b, sel, sel.tolist()) for b, sel in groups]
-        for b, sel, sell in groups:
-            if b < 0:
+        out = NO_LINEARIZATION
+        for i, (b, sel, sell) in enumerate(groups):
+            if b < 0:  # (sorted first: the last group is a kernel batch if any is)
                 for s in sell:
                     self._linearize_python(s)
                 continue
@@ -391,12 +402,13 @@ class FactorStore:
                 consts, R = batch.consts.take(rows, 0), batch.R.take(rows, 0)
             args = tuple([theta[kid].take(vs[:, j], 0)
                           for j, kid in enumerate(self._kids(batch))])
-            self._run(batch, sel, args, consts, R)
+            out = self._run(batch, sel, args, consts, R, defer and i == len(groups) - 1)
+        return out
 
     def _run(self, batch: _Batch, sel: np.ndarray, args: tuple, consts: np.ndarray,
-             R: np.ndarray) -> None:
+             R: np.ndarray, defer: bool = False) -> tuple:
         """Linearize factors ``sel`` of ``batch`` (their gathered arguments, constants and
-        square-root informations) into new hpool blocks."""
+        square-root informations) into new hpool blocks (``defer``: see :meth:`linearize`)."""
         tree = self.tree
         raw = batch.raw
         if raw is not None:   # the compiled kernel itself (no wrapper per call)
@@ -407,15 +419,25 @@ class FactorStore:
             _dispatcher(raw)(*args, consts, res, jac)
         else:
             res, jac = batch.linearize(args, consts)
+        if defer:
+            self._deferred = (batch, res, jac, sel)
+            return res, jac, R, batch.code, batch.k, batch.shape, sel
         ok, tree.hpool = _dispatcher(_local_systems)(res, jac, R, batch.code, batch.k,
                                                      batch.shape, tree.hpool, tree.meta,
                                                      tree.FI[1], sel)
         if not ok:
-            bad = sel[~np.all(np.isfinite(res), axis=1) |
-                      ~np.all(np.isfinite(jac.reshape(jac.shape[0], -1)), axis=1)]
-            where = self.describe(int(bad[0])) if bad.shape[0] else batch.kernel.name
-            raise NonFiniteError(f"{where} has a non-finite residual or Jacobian at the "
-                                 "linearization point: check its measurement and variables")
+            self._deferred = (batch, res, jac, sel)
+            self.raise_nonfinite()
+        return NO_LINEARIZATION
+
+    def raise_nonfinite(self) -> None:
+        """Name the factor whose deferred local system was not finite (see :meth:`linearize`)."""
+        batch, res, jac, sel = self._deferred
+        bad = sel[~np.all(np.isfinite(res), axis=1) |
+                  ~np.all(np.isfinite(jac.reshape(jac.shape[0], -1)), axis=1)]
+        where = self.describe(int(bad[0])) if bad.shape[0] else batch.kernel.name
+        raise NonFiniteError(f"{where} has a non-finite residual or Jacobian at the "
+                             "linearization point: check its measurement and variables")
 
     def _kids(self, batch: _Batch) -> tuple[int, ...]:
         if -1 in batch.kids:      # kinds that first appeared after the batch was made

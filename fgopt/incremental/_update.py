@@ -7,7 +7,8 @@ calls ``tree_finish`` (re-eliminate, commit, mark the top for back-substitution)
 larger top returns ``NEED_ORDER`` with its graph; the caller orders it (AMD) and calls
 ``tree_finish``. A non-positive pivot returns ``FAILED`` before anything is committed.
 
-Both return ``(status, info, cvpool, cnpool)``, the pools possibly grown. ``info`` (int64):
+Both return ``(status, info, cvpool, cnpool)`` (``tree_update`` the hpool too), the pools
+possibly grown. ``info`` (int64):
 ``[t, nnz change, new cliques, (unused), batch, failed variable]``; with ``NEED_ORDER`` it is
 followed by the top's arrays, which :func:`unpack_top` splits. (Each array a numba call
 returns costs ~0.7 us to box: the common update returns three, not ten.)
@@ -21,19 +22,26 @@ import numpy as np
 
 from .._jit import njit
 from ._eliminate import eliminate
+from ._factors import _local_systems
 from ._ordering import min_degree
 from ._state import M_STAMP, unpack_vs
 from ._top import commit, panel_entries, remove_top, top_graph
 
-OK, NEED_ORDER, FAILED = 0, 1, 2
+OK, NEED_ORDER, FAILED, NONFINITE = 0, 1, 2, 3
 I_T, I_NNZ, I_NEW, _, I_BATCH, I_FAIL = range(6)
 N_INFO = 6
 
 
 @njit(cache=True)
 def tree_update(vs, fs, cs, meta, cvpool, cnpool, hpool, marked, unused, new_facs, removed,
-                observed, first, n_live, batch_frac, tol, iw, fw, bitset_limit):
-    """See the module docstring. ``first``: variables ordered before all others (group 0)."""
+                observed, first, n_live, batch_frac, tol, iw, fw, bitset_limit, lin):
+    """See the module docstring. ``first``: variables ordered before all others (group 0).
+    ``lin``: local systems to write first (``FactorStore.linearize``'s deferred batch); a
+    non-finite one returns ``NONFINITE`` before anything else changes. Returns the hpool too."""
+    ok, hpool = _local_systems(lin[0], lin[1], lin[2], lin[3], lin[4], lin[5], hpool, meta,
+                               fs[0][1], lin[6])
+    if not ok:
+        return NONFINITE, np.zeros(N_INFO, np.int64), cvpool, cnpool, hpool
     V_ = unpack_vs(vs)
     var_mark, var_changed = V_[2], V_[6]
     T, R, O, FL, batch, s = remove_top(vs, fs, cs, cvpool, meta, marked, new_facs, removed,
@@ -86,13 +94,15 @@ def tree_update(vs, fs, cs, meta, cvpool, cnpool, hpool, marked, unused, new_fac
             o += a.shape[0]
         info[I_T] = t
         info[I_BATCH] = batch
-        return NEED_ORDER, info, cvpool, cnpool
+        return NEED_ORDER, info, cvpool, cnpool, hpool
     info = np.zeros(N_INFO, np.int64)
     info[I_T] = t
     info[I_BATCH] = batch
     order = min_degree(t, ap, ai, group)
-    return tree_finish(vs, fs, cs, meta, cvpool, cnpool, hpool, T, R, O, FL, ap, ai, group,
-                       order, new_facs, removed, tol, iw, fw, info)
+    status, info, cvpool, cnpool = tree_finish(vs, fs, cs, meta, cvpool, cnpool, hpool, T, R,
+                                               O, FL, ap, ai, group, order, new_facs, removed,
+                                               tol, iw, fw, info)
+    return status, info, cvpool, cnpool, hpool
 
 
 def unpack_top(info: np.ndarray) -> tuple:

@@ -428,7 +428,7 @@ class IncrementalSmoother:
                 relin_facs, relin_vars = _top.adjacent(tree.vs, tree.fs, tree.meta, J, removed)
                 to_lin = np.concatenate((new_facs, relin_facs))
                 marked = np.concatenate((marked, J, relin_vars))
-            facs.linearize(to_lin, new_facs.shape[0])
+            lin = facs.linearize(to_lin, new_facs.shape[0], defer=True)
             t2 = _clock()
             timing["linearize"] = t2 - t1
             unused = _EMPTY
@@ -445,10 +445,13 @@ class IncrementalSmoother:
             tree.ensure_adjacency(len(obs))  # one entry per (new factor, variable)
             vs, fs, cs = tree.tuples()
             frac = 0.0 if self._force_batch else p.batch_threshold
-            status, info, tree.cvpool, tree.cnpool = _dispatcher(_update.tree_update)(
+            status, info, tree.cvpool, tree.cnpool, tree.hpool = _dispatcher(
+                _update.tree_update)(
                 vs, fs, cs, meta, tree.cvpool, tree.cnpool, tree.hpool, marked, unused,
                 new_facs, removed, observed, first, n_live, frac, p.pivot_tolerance, self._iw,
-                self._fw, _ordering.BITSET_LIMIT)
+                self._fw, _ordering.BITSET_LIMIT, lin)
+            if status == _update.NONFINITE:
+                facs.raise_nonfinite()
             if status == _update.NEED_ORDER:
                 t3 = _clock()
                 T, R, O, FL, ap, ai, group = _update.unpack_top(info)

@@ -7,7 +7,8 @@ import pytest
 import fgopt
 from fgopt import (BetweenFactor, FactorGraph, FgoptError, IncrementalParams,
                    IncrementalSmoother, PriorFactor, key)
-from fgopt.errors import DuplicateKeyError, KeyNotFoundError, NotPositiveDefiniteError
+from fgopt.errors import (DuplicateKeyError, KeyNotFoundError, NonFiniteError,
+                          NotPositiveDefiniteError)
 from fgopt.factors import NumericalFactor
 from fgopt.factors.library.range_bearing import range_bearing_factor, range_factor
 from fgopt.manifolds import SE2
@@ -149,6 +150,25 @@ BAD_CASES = {
         lambda s, h: (s[0][0] + [range_factor(pose=x(8), landmark=key("l", 4), measured=2.0)],
                       {**s[0][1], key("l", 4): np.array([1.0, 1.0])}, ()),
         NotPositiveDefiniteError, "l4"),
+    # non-finite local systems: of the only new factor, of the last batch after another one
+    # (both written by the numba update call, which refuses them before changing anything),
+    # and of a batch written before the last
+    "non-finite linearization": (
+        lambda s, h: ([range_factor(pose=x(8), landmark=key("l", 4), measured=2.0)],
+                      {key("l", 4): np.array([np.nan, 1.0])}, ()),
+        NonFiniteError, "l4"),
+    "non-finite linearization after another batch": (
+        lambda s, h: (s[0][0] + [range_factor(pose=x(8), landmark=key("l", 4), measured=2.0)],
+                      {**s[0][1], key("l", 4): np.array([1.0, np.inf])}, ()),
+        NonFiniteError, "l4"),
+    "non-finite linearization before another batch": (
+        lambda s, h: (s[0][0] + [range_factor(pose=x(8), landmark=key("l", 4), measured=2.0),
+                                 PriorFactor(key("l", 5), np.zeros(2),
+                                             Diagonal.sigmas([1.0] * 2)),
+                                 range_factor(pose=x(8), landmark=key("l", 5), measured=2.0)],
+                      {**s[0][1], key("l", 4): np.array([1.0, np.inf]),
+                       key("l", 5): np.array([1.0, 1.0])}, ()),
+        NonFiniteError, "l4"),
 }
 
 
