@@ -219,10 +219,9 @@ class VariableStore:
     def estimate_value(self, slot: int) -> Any:
         kid = int(self.kind_of[slot])
         tree = self.tree
-        d = int(tree.VI[0, slot])
         if kid < 0:
             x = self.objects[slot]
-            return ops_for(x).retract(x, tree.delta[slot, :d].copy())
+            return ops_for(x).retract(x, tree.delta[slot, :int(tree.VI[0, slot])].copy())
         kind = self.kinds[kid]
         rows = self._retract_rows[kid]
         if rows is not None:  # (rows of one-row views: the kernel the cache uses)
@@ -233,7 +232,7 @@ class VariableStore:
         else:
             row = _dispatcher(self._retract[kid])(
                 self.theta[kid][slot:slot + 1],
-                np.ascontiguousarray(tree.delta[slot:slot + 1, :d]))[0]
+                np.ascontiguousarray(tree.delta[slot:slot + 1, :kind.dim]))[0]
         # retract's output is a fresh row on the manifold: wrap it without re-normalizing
         return kind.wrap(row) if kind.wrap is not None else kind.from_storage(row)
 

@@ -185,10 +185,12 @@ class IncrementalSmoother:
             for k, x in self._constants.items():
                 out.add(k, x)
             return out
-        if as_key(key) in self._constants:
-            return self._constants[as_key(key)]
-        self._solve()
-        return self._vars.estimate_value(self._vars.slot(as_key(key)))
+        k = as_key(key)
+        if self._constants and k in self._constants:
+            return self._constants[k]
+        if self._dirty:
+            self._solve()
+        return self._vars.estimate_value(self._vars.slot(k))
 
     def linearization_point(self) -> Variables:
         """The values ``theta`` the factors are currently linearized at."""
