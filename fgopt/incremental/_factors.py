@@ -67,7 +67,6 @@ class _Batch:
     linearize: Any = None                         # compiled_linearize(kernel)
     D: int = 0                                    # tangent dims of the arguments, summed
     raw: Any = None                               # linearize's numba kernel, if it has one
-    fi_col: np.ndarray = field(default=None)      # a new factor's FI column
 
     def grow(self, n: int) -> None:
         cap = self.fac.shape[0]
@@ -225,8 +224,7 @@ class FactorStore:
                            np.zeros((16, len(kernel.arg_kinds)), np.int64),
                            np.zeros((16, kernel.num_constants)), np.zeros((16, r, r)),
                            np.full(16, -1, np.int64), linearize=lin, D=D,
-                           raw=getattr(lin, "raw", None),
-                           fi_col=np.array((len(kernel.arg_kinds), 0, D, 0, 0), np.int64))
+                           raw=getattr(lin, "raw", None))
             b = self._batch_of[key] = len(self.batches)
             self.batches.append(batch)
         return b
@@ -276,8 +274,11 @@ class FactorStore:
             batch.R[row] = R
             batch.fac[row] = slot
             self.fac_row[slot] = row
-            # FI rows: nv, hoff, D, mark, alive (alive becomes 1 at commit)
-            tree.FI[:, slot] = batch.fi_col
+            # FI rows nv, hoff, D, mark, alive: hoff is written with the local system, mark
+            # holds an older stamp, alive is 0 (fresh or dropped slot) until commit
+            FI = tree.FI
+            FI[0, slot] = nv
+            FI[2, slot] = batch.D
         else:
             self.python[slot] = f
             dims = tree.VI[0]
