@@ -495,7 +495,7 @@ class IncrementalSmoother:
             self._force_batch = False
         elif n > 64 and self._nnz > p.fill_refresh * self._nnz_per_var_ref * n:
             self._force_batch = True
-        return UpdateResult(  # every field given: no default factories to run
+        return UpdateResult._of(
             new_factor_indices=handles, variables_relinearized=int(J.shape[0]),
             variables_reeliminated=t, factors_relinearized=int(to_lin.shape[0]),
             cliques_reeliminated=new_cliques, cliques=int(tree.meta[M_NCLIQUES]),

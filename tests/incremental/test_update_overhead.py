@@ -155,3 +155,20 @@ def test_gathered_rows_in_any_order_write_the_same_local_systems():
         got = blocks(order)
         assert all(np.array_equal(got[int(s)], ref[int(s)]) for s in slots)
     assert D.shape[0] == 6
+
+
+def test_update_result_has_every_field_of_the_dataclass():
+    """The result ``update`` builds without the dataclass ``__init__`` has exactly its fields
+    (so equality, ``repr`` and ``dataclasses.asdict`` work) and equals one built by it."""
+    import dataclasses
+
+    from fgopt.incremental import UpdateResult
+
+    isam = IncrementalSmoother()
+    for factors, values in pose_stream(SE2, 6, 3):
+        r = isam.update(factors, values)
+    names = [f.name for f in dataclasses.fields(UpdateResult)]
+    assert sorted(vars(r)) == sorted(names)
+    assert UpdateResult(**{n: getattr(r, n) for n in names}) == r
+    assert dataclasses.asdict(r)["variables_reeliminated"] == r.variables_reeliminated
+    assert "new factors" in repr(r)
