@@ -43,9 +43,9 @@ from ..manifolds.base import ops_for
 from ..solvers.linear._block_kernels import blas_workspace
 from ..variables import Variables
 from . import _constants, _marginal, _ordering, _pool, _solve, _top, _update
-from ._factors import FactorStore, _dispatcher
+from ._factors import FactorStore
 from ._state import M_CL_HWM, M_HP_HEAD, M_HP_TOP, M_NCLIQUES, M_STAMP, TreeState
-from ._values import VariableStore
+from ._values import VariableStore, _dispatcher
 from .linear_container import LinearContainerFactor
 from .params import IncrementalParams, UpdateResult
 
