@@ -128,7 +128,7 @@ def _local_systems(res, jac, R, code, k, shape, hpool, meta, fac_hoff, slots):
     return ok, hpool
 
 
-#: :meth:`FactorStore.linearize`'s "nothing deferred" (empty arrays of the types it defers)
+#: :meth:`FactorStore.linearize`'s "nothing deferred" (empty, of the types it defers)
 NO_LINEARIZATION = (np.zeros((0, 1)), np.zeros((0, 1, 1)), np.zeros((0, 1, 1)), 0, 0.0, 0.0,
                     np.zeros(0, np.int64))
 
@@ -274,11 +274,8 @@ class FactorStore:
             batch.R[row] = R
             batch.fac[row] = slot
             self.fac_row[slot] = row
-            # FI rows nv, hoff, D, mark, alive: hoff is written with the local system, mark
-            # holds an older stamp, alive is 0 (fresh or dropped slot) until commit
-            FI = tree.FI
-            FI[0, slot] = nv
-            FI[2, slot] = batch.D
+            FI = tree.FI  # nv, D (hoff comes with the local system, mark and alive are right)
+            FI[0, slot], FI[2, slot] = nv, batch.D
         else:
             self.python[slot] = f
             dims = tree.VI[0]
@@ -292,12 +289,8 @@ class FactorStore:
         return slot, handle
 
     def add_all(self, factors: list[Factor], slot_of: dict) -> tuple[np.ndarray, list, list]:
-        """:meth:`add` each of ``factors`` (keys -> slots by ``slot_of``); returns their slots,
-        handles, and the variable slots of each in turn (concatenated)."""
-        new = np.empty(len(factors), np.int64)
-        handles = []
-        observed = []
-        add = self.add
+        """:meth:`add` each of ``factors``: their slots, handles, variable slots (concatenated)."""
+        new, handles, observed, add = np.empty(len(factors), np.int64), [], [], self.add
         for i, f in enumerate(factors):
             vsl = [slot_of[k] for k in f.keys]
             new[i], h = add(f, vsl)
