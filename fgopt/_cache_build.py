@@ -190,10 +190,10 @@ def run_family(name: str) -> int:
 
 
 def build(only: list[str] | None = None, jobs: int | None = None,
-          out=sys.stderr) -> dict[str, dict]:
+          out=None) -> dict[str, dict]:
     """Compile the families ``only`` (default: all of :data:`FAMILIES`), ``jobs`` child
-    processes at a time (default: one per core); a line on ``out`` per family. Returns, per
-    family, its wall seconds and the number of functions compiled.
+    processes at a time (default: one per core); a line on ``out`` (default: standard output)
+    per family. Returns, per family, its wall seconds and the number of functions compiled.
 
     Raises :class:`FgoptError` naming the family whose child process failed (its last lines of
     output included); the families that finished stay cached.
@@ -206,6 +206,7 @@ def build(only: list[str] | None = None, jobs: int | None = None,
         raise FgoptError(f"fgopt cache build: unknown famil{'ies' if len(unknown) > 1 else 'y'} "
                          f"{', '.join(unknown)}; choose from {', '.join(FAMILIES)}")
     jobs = max(1, min(jobs or os.cpu_count() or 1, len(names)))
+    out = sys.stdout if out is None else out
     env = dict(os.environ, FGOPT_NUMPY_BUDGET="0")
     print(f"fgopt: compiling the kernels of {len(names)} famil{'ies' if len(names) > 1 else 'y'}"
           f" into {root()} with {jobs} process{'es' if jobs > 1 else ''} (once per machine; "
