@@ -50,7 +50,7 @@ def _geometry(tmp: Path) -> None:
 
 def _pose_graphs(tmp: Path) -> None:
     """g2o files in 2-D and 3-D through ``fgopt solve`` (reader, chordal test, LM, writer), then
-    marginals and the other two methods on the 2-D graph."""
+    on each graph Gauss-Newton, Dogleg and marginals (a few keys, and all of them)."""
     import fgopt
     from fgopt.cli import main as cli
     from fgopt.datasets import grid_3d, manhattan_2d
