@@ -235,6 +235,13 @@ def specialize(kernel: LazyKernel, value: int) -> Callable:
     return entry
 
 
+def specialized_copy(kernel: LazyKernel, value: int) -> LazyKernel:
+    """The copy of non-inlined ``kernel`` that :func:`specialize` runs for id ``value``, still
+    called with an id (which it ignores): for numba code that calls it (a small-problem
+    driver), so that both share its machine code."""
+    return _with_id(kernel, value)
+
+
 def _first_parameter(fn: Callable) -> str | None:
     code = fn.__code__
     return code.co_varnames[0] if code.co_argcount else None

@@ -108,10 +108,13 @@ def smart_kernel(model: type[Calibration], num_views: int, triangulation: str = 
                         hessian(st[0], rows, consts, m, s, refine, zero, toff, pos, shift, H, g,
                                 w, cost),
                         # the same sums from a small-problem driver (fgopt.solvers.small)
-                        compiled_call=CompiledCall(SK.__name__, "smart_dense_batch",
-                                                   prefix=f"{mid}, ",
-                                                   suffix=f", {m}, {s}, {refine}, {zero}",
-                                                   hessian=True))
+                        # (run-time sizes and flags, the model's specialized copy: the
+                        # general path's machine code, one compile for every track length)
+                        compiled_call=CompiledCall(
+                            SK.__name__, "smart_dense_batch", prefix=f"np.int64({mid}), ",
+                            suffix=(f", np.int64({m}), np.int64({s}), np.bool_({refine}), "
+                                    f"np.bool_({zero})"),
+                            hessian=True, specialized=mid))
 
 
 class SmartProjectionFactor(CameraKernelFactor):

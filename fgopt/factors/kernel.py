@@ -48,6 +48,15 @@ class CompiledCall:
     of one kind, its storage rows ``storage[rows[i, j]]``, tangent offsets ``toff (n, k)``, a
     dense ``H (N, N)`` (both triangles) and ``g``; unit noise, no robust loss. It returns ``cost``
     plus the batch's cost.
+
+    ``prefix`` and ``suffix`` are pasted into numba code, where a constant argument (``3``,
+    ``True``) is typed as a literal and compiles the callee (and everything it passes it to)
+    once more, beside the general path's compile for ``int64`` / ``bool``; write
+    ``np.int64(3)``, ``np.bool_(True)`` to share the general path's machine code.
+    ``specialized``: ``function`` takes a calibration model's or Lie group's integer id first
+    (``prefix`` passes it, as ``np.int64``), and the driver calls its copy specialized for
+    this id (:func:`fgopt._jit.specialized_copy`: the one the general path's
+    :func:`fgopt._jit.specialize` entry runs).
     """
 
     module: str
@@ -56,6 +65,7 @@ class CompiledCall:
     suffix: str = ""
     fills: bool = False
     hessian: bool = False
+    specialized: int | None = None
 
 
 @dataclass(frozen=True, eq=False)

@@ -49,7 +49,7 @@ from typing import Any
 
 
 #: Bumped when the emitted source changes meaning (part of the cache key).
-SMALL_CODEGEN_VERSION = "13"
+SMALL_CODEGEN_VERSION = "14"
 #: ``_acc`` functions with at most this many whitened Jacobian entries (``r * D``) are inlined.
 INLINE_MAX_WORK = 18
 #: What a loaded module must define (else it is regenerated).
@@ -59,7 +59,7 @@ REQUIRED = ("_lin", "_retract", "_lm", "_solve", "arena_sizes", "KERNELS")
 def signature(kernel: Any) -> tuple:
     """What a driver's code depends on for one kernel: its call and its shapes."""
     c = kernel.compiled_call
-    return ((c.module, c.function, c.prefix, c.suffix, c.fills, c.hessian),
+    return ((c.module, c.function, c.prefix, c.suffix, c.fills, c.hessian, c.specialized),
             tuple(k.storage_dim for k in kernel.arg_kinds), kernel.residual_dim,
             kernel.tangent_dim, tuple(k.dim for k in kernel.arg_kinds))
 
@@ -147,9 +147,10 @@ def module_source(signatures: tuple, names: tuple) -> str:
     from ._lm_template import lm_source
 
     imports, body, accs, work = [], [], [], []
-    for j, ((mod, fn, prefix, suffix, fills, hessian), sdims, r, D, tdims) in enumerate(
-            signatures):
-        imports.append(f"_k{j} = sys.modules[{mod!r}].{fn}")
+    for j, ((mod, fn, prefix, suffix, fills, hessian, specialized), sdims, r, D, tdims) in \
+            enumerate(signatures):
+        imports.append(f"_k{j} = sys.modules[{mod!r}].{fn}" if specialized is None else
+                       f"_k{j} = specialized_copy(sys.modules[{mod!r}].{fn}, {specialized})")
         body.append(f"    # slot {j}: {names[j]}")
         body.append(f"    soff, toff, consts, R, work = slots[{j}]")
         if hessian:  # the kernel adds its own J^T J (unit noise: R unused)
@@ -179,7 +180,7 @@ def module_source(signatures: tuple, names: tuple) -> str:
         accs.append(accumulate_source(j, r, tdims))
     # without reference counting where nothing returns a new array (see lm_source): everything
     # but _solve, which allocates, and a _lin calling kernels that return their outputs
-    counted = any(not fills or hessian for (_, _, _, _, fills, hessian), *_ in signatures)
+    counted = any(not fills or hessian for (_, _, _, _, fills, hessian, _), *_ in signatures)
     # (explicit both ways: numba compiles a callee without its own _nrt with its caller's)
     lin_flags = ", _nrt=True" if counted else ", _nrt=False"
     head = [
@@ -197,6 +198,7 @@ def module_source(signatures: tuple, names: tuple) -> str:
         "import numba",
         "import numpy as np",
         "",
+        "from fgopt._jit import specialized_copy",
         "from fgopt._structure_kernels import block_var_idx_into",
         "from fgopt.solvers.small._common import (clear, envelope_into, gather, layout_into,",
         "                                         retract, stacked, take_into, widen_envelope)",
