@@ -167,7 +167,10 @@ def _record_row(hist, g, it, cost, cand, lam, step, accepted, old, predicted):
 
 @numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, inline="always"{core_flags})
 def _lm_record(ctx, it, cost, cand, lam, step, accepted, old, predicted):
-    return _record_row(ctx[14], ctx[4], it, cost, cand, lam, step, accepted, old, predicted)
+    # (run-time types: lm_loop's call sites pass literal iterations and flags, one compile of
+    # _record_row each)
+    return _record_row(ctx[14], ctx[4], np.int64(it), cost, cand, lam, step, np.bool_(accepted),
+                       old, predicted)
 
 
 @numba.njit(cache=True, fastmath=False, error_model="numpy", nogil=True, inline="always"{core_flags})
