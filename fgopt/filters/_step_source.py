@@ -7,6 +7,10 @@ and the buffer offsets as constants, so a step is a single dispatch from Python 
 of arguments, and everything else (the generated function, the checks and the covariance
 algebra of :mod:`fgopt.filters._ekf_kernels`) runs compiled. The module is cached like the
 generated functions it calls (:mod:`fgopt.symbolic.cache`, keyed by its source).
+
+The sizes it passes to :mod:`fgopt.filters._ekf_kernels` are ``np.int64``, not literals: numba
+compiles a callee once per literal value, and the covariance algebra is the same for every
+filter: compiled once per machine, not once per state size (~10 s each).
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ import numpy as np
 from ..symbolic import cache as _cache
 
 #: Bump when the template changes (it is part of every module's source, hence its key).
-TEMPLATE_VERSION = "3"
+TEMPLATE_VERSION = "4"
 
 
 def _kernels_hash() -> str:
@@ -106,7 +110,8 @@ def module_source(name: str, layout: Layout, dims: dict, unit: list, process: st
         f"    xnext = {v('xnext')}",
         f"    FG = {v('FG')}",
         "    _process(pin, xnext, FG)",
-        f"    return K.predict(pin, {nx}, {nu}, xnext, FG, {v('P')}, Q, Qs, use_qs, {v('Pn')},",
+        f"    return K.predict(pin, np.int64({nx}), np.int64({nu}), xnext, FG, {v('P')}, Q, Qs,",
+        f"                     use_qs, {v('Pn')},",
         f"                     {v('L')}, {v('T')}, UNIT, {v('Qlast')}, {v('Qslast')})",
     ]
     lines += [
@@ -160,14 +165,14 @@ def module_source(name: str, layout: Layout, dims: dict, unit: list, process: st
             f"    T = {v('T')}",
             f"    rin = {v('rin')}",
             f"    code, idx = K.gain(y, J, P, R, {v(p + 'S')}, {v(p + 'L')}, {v(p + 'K')}, Pn,",
-            (f"                       {v(p + 'HP')}, T, {v(p + 'W')}, rin, pin, {nx}, "
+            (f"                       {v(p + 'HP')}, T, {v(p + 'W')}, rin, pin, np.int64({nx}), "
              f"{v(p + 'stats')}, {v(p + 'Rlast')})"),
             "    if code != 0:",
             "        return code, idx",
             f"    xnew = {v('xnew')}",
             f"    B = {v('B')}",
             "    _retract(rin, xnew, B)",
-            f"    return K.commit_update(xnew, B, Pn, reset, P, pin, {nx}, UNIT, T)",
+            f"    return K.commit_update(xnew, B, Pn, reset, P, pin, np.int64({nx}), UNIT, T)",
         ]
     return "\n".join(lines) + "\n"
 

@@ -426,8 +426,8 @@ class ManifoldEKF:
         row fails, the error names it and the filter is as before the call."""
         try:
             U = np.ascontiguousarray(U, dtype=np.float64)
-            dts = np.ascontiguousarray(np.broadcast_to(np.asarray(dt, dtype=np.float64),
-                                                       (U.shape[0],)))
+            # (a copy: a broadcast view is read-only, another numba signature than a scalar's)
+            dts = np.array(np.broadcast_to(np.asarray(dt, dtype=np.float64), (U.shape[0],)))
         except (TypeError, ValueError, IndexError):
             raise DimensionMismatchError(
                 f"ManifoldEKF {self.name}.predict_many: U must be (k, {self.nu}) numbers and dt "
