@@ -22,7 +22,7 @@ def _factored(path):
     return problem, solver, H
 
 
-@pytest.mark.parametrize("rel", ["small/pose3example-grid.txt", "pose2d/intel.g2o",
+@pytest.mark.parametrize("rel", ["small/pose3example-grid.txt", "small/w100.graph",
                                  "small/tinyGrid3D.g2o"])
 def test_factor_blocks_equal_the_dense_inverse(data_file, rel):
     """For every factor (2D and 3D graphs, several supernodes deep), the block of H^-1 over its
