@@ -7,11 +7,13 @@ calls ``tree_finish`` (re-eliminate, commit, mark the top for back-substitution)
 larger top returns ``NEED_ORDER`` with its graph; the caller orders it (AMD) and calls
 ``tree_finish``. A non-positive pivot returns ``FAILED`` before anything is committed.
 
-Both return ``(status, info, cvpool, cnpool)`` (``tree_update`` the hpool too), the pools
-possibly grown. ``info`` (int64):
-``[t, nnz change, new cliques, (unused), batch, failed variable]``; with ``NEED_ORDER`` it is
-followed by the top's arrays, which :func:`unpack_top` splits. (Each array a numba call
-returns costs ~0.7 us to box: the common update returns three, not ten.)
+``tree_finish`` returns ``(status, info, cvpool, cnpool)``, the pools possibly grown.
+``info`` (int64): ``[t, nnz change, new cliques, (unused), batch, failed variable]``.
+``tree_update`` returns ``(status, *info, top, cvpool, cnpool, hpool)``: ``info``'s six
+numbers, then ``None`` for each pool that did not grow, and for ``top`` unless ``NEED_ORDER``
+(then ``info`` followed by the top's arrays, which :func:`unpack_top` splits). Each array a
+numba call returns costs ~1-2 us to box (more than the rest of an empty update), a ``None``
+next to nothing: the common update returns no array.
 Back-substitution is deferred to the next read of the estimate, as in iSAM2
 (:func:`._solve.solve_pending`).
 """
@@ -38,10 +40,12 @@ def tree_update(vs, fs, cs, meta, cvpool, cnpool, hpool, marked, unused, new_fac
     """See the module docstring. ``first``: variables ordered before all others (group 0).
     ``lin``: local systems to write first (``FactorStore.linearize``'s deferred batch); a
     non-finite one returns ``NONFINITE`` before anything else changes. Returns the hpool too."""
+    cv0, cn0, hp0 = cvpool, cnpool, hpool
     ok, hpool = _local_systems(lin[0], lin[1], lin[2], lin[3], lin[4], lin[5], hpool, meta,
                                fs[0][1], lin[6])
     if not ok:
-        return NONFINITE, np.zeros(N_INFO, np.int64), cvpool, cnpool, hpool
+        return (NONFINITE, 0, 0, 0, 0, 0, 0, None, None, None,
+                hpool if hpool.shape[0] != hp0.shape[0] else None)
     V_ = unpack_vs(vs)
     var_mark, var_changed = V_[2], V_[6]
     T, R, O, FL, batch, s = remove_top(vs, fs, cs, cvpool, meta, marked, new_facs, removed,
@@ -94,7 +98,8 @@ def tree_update(vs, fs, cs, meta, cvpool, cnpool, hpool, marked, unused, new_fac
             o += a.shape[0]
         info[I_T] = t
         info[I_BATCH] = batch
-        return NEED_ORDER, info, cvpool, cnpool, hpool
+        return (NEED_ORDER, info[0], info[1], info[2], info[3], info[4], info[5], info, None,
+                None, hpool if hpool.shape[0] != hp0.shape[0] else None)
     info = np.zeros(N_INFO, np.int64)
     info[I_T] = t
     info[I_BATCH] = batch
@@ -102,7 +107,11 @@ def tree_update(vs, fs, cs, meta, cvpool, cnpool, hpool, marked, unused, new_fac
     status, info, cvpool, cnpool = tree_finish(vs, fs, cs, meta, cvpool, cnpool, hpool, T, R,
                                                O, FL, ap, ai, group, order, new_facs, removed,
                                                tol, iw, fw, info)
-    return status, info, cvpool, cnpool, hpool
+    # a pool that grew is a new, longer array (``_pool``)
+    return (status, info[0], info[1], info[2], info[3], info[4], info[5], None,
+            cvpool if cvpool.shape[0] != cv0.shape[0] else None,
+            cnpool if cnpool.shape[0] != cn0.shape[0] else None,
+            hpool if hpool.shape[0] != hp0.shape[0] else None)
 
 
 def unpack_top(info: np.ndarray) -> tuple:

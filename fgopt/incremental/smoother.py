@@ -447,23 +447,31 @@ class IncrementalSmoother:
             tree.ensure_adjacency(len(obs))  # one entry per (new factor, variable)
             vs, fs, cs = tree.tuples()
             frac = 0.0 if self._force_batch else p.batch_threshold
-            status, info, tree.cvpool, tree.cnpool, tree.hpool = _dispatcher(
-                _update.tree_update)(
+            out = _dispatcher(_update.tree_update)(
                 vs, fs, cs, meta, tree.cvpool, tree.cnpool, tree.hpool, marked, unused,
                 new_facs, removed, observed, first, n_live, frac, p.pivot_tolerance, self._iw,
                 self._fw, _ordering.BITSET_LIMIT, lin)
+            status, info, top = out[0], out[1:1 + _update.N_INFO], out[1 + _update.N_INFO]
+            cv, cn, hp = out[2 + _update.N_INFO:]
+            if cv is not None:
+                tree.cvpool = cv
+            if cn is not None:
+                tree.cnpool = cn
+            if hp is not None:
+                tree.hpool = hp
             if status == _update.NONFINITE:
                 facs.raise_nonfinite()
             if status == _update.NEED_ORDER:
                 t3 = _clock()
-                T, R, O, FL, ap, ai, group = _update.unpack_top(info)
+                T, R, O, FL, ap, ai, group = _update.unpack_top(top)
                 order = _ordering.amd_groups(T.shape[0], ap, ai, group)
                 timing["order"] = _clock() - t3
-                info = info[:_update.N_INFO]
+                info = top[:_update.N_INFO]
                 status, _, tree.cvpool, tree.cnpool = _update.tree_finish(
                     vs, fs, cs, meta, tree.cvpool, tree.cnpool, tree.hpool, T, R, O, FL, ap, ai,
                     group, order, new_facs, removed, p.pivot_tolerance, self._iw, self._fw,
                     info)
+                info = info.tolist()
             if status == _update.FAILED:
                 raise NotPositiveDefiniteError(
                     f"update: {vars_.describe(int(info[_update.I_FAIL]))} is not constrained "
@@ -487,7 +495,7 @@ class IncrementalSmoother:
         facs.end()
         self._dirty = True
         timing["tree"] = _clock() - t2
-        t, nnz, new_cliques, _, batch, _ = info[:_update.N_INFO].tolist()
+        t, nnz, new_cliques, _, batch, _ = info
         self._nnz += nnz
         n = len(vars_.slot_of)
         if batch:
