@@ -39,7 +39,7 @@ def tree_update(vs, fs, cs, meta, cvpool, cnpool, hpool, marked, unused, new_fac
                 observed, first, n_live, batch_frac, tol, iw, fw, bitset_limit, lin):
     """See the module docstring. ``first``: variables ordered before all others (group 0).
     ``lin``: local systems to write first (``FactorStore.linearize``'s deferred batch); a
-    non-finite one returns ``NONFINITE`` before anything else changes. Returns the hpool too."""
+    non-finite one returns ``NONFINITE`` before anything else changes."""
     cv0, cn0, hp0 = cvpool, cnpool, hpool
     ok, hpool = _local_systems(lin[0], lin[1], lin[2], lin[3], lin[4], lin[5], hpool, meta,
                                fs[0][1], lin[6])

@@ -452,13 +452,10 @@ class IncrementalSmoother:
                 new_facs, removed, observed, first, n_live, frac, p.pivot_tolerance, self._iw,
                 self._fw, _ordering.BITSET_LIMIT, lin)
             status, info, top = out[0], out[1:1 + _update.N_INFO], out[1 + _update.N_INFO]
-            cv, cn, hp = out[2 + _update.N_INFO:]
-            if cv is not None:
-                tree.cvpool = cv
-            if cn is not None:
-                tree.cnpool = cn
-            if hp is not None:
-                tree.hpool = hp
+            cv, cn, hp = out[2 + _update.N_INFO:]   # None: the pool did not grow
+            tree.cvpool = tree.cvpool if cv is None else cv
+            tree.cnpool = tree.cnpool if cn is None else cn
+            tree.hpool = tree.hpool if hp is None else hp
             if status == _update.NONFINITE:
                 facs.raise_nonfinite()
             if status == _update.NEED_ORDER:
