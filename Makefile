@@ -35,7 +35,7 @@ $(STAMP): pyproject.toml
 	@$(PY) -m pip install -q --disable-pip-version-check -e '.[$(EXTRAS)]'
 	@touch $(STAMP)
 
-# The built-in families' machine code is compiled once per machine (3-4 min on 2 cores; seconds
+# The built-in families' machine code is compiled once per machine (~2 min on 2 idle cores; seconds
 # when cached), so the demo and a user's first scripts load it instead of compiling it.
 demo: setup
 	@$(PY) -m fgopt.cli cache build
