@@ -38,14 +38,20 @@ def test_full_estimate_leaves_no_back_substitution_pending(monkeypatch):
         assert len(calls) == n + 1  # the twin's solve only
 
 
+def _streamed(group, n, closures, first, last):
+    """A smoother fed ``pose_stream(group, n, closures)``; its factor store, tree and the slots
+    of factors ``first:last`` (in slot order)."""
+    isam = IncrementalSmoother()
+    for factors, values in pose_stream(group, n, closures):
+        isam.update(factors, values)
+    facs, tree = isam._facs, isam._tree
+    return facs, tree, np.array(sorted(facs.slot_of_handle.values())[first:last], np.int64)
+
+
 def test_one_factor_alone_writes_the_same_local_system_as_a_batch():
     """``linearize`` of one factor (row slices) and of the same factor among others (gathered
     rows) write identical local systems ``[H; g]``."""
-    isam = IncrementalSmoother()
-    for factors, values in pose_stream(SE3, 12, 5):
-        isam.update(factors, values)
-    facs, tree = isam._facs, isam._tree
-    slots = np.array(sorted(facs.slot_of_handle.values())[3:7], np.int64)
+    facs, tree, slots = _streamed(SE3, 12, 5, 3, 7)
     D = tree.fac_D[slots]
     facs.linearize(slots, slots.shape[0])
     together = [tree.hpool[o:o + d * d + d].copy() for o, d in zip(tree.fac_hoff[slots], D)]
@@ -138,11 +144,7 @@ def test_tops_ordered_by_amd_give_the_same_estimate(monkeypatch):
 def test_gathered_rows_in_any_order_write_the_same_local_systems():
     """Factors of one batch linearized together write the same ``[H; g]`` whether their batch
     rows are consecutive (sliced) or not (gathered), in any order."""
-    isam = IncrementalSmoother()
-    for factors, values in pose_stream(SE2, 14, 8):
-        isam.update(factors, values)
-    facs, tree = isam._facs, isam._tree
-    slots = np.array(sorted(facs.slot_of_handle.values())[2:8], np.int64)
+    facs, tree, slots = _streamed(SE2, 14, 8, 2, 8)
     D = tree.fac_D[slots]
 
     def blocks(order):
