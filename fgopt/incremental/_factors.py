@@ -252,7 +252,9 @@ class FactorStore:
         nv = len(var_slots)
         if slot >= tree.FI.shape[1] or nv > tree.kmax:
             tree.ensure_factors(slot + 1, nv)
-        tree.fac_vars[slot, :nv] = var_slots
+        fv = tree.fac_vars
+        for j, v in enumerate(var_slots):   # (a list into a slice: twice the cost)
+            fv[slot, j] = v
         b, row = -1, -1
         kernel = f.kernel
         if kernel is not None:
@@ -269,7 +271,9 @@ class FactorStore:
                 batch.hwm += 1
                 if row >= batch.fac.shape[0]:
                     batch.grow(batch.hwm)
-            batch.var_slots[row] = var_slots
+            bv = batch.var_slots
+            for j, v in enumerate(var_slots):
+                bv[row, j] = v
             batch.consts[row] = f.constants
             batch.R[row] = R
             batch.fac[row] = slot

@@ -21,7 +21,7 @@ import numpy as np
 
 from .._jit import njit
 from ._dense import back_substitute
-from ._state import M_STAMP, unpack_cs, unpack_vs
+from ._state import M_STAMP, VI_OUT, unpack_cs, unpack_vs
 
 
 @njit(cache=True)
@@ -131,9 +131,10 @@ def solve_estimate(vs, cs, cvpool, cnpool, x, xprop, tol, meta, pending, wildfir
     re-solved; ``xprop`` is reset only when that happens,
     so changes below ``tol`` do not add up over calls (unlike the wildfire ``delta``): every
     clique's solution is exact for separator values within ``tol`` of the stored ones.
-    ``tol`` 0 is the exact solve. Returns the number of cliques solved and the variables to
-    retract again: those whose ``x`` changed, and those marked ``stale`` (relinearized), whose
-    flag it clears, and the number of cliques :func:`solve_pending` solved (-1: not run)."""
+    ``tol`` 0 is the exact solve. Returns the number of cliques solved, the number ``n`` of
+    variables to retract again, written in ``VI[VI_OUT, :n]`` (those whose ``x`` changed, and
+    those marked ``stale`` (relinearized), whose flag it clears), and the number of cliques
+    :func:`solve_pending` solved (-1: not run)."""
     pending_solved = -1
     if pending:
         pending_solved = solve_pending(vs, cs, cvpool, cnpool, wildfire, meta)
@@ -145,7 +146,7 @@ def solve_estimate(vs, cs, cvpool, cnpool, x, xprop, tol, meta, pending, wildfir
     cl_child, cl_next, cl_voff, cl_nf, cl_ns, cl_fdim, cl_sdim, cl_poff = (
         C_[1], C_[2], C_[4], C_[5], C_[6], C_[7], C_[8], C_[9])
     solved = 0
-    out = np.empty(16, np.int64)
+    out = vs[0][VI_OUT]   # (each variable is frontal in one clique: at most once)
     nout = 0
     xs = np.empty(64)
     xf = np.empty(64)
@@ -205,10 +206,6 @@ def solve_estimate(vs, cs, cvpool, cnpool, x, xprop, tol, meta, pending, wildfir
                 if abs(xf[o + a] - xprop[v, a]) > tol:
                     big = True
             if moved:
-                if nout >= out.shape[0]:
-                    grown = np.empty(2 * out.shape[0], np.int64)
-                    grown[:nout] = out[:nout]
-                    out = grown
                 out[nout] = v
                 nout += 1
             if big:
@@ -226,7 +223,7 @@ def solve_estimate(vs, cs, cvpool, cnpool, x, xprop, tol, meta, pending, wildfir
             stack[ns] = ch
             ns += 1
             ch = cl_next[ch]
-    return solved, out[:nout], pending_solved
+    return solved, nout, pending_solved
 
 
 @njit(cache=True)

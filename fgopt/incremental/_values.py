@@ -150,8 +150,9 @@ class VariableStore:
             tree.ensure_vars(slot + 1, dim)
         col = self._vi_new.get(dim)
         if col is None:
-            # VI rows: dim, clique, mark, loc, pos, fhead, changed, live, repl, stale, xrepl
-            col = self._vi_new[dim] = np.array((dim, -1, 0, 0, 0, -1, 0, 1, 0, 1, 0), np.int64)
+            # VI rows: dim, clique, mark, loc, pos, fhead, changed, live, repl, stale, xrepl, out
+            col = self._vi_new[dim] = np.array((dim, -1, 0, 0, 0, -1, 0, 1, 0, 1, 0, 0),
+                                               np.int64)
         tree.VI[:, slot] = col   # (delta, xdelta, xprop: zero in free slots, see remove)
         ck = (k >> _CHAR_SHIFT, id(kind), dim, tree.maxd)  # the key's character, kind, sizes
         row = self._thr_rows.get(ck)

@@ -44,7 +44,7 @@ from ..solvers.linear._block_kernels import blas_workspace
 from ..variables import Variables
 from . import _constants, _marginal, _ordering, _pool, _solve, _top, _update
 from ._factors import FactorStore
-from ._state import M_CL_HWM, M_HP_HEAD, M_HP_TOP, M_NCLIQUES, M_STAMP, TreeState
+from ._state import M_CL_HWM, M_HP_HEAD, M_HP_TOP, M_NCLIQUES, M_STAMP, VI_OUT, TreeState
 from ._values import VariableStore, _dispatcher
 from .linear_container import LinearContainerFactor
 from .params import IncrementalParams, UpdateResult
@@ -105,13 +105,13 @@ class IncrementalSmoother:
         t = self._tree
         wildfire = float(self.params.wildfire_threshold)
         vs, _, cs = t.tuples()
-        self.last_estimate_cliques, stale, solved = _dispatcher(_solve.solve_estimate)(
+        self.last_estimate_cliques, n, solved = _dispatcher(_solve.solve_estimate)(
             vs, cs, t.cvpool, t.cnpool, t.xdelta, t.xprop, min(wildfire, ESTIMATE_TOLERANCE),
             t.meta, self._dirty, wildfire)
         if solved >= 0:
             self.last_solve_cliques = solved
             self._dirty = False
-        return stale
+        return t.VI[VI_OUT, :n]
 
     # ================================================================== public API
     def update(self, new_factors: "FactorGraph | Iterable[Factor]" = (),
