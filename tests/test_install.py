@@ -34,7 +34,8 @@ def fresh_env(tmp_path_factory):
                   str(REPO)], timeout=600)
     assert wheel.returncode == 0, wheel.stderr[-2000:]
     whl = next((root / "dist").glob("fgopt-*.whl"))
-    inst = _run([str(py), "-m", "pip", "install", "--only-binary=:all:", str(whl)], timeout=1200)
+    inst = _run([str(py), "-m", "pip", "install", "--only-binary=:all:", "--no-compile",
+                 str(whl)], timeout=1200)
     assert inst.returncode == 0, inst.stderr[-2000:]
     return env_dir, root
 
