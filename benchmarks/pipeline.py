@@ -24,6 +24,7 @@ import argparse
 import datetime as dt
 import json
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -51,6 +52,25 @@ def git_state(repo: Path = REPO) -> tuple[str, bool]:
     return head, bool(status)
 
 
+def _run_group(argv: list[str], **kwargs) -> int:
+    """Run ``argv`` in its own process group and wait; if this process is interrupted or
+    terminated meanwhile, kill the whole group first (a benchmark's workers would otherwise go
+    on using the cores the next timing needs)."""
+    def interrupted(signum, frame):
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    previous = signal.signal(signal.SIGTERM, interrupted)
+    proc = subprocess.Popen(argv, start_new_session=True, **kwargs)
+    try:
+        return proc.wait()
+    except BaseException:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+        raise
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def run_bench(name: str, results_dir: Path = RESULTS) -> dict:
     """Run one registered benchmark at HEAD and save its document; returns the document."""
     bench = BENCHES[name]
@@ -66,10 +86,10 @@ def run_bench(name: str, results_dir: Path = RESULTS) -> dict:
         argv = [sys.executable, "-m", bench.module, *bench.args, *out]
         load0, t0, started = os.getloadavg()[0], time.perf_counter(), dt.datetime.now()
         print(f"[{started:%H:%M:%S}] {name}: {bench.command()}", file=sys.stderr, flush=True)
-        proc = subprocess.run(argv, cwd=REPO, env=env, check=False)
+        returncode = _run_group(argv, cwd=REPO, env=env)
         duration, load1 = time.perf_counter() - t0, os.getloadavg()[0]
-        if proc.returncode != 0:
-            raise RuntimeError(f"benchmark {name!r} failed (exit {proc.returncode}): "
+        if returncode != 0:
+            raise RuntimeError(f"benchmark {name!r} failed (exit {returncode}): "
                                f"{bench.command()}")
         found = sorted(Path(tmp).glob(bench.result))
         if not found:

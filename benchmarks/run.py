@@ -401,6 +401,11 @@ def main(argv=None) -> int:
     bad += [m for m in modes if m not in MODES]
     if bad:
         ap.error(f"unknown: {bad}")
+    from .peers.ceres_cpp_runner import BINARY as CERES_BINARY
+    if "ceres_cpp" in peers and not CERES_BINARY.exists():
+        # a table without its Ceres columns would read as if Ceres had not been compared
+        ap.error(f"{CERES_BINARY} is not built: run `bash benchmarks/ceres_cpp/build.sh`, or "
+                 "leave ceres_cpp out of --peers")
     order = ([] if args.no_fgopt else ["fgopt"]) + [p for p in peers if p != "fgopt"]
     for d in datasets:
         spec = PROBLEMS[d]
