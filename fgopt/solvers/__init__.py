@@ -123,7 +123,7 @@ def optimize(graph: Any, initial: Any, method: str = "lm", linear_solver: Any = 
                          f"valid: {sorted(fields)}")
     overrides = dict(options)
     if max_iterations is not None:
-        overrides["max_iterations"] = int(max_iterations)
+        overrides["max_iterations"] = max_iterations  # checked by the params
     if verbose is not None:
         overrides["verbose"] = bool(verbose)
     if isinstance(linear_solver, str):

@@ -63,6 +63,8 @@ def marginals(result: Any, keys: Iterable[int] | None = None, graph: Any = None,
     problem.linearize(state)
     key_list = [as_key(k) for k in keys] if keys is not None else [
         Key(int(k)) for k in problem.var_keys]
+    if not key_list:
+        return {}
     if linear_solver is None:
         # many keys: every marginal from the selected inverse of one block factorization;
         # a few: a few solves (CHOLMOD when installed)

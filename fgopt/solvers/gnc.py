@@ -58,7 +58,7 @@ from ._subproblem import Restricted
 from .diagnostics import clamp_hits, warn_clamps, warn_unused
 from ._run import refuse_constraints
 from .lm import LevenbergMarquardt
-from .params import LMParams
+from .params import LMParams, check_numbers
 from .result import Result, Status
 
 
@@ -135,6 +135,18 @@ class GNCParams:
     """Start of each round's weighted least squares: ``"chordal"`` (a chordal relaxation of the
     weighted pose graph, see :mod:`fgopt.solvers.chordal`), ``"previous"`` (the last round's
     estimate, as GTSAM does) or ``"auto"`` (chordal for SE(2)/SE(3) pose graphs, else previous)."""
+
+    def __post_init__(self):
+        check_numbers(self, integers=("max_rounds", "max_iterations", "max_verify", "threads"),
+                      nonnegative=("weights_tolerance", "cost_tolerance", "active_weight"),
+                      positive=("mu_step", "time_limit", "threads"))
+        for f in ("inlier_probability", "consistency_probability", "snooping_alpha"):
+            if not 0.0 < getattr(self, f) < 1.0:
+                raise FgoptError(f"GNCParams.{f} must be a probability in (0, 1), got "
+                                 f"{getattr(self, f)!r}")
+        if self.mu_step <= 1.0:
+            raise FgoptError(f"GNCParams.mu_step must be > 1 (mu grows or shrinks by it each "
+                             f"round), got {self.mu_step!r}")
 
 
 def _known_inlier_mask(problem: Problem, policy: str) -> list[np.ndarray]:

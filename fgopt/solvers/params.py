@@ -2,7 +2,31 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
+from numbers import Integral, Real
+
+from ..errors import FgoptError
+
+
+def check_numbers(params, integers: tuple[str, ...] = (), nonnegative: tuple[str, ...] = (),
+                  positive: tuple[str, ...] = ()) -> None:
+    """Raise an :class:`FgoptError` naming the field when a parameter is not a number of the
+    kind it must be: ``integers`` non-negative integers, ``nonnegative`` finite reals >= 0
+    (``None`` allowed where the field's default is ``None``), ``positive`` reals > 0."""
+    name = type(params).__name__
+    for f in integers:
+        v = getattr(params, f)
+        if isinstance(v, bool) or not isinstance(v, Integral) or v < 0:
+            raise FgoptError(f"{name}.{f} must be an integer >= 0, got {v!r}")
+    for f, strict in [(f, False) for f in nonnegative] + [(f, True) for f in positive]:
+        v = getattr(params, f)
+        if v is None and getattr(type(params), f, 0) is None:
+            continue
+        if isinstance(v, bool) or not isinstance(v, Real) or math.isnan(v) or v < 0 \
+                or (strict and v == 0) or (not strict and math.isinf(v)):
+            raise FgoptError(f"{name}.{f} must be a {'positive' if strict else 'finite'} number"
+                             f"{'' if strict else ' >= 0'}, got {v!r}")
 
 
 @dataclass(frozen=True)
@@ -28,6 +52,15 @@ class TerminationParams:
     """Stop when max |J^T W r| falls below this (Ceres' gradient_tolerance)."""
     step_tolerance: float = 1e-10
     """Stop when |delta| <= step_tolerance * (|x| + step_tolerance) (Ceres' parameter tolerance)."""
+
+    def __post_init__(self):
+        own = [f for f in ("threads", "initial_lambda", "min_lambda", "max_lambda",
+                           "lambda_factor", "initial_radius") if hasattr(self, f)]
+        check_numbers(self, integers=("max_iterations",) + (("threads",) if "threads" in own
+                                                            else ()),
+                      nonnegative=("relative_tolerance", "absolute_tolerance",
+                                   "gradient_tolerance", "step_tolerance"),
+                      positive=tuple(own))
 
 
 @dataclass(frozen=True)

@@ -41,6 +41,12 @@ def test_gauge_free_graph_is_reported():
         fgopt.marginals(None, graph=g, values=v)
 
 
+def test_no_keys_gives_no_marginals():
+    """An empty key list is an empty answer (it raised NumPy's "need at least one array")."""
+    g, v = _case.minisam_loop()
+    assert fgopt.marginals(fgopt.optimize(g, v), []) == {}
+
+
 def test_matches_gtsam_pose2():
     gtsam = pytest.importorskip("gtsam", reason="gtsam (the [test] extra) is not installed")
     g, v = _case.minisam_loop()
