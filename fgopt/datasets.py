@@ -27,6 +27,12 @@ from .manifolds import SE2, SE3, SO3
 from .variables import Variables
 
 
+def _check_count(where: str, name: str, value, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise FgoptError(f"{where}: {name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
 def data_dir() -> Path:
     """The real benchmark data folder: env ``FGOPT_DATA``, else ``../shared/data`` beside the
     repository (it may not exist: callers skip or fall back to the generators below).
@@ -70,6 +76,7 @@ def manhattan_2d(num_poses: int = 3500, seed: int = 0, sigmas=(0.01, 0.05, 0.05)
     >>> fgopt.optimize(s.graph, s.initial).success
     True
     """
+    num_poses = _check_count("manhattan_2d", "num_poses", num_poses, 1)
     rng = np.random.default_rng(seed)
     sig = np.asarray(sigmas, dtype=float)
     noise = Diagonal.sigmas(sig)
@@ -121,6 +128,7 @@ def grid_3d(num_poses: int = 1000, seed: int = 0, rotation_sigma: float = 0.01,
     >>> len(s.initial), type(s.initial.at(key('x', 0))).__name__
     (27, 'SE3')
     """
+    num_poses = _check_count("grid_3d", "num_poses", num_poses, 1)
     rng = np.random.default_rng(seed)
     sig = np.array([rotation_sigma] * 3 + [translation_sigma] * 3)
     noise = Diagonal.sigmas(sig)
@@ -374,12 +382,18 @@ def random_loop_closures(graph: FactorGraph, reference: Variables, fraction: flo
     """
     from .noise.models import Isotropic
 
+    if not (isinstance(fraction, (int, float, np.floating)) and 0.0 <= fraction < np.inf):
+        raise FgoptError(f"random_loop_closures: fraction must be a finite number >= 0, got "
+                         f"{fraction!r}")
     rng = np.random.default_rng(seed)
     keys = reference.keys()
-    is3d = isinstance(reference.at(keys[0]), SE3)
-    dim = 6 if is3d else 3
     edges = sum(1 for f in graph if len(f.keys) == 2)
     n = int(round(fraction * edges))
+    if n and len(keys) < 3:  # two poses have no non-consecutive pair: the draw would not end
+        raise FgoptError(f"random_loop_closures: needs at least 3 poses in reference, got "
+                         f"{len(keys)}")
+    is3d = n > 0 and isinstance(reference.at(keys[0]), SE3)
+    dim = 6 if is3d else 3
     noise = Isotropic.sigma(dim, sigma)
     out = FactorGraph(list(graph))
     for _ in range(n):

@@ -296,7 +296,11 @@ def save_result_plot(path: str | os.PathLike, graph: Any, initial: Any, result: 
     b'\\x89PNG'
     """
     fig = plot_result(graph, initial, result, title=title)
-    fig.savefig(os.fspath(path), dpi=dpi)
+    try:
+        fig.savefig(os.fspath(path), dpi=dpi)
+    except (OSError, ValueError) as exc:  # ValueError: an extension matplotlib cannot write
+        raise FgoptError(f"save_result_plot: cannot write {os.fspath(path)}: "
+                         f"{getattr(exc, 'strerror', None) or exc}") from None
 
 #: The public names (each has an entry in the API reference: tests/test_docs_reference.py).
 __all__ = ["plot_pose_graph", "camera_centers", "plot_bundle", "plot_cost_history", "plot_result",

@@ -55,3 +55,25 @@ def test_bal_synthetic_rejects_bad_sizes_with_an_fgopt_error():
     for kwargs in (dict(cameras=1, points=5), dict(cameras=3, points=5, observations_per_point=4)):
         with pytest.raises(FgoptError, match="bal_synthetic"):
             bal_synthetic(**kwargs)
+
+
+def test_generators_reject_bad_counts_and_fractions():
+    """Pose counts below 1 or not integers, negative fractions and a reference too small for
+    any non-consecutive pair are FgoptErrors (num_poses=-1 used to return a one-pose graph, and
+    two poses made random_loop_closures draw forever)."""
+    from fgopt.datasets import manhattan_2d, random_loop_closures
+    from fgopt.errors import FgoptError
+
+    for bad in (0, -1, 2.5, True):
+        with pytest.raises(FgoptError, match="num_poses"):
+            manhattan_2d(num_poses=bad)
+        with pytest.raises(FgoptError, match="num_poses"):
+            grid_3d(num_poses=bad)
+    s = manhattan_2d(num_poses=10, seed=0)
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(FgoptError, match="fraction"):
+            random_loop_closures(s.graph, s.initial, bad)
+    two = manhattan_2d(num_poses=2, seed=0)
+    with pytest.raises(FgoptError, match="at least 3 poses"):
+        random_loop_closures(two.graph, two.initial, 1.0)
+    assert random_loop_closures(s.graph, s.initial, 0.0)[1] == 0

@@ -79,6 +79,10 @@ def test_save_result_plot_writes_a_png(tmp_path):
     out = tmp_path / "r.png"
     save_result_plot(out, graph, values, result)
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # a folder that does not exist, or an extension matplotlib cannot write: an FgoptError
+    for bad in (tmp_path / "no" / "r.png", tmp_path / "r.unknownformat"):
+        with pytest.raises(fgopt.FgoptError, match="cannot write"):
+            save_result_plot(bad, graph, values, result)
 
 
 def test_matplotlib_is_imported_lazily():

@@ -8,7 +8,7 @@ import gzip
 import os
 import zlib
 
-from ..errors import FileFormatError
+from ..errors import FgoptError, FileFormatError
 
 
 def read_bytes(path: str | os.PathLike) -> bytes:
@@ -39,5 +39,8 @@ def write_bytes(path: str | os.PathLike, data: bytes) -> None:
     """Write ``data``; ``.gz`` / ``.bz2`` paths are compressed."""
     p = os.fspath(path)
     opener = bz2.open if p.endswith(".bz2") else gzip.open if p.endswith(".gz") else open
-    with opener(p, "wb") as f:
-        f.write(data)
+    try:
+        with opener(p, "wb") as f:
+            f.write(data)
+    except OSError as exc:  # a missing folder, a directory, no permission, a full disk
+        raise FgoptError(f"{p}: cannot write: {exc.strerror or exc}") from None

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+import fgopt
 from fgopt import FactorGraph, Variables, key
 from fgopt.errors import FgoptError, FileFormatError
 from fgopt.factors.library.pose_point import PosePointFactor
@@ -313,3 +314,17 @@ def test_first_bad_line_is_reported_whatever_the_tags(tmp_path):
         read_g2o(_write(tmp_path, V0 + "ZZZ 1\nAAA 2\nVERTEX_SE2 1 0 0\n"))
     with pytest.raises(FileFormatError, match=r":2: VERTEX_SE2 needs 4"):
         read_g2o(_write(tmp_path, V0 + "VERTEX_SE2 1 0 0\nZZZ 1\nAAA 2\n"))
+
+
+@pytest.mark.parametrize("where", ["missing_folder/out.g2o", ".", "folder.g2o.gz"])
+def test_write_to_an_unwritable_path_raises_an_fgopt_error_naming_it(tmp_path, where):
+    """A path that cannot be written (no such folder, a directory) is an FgoptError naming the
+    path, not Python's OSError."""
+    from fgopt.errors import FgoptError
+
+    sample = fgopt.datasets.manhattan_2d(num_poses=4, seed=0)
+    path = tmp_path / where
+    if where.startswith("folder"):
+        path.mkdir()  # a directory named like a compressed file
+    with pytest.raises(FgoptError, match="cannot write"):
+        fgopt.io.write_g2o(path, sample.graph, sample.initial)
