@@ -389,7 +389,15 @@ class SymbolicFactorType:
         from ..symbolic.derive import derive_source
 
         with preparing(f"deriving the kernels of {self.name} (SymPy)"):
-            source = derive_source(self, pattern)
+            try:
+                source = derive_source(self, pattern)
+            except FgoptError:  # already names the user's function
+                raise
+            except ValueError as exc:  # an unknown method / engine, or no code for a value
+                from ..symbolic.generated import explain_derive_error
+
+                raise FgoptError(f"{self.name}: cannot generate its kernels: "
+                                 f"{explain_derive_error(exc)}") from None
         _cache.STATS["derived"] += 1
         if key is None:
             import hashlib
@@ -480,3 +488,4 @@ def _kernel_from_module(module: Any, params: tuple, pattern: tuple, name: str,
                         trusted_linearize=trusted,
                         compiled_call=None if raw is None else CompiledCall(
                             module.__name__, "_linearize_kernel", fills=True))
+

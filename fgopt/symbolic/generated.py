@@ -140,6 +140,16 @@ def generate(fn: Callable | None = None, which: Iterable[str] | None = None, *,
     return wrap if fn is None else wrap(fn)
 
 
+def explain_derive_error(exc: ValueError) -> str:
+    """The message of a code generation error, with what SymPy's special values in it mean
+    for the user's function (``zoo``: complex infinity, e.g. ``x / 0``)."""
+    text = str(exc)
+    if any(v in text.split() or f"({v})" in text for v in ("zoo", "nan", "oo", "-oo")):
+        text += (" (the function simplifies to an infinite or undefined value: a division by "
+                 "zero or a log of 0)")
+    return text
+
+
 class GeneratedFunction:
     """A function compiled by :func:`generate` (see the module docstring).
 
@@ -227,7 +237,13 @@ class GeneratedFunction:
                 return module
         from ._generate_source import derive_source
 
-        source = derive_source(self)
+        try:
+            source = derive_source(self)
+        except FgoptError:  # already names the user's function
+            raise
+        except ValueError as exc:  # no code for a value (SymPy's zoo, nan)
+            raise FgoptError(f"{self.name}: cannot generate its code: "
+                             f"{explain_derive_error(exc)}") from None
         _cache.STATS["derived"] += 1
         if key is None:
             key = "nocache_" + hashlib.sha256(source.encode()).hexdigest()[:16]

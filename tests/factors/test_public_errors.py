@@ -105,3 +105,27 @@ def test_graph_index_and_bad_numbers():
         g["a"]
     with pytest.raises(FgoptError, match="SO2 angle"):
         SO2("x")
+
+
+def test_unknown_derivation_options_and_undefined_residuals_are_fgopt_errors():
+    """An unknown ``method`` / ``engine`` of ``@fgopt.factor``, and a residual SymPy reduces to
+    complex infinity (``x / 0``), used to raise ValueErrors from the code generator; now an
+    FgoptError naming the factor (and, for the latter, what the special value means)."""
+
+    def make(name, **options):
+        def body(landmark: V2, measured: V2) -> V2:
+            return landmark - measured
+        body.__name__ = name
+        return fgopt.factor(**options)(body)
+
+    with pytest.raises(FgoptError, match="bogus_engine: cannot generate.*engine"):
+        make("bogus_engine", engine="bogus", cache=False)(key("l", 0), np.zeros(2))
+    with pytest.raises(FgoptError, match="bogus_method: cannot generate.*method"):
+        make("bogus_method", method="bogus", cache=False)(key("l", 0), np.zeros(2))
+
+    @fgopt.factor(cache=False)
+    def by_zero(landmark: V2) -> V2:
+        return landmark / 0
+
+    with pytest.raises(FgoptError, match="by_zero: cannot generate.*division by zero"):
+        by_zero(key("l", 0))
