@@ -75,3 +75,18 @@ def test_real_graphs_from_chordal(data_file, name, gtsam_cost):
     graph, values = fgopt.io.read(data_file(name), add_prior=True)
     r = fgopt.optimize(graph, chordal_initialization(graph, values))
     assert r.final_cost <= gtsam_cost * (1 + 1e-8)
+
+
+def test_2d_projection_is_the_nearest_rotation():
+    """The closed-form 2D projection equals the SVD projection (U diag(1, det) V^T) on random
+    matrices, reflections included, and maps the tie M = [[a, b], [b, -a]] to a rotation."""
+    from fgopt.solvers.chordal import _project_to_rotations
+
+    rng = np.random.default_rng(3)
+    M = rng.normal(size=(2000, 2, 2))
+    U, _, Vt = np.linalg.svd(M)
+    U[:, :, -1] *= np.linalg.det(U @ Vt)[:, None]
+    np.testing.assert_allclose(_project_to_rotations(M), U @ Vt, atol=1e-12)
+    tie = _project_to_rotations(np.array([[[1.0, 2.0], [2.0, -1.0]], np.zeros((2, 2))]))
+    np.testing.assert_allclose(tie @ tie.transpose(0, 2, 1), np.broadcast_to(np.eye(2), tie.shape),
+                               atol=1e-15)
