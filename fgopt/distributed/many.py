@@ -230,6 +230,15 @@ def solve_many(problems: Iterable[Any], *, method: str = "lm", client: Any = Non
     >>> [r.success for r in results]  # doctest: +SKIP
     """
     items = list(problems)
+    from ..solvers import _METHODS
+
+    if method not in _METHODS:  # before any worker starts
+        raise FgoptError(f"solve_many: unknown method {method!r}: choose one of "
+                         f"{', '.join(_METHODS)}")
+    for i, item in enumerate(items):
+        if not callable(item) and not (isinstance(item, (tuple, list)) and len(item) == 2):
+            raise FgoptError(f"solve_many: problem {i} must be a (graph, initial) pair or a "
+                             f"zero-argument callable returning one, got {type(item).__name__}")
     if method in WORKER_NUMBA_METHODS and "backend" not in options:
         options = {**options, "backend": "numba"}
     return run_tasks(solve_problem, items, client=client, workers=workers, progress=progress,

@@ -191,3 +191,22 @@ def test_own_cluster_workers_are_set_up_for_numeric_work(client, monkeypatch):
     monkeypatch.setenv("MALLOC_TRIM_THRESHOLD_", "1000000")
     with many._without_dask_malloc_trim():
         assert os.environ["MALLOC_TRIM_THRESHOLD_"] == "1000000"
+
+
+def test_malformed_problems_and_methods_are_refused_before_any_worker_starts(monkeypatch):
+    """A problem that is neither a (graph, initial) pair nor a callable, or an unknown method,
+    is an FgoptError naming it, raised before a cluster starts (it used to come back per
+    problem as "TypeError: cannot unpack non-iterable int object" after the cluster ran)."""
+    import fgopt.distributed.many as many
+
+    def no_cluster(*args, **kwargs):
+        raise AssertionError("a cluster was started")
+
+    monkeypatch.setattr(many, "run_tasks", no_cluster)
+    s = fgopt.datasets.manhattan_2d(num_poses=5, seed=0)
+    with pytest.raises(FgoptError, match="problem 1 must be a .graph, initial. pair.*got int"):
+        fgopt.solve_many([(s.graph, s.initial), 3], progress=False)
+    with pytest.raises(FgoptError, match="problem 0 .* got tuple"):
+        fgopt.solve_many([(s.graph,)], progress=False)
+    with pytest.raises(FgoptError, match="unknown method 'zzz'"):
+        fgopt.solve_many([(s.graph, s.initial)], method="zzz", progress=False)
