@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 import time
 from typing import Any
@@ -224,12 +225,25 @@ def _with_loss(graph: Any, robust: tuple[str, int, float] | None):
     return out
 
 
+def _check_writable(option: str, path: str | None) -> None:
+    if path is None:
+        return
+    folder = os.path.dirname(os.path.abspath(path))
+    if os.path.isdir(path) or not os.path.isdir(folder) or not os.access(folder, os.W_OK):
+        why = ("is a directory" if os.path.isdir(path) else
+               "its folder does not exist" if not os.path.isdir(folder) else
+               "its folder is not writable")
+        raise FgoptError(f"{option} {path}: cannot write there ({why})")
+
+
 def cmd_solve(args: argparse.Namespace) -> int:
     from . import optimize
     from .io import add_gauge_prior
     from .key import key_str
 
     say = (lambda *a: None) if args.quiet else (lambda *a: print(*a, flush=True))
+    for option, path in (("--out", args.out), ("--plot", args.plot)):
+        _check_writable(option, path)  # before the solve, not after it
     fmt, graph, initial, t_read = _load(args)
     cost0 = graph.error(initial)
     say(f"{args.file}: {fmt}, {len(initial)} variables ({_counts(initial.type_counts())}), "

@@ -103,6 +103,17 @@ def test_usage_errors_exit_2(small, capsys):
     assert "no such file" in capsys.readouterr().err
 
 
+def test_unwritable_outputs_are_refused_before_the_solve(small, tmp_path, capsys):
+    """--out into a missing folder or --plot onto a directory exits 2 naming the option before
+    any solving (it used to solve, print the summary, then fail to write)."""
+    assert main(["solve", str(small), "--out", str(tmp_path / "no" / "out.g2o")]) == 2
+    out = capsys.readouterr()
+    assert "--out" in out.err and "folder does not exist" in out.err
+    assert "initial cost" not in out.out
+    assert main(["solve", str(small), "--plot", str(tmp_path)]) == 2
+    assert "is a directory" in capsys.readouterr().err
+
+
 def test_info_counts_cost_components_and_gauge(tmp_path, capsys):
     p = tmp_path / "two.g2o"
     p.write_text(SMALL + "VERTEX_SE2 7 0 0 0\nVERTEX_SE2 8 1 0 0\nVERTEX_SE2 9 5 5 0\n"
