@@ -488,4 +488,3 @@ def _kernel_from_module(module: Any, params: tuple, pattern: tuple, name: str,
                         trusted_linearize=trusted,
                         compiled_call=None if raw is None else CompiledCall(
                             module.__name__, "_linearize_kernel", fills=True))
-
