@@ -37,8 +37,9 @@ class NoiseModel:
 
     def __init__(self, sqrt_information: np.ndarray):
         R = np.array(sqrt_information, dtype=float)
-        if R.ndim != 2 or R.shape[0] != R.shape[1]:
-            raise DimensionMismatchError(f"square-root information must be square, got {R.shape}")
+        if R.ndim != 2 or R.shape[0] != R.shape[1] or R.shape[0] == 0:
+            raise DimensionMismatchError(f"square-root information must be square and at least "
+                                         f"1 x 1, got shape {R.shape}")
         if not np.all(np.isfinite(R)):
             raise NonFiniteError("noise model has a NaN or inf entry")
         if np.any(np.tril(R, -1) != 0.0):
@@ -202,7 +203,7 @@ class Isotropic(Diagonal):
     @classmethod
     def sigma(cls, dim: int, sigma: float) -> "Isotropic":
         s = _positive_vector([sigma], "sigma")[0]
-        return cls(np.eye(int(dim)) / s)
+        return cls(np.eye(_dimension(dim)) / s)
 
     def __repr__(self) -> str:
         return f"Isotropic(dim={self.dim}, sigma={self.sigma_values[0]:g})"
@@ -221,7 +222,7 @@ class Unit(Isotropic):
     is_unit = True
 
     def __init__(self, dim: int):
-        super().__init__(np.eye(int(dim)))
+        super().__init__(np.eye(_dimension(dim)))
 
     def __repr__(self) -> str:
         return f"Unit(dim={self.dim})"
@@ -237,11 +238,27 @@ def _three(v: Any, name: str) -> list:
     return a.tolist()
 
 
+def _dimension(dim: Any) -> int:
+    if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or dim < 1:
+        raise DimensionMismatchError(f"noise model dimension must be an integer >= 1, got "
+                                     f"{dim!r}")
+    return int(dim)
+
+
+def _number(value: Any, name: str) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise DimensionMismatchError(f"{name} must be a number, got {value!r}") from None
+
+
 def _positive_vector(values, name: str) -> np.ndarray:
     try:
         v = np.atleast_1d(np.asarray(values, dtype=float)).reshape(-1)
     except (TypeError, ValueError) as exc:
         raise DimensionMismatchError(f"{name} must be numbers, got {values!r}") from exc
+    if v.size == 0:
+        raise DimensionMismatchError(f"{name}: needs at least one number, got {values!r}")
     if not np.all(np.isfinite(v)):
         raise NonFiniteError(f"{name} has a NaN or inf entry: {v}")
     if np.any(v <= 0):
@@ -294,7 +311,7 @@ class RobustLoss:
     shape: float = 0.0
 
     def __init__(self, k: float, base: NoiseModel | None = None):
-        k = float(k)
+        k = _number(k, f"{type(self).__name__} parameter")
         if not np.isfinite(k) or k <= 0:
             raise NotPositiveDefiniteError(f"{type(self).__name__} parameter must be positive, got {k}")
         self.k = k
@@ -405,7 +422,7 @@ class Barron(RobustLoss):
 
     def __init__(self, k: float, alpha: float, base: NoiseModel | None = None):
         super().__init__(k, base)
-        alpha = float(alpha)
+        alpha = _number(alpha, "Barron loss alpha")
         if not np.isfinite(alpha):
             raise NonFiniteError(f"Barron loss alpha must be finite, got {alpha}")
         self.shape = alpha
