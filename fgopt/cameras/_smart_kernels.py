@@ -18,8 +18,10 @@ the compiled problem's H and g take the same sums from :func:`smart_hessian_batc
 
 Degenerate tracks (a pixel that cannot be undistorted, DLT rank < 3, the point behind a view,
 ``E`` rank-deficient) give NaN (the step is rejected; at the initial estimate the optimizer names
-the factor) or, with ``zero_on_degenerate``, a zero residual and Jacobian (GTSAM's
-``ZERO_ON_DEGENERACY``).
+the factor) or, when the track's last constant (its policy, :func:`zero_on_degenerate`) is
+nonzero, a zero residual and Jacobian (GTSAM's ``ZERO_ON_DEGENERACY``). The policy is data, not
+a compile-time flag: tracks of both policies share one kernel, one compile and one small-problem
+driver.
 """
 
 from __future__ import annotations
@@ -33,6 +35,13 @@ from . import _triangulation_kernels as TK
 from ._projection_kernels import project_core
 from ._triangulation_kernels import dlt
 from ._triangulation_kernels import refine as refine_point  # (a parameter is named refine)
+
+
+@njit(cache=True)
+def zero_on_degenerate(consts, i, m, s):
+    """Whether track ``i`` (constants ``consts[i]``: pixels ``2m``, calibration ``s``, square-root
+    information 4, rank tolerance, policy) contributes nothing where it is degenerate."""
+    return consts[i, 2 * m + s + 5] != 0.0
 
 
 @njit(cache=True)
@@ -169,10 +178,10 @@ def _track_system(model, Rs, ts, ks, z, c, m, s, refine, b, F, E, X):
 
 
 @njit(cache=True, nogil=True)  # threads=N runs chunks in parallel
-def smart_batch(model, P, consts, m, s, refine, zero_on_degenerate, with_jac):
-    """``P (n, m, 7)`` pose storages, ``consts (n, 2m + s + 5)`` = pixels, calibration,
-    the 2x2 square-root information (row major), rank tolerance -> res ``(n, 2m)``,
-    jac ``(n, 2m, 6m)``."""
+def smart_batch(model, P, consts, m, s, refine, with_jac):
+    """``P (n, m, 7)`` pose storages, ``consts (n, 2m + s + 6)`` = pixels, calibration,
+    the 2x2 square-root information (row major), rank tolerance, degenerate policy (1: zero,
+    0: NaN; :func:`zero_on_degenerate`) -> res ``(n, 2m)``, jac ``(n, 2m, 6m)``."""
     n = P.shape[0]
     r2 = 2 * m
     res = np.zeros((n, r2))
@@ -183,7 +192,7 @@ def smart_batch(model, P, consts, m, s, refine, zero_on_degenerate, with_jac):
         unpack(P[i], Rs, ts)
         ok = _track_system(model, Rs, ts, ks, z, consts[i], m, s, refine, b, F, E, X)
         if not ok or not _householder_eliminate(E, b, F, m, Fd):
-            if not zero_on_degenerate:
+            if not zero_on_degenerate(consts, i, m, s):
                 for r in range(r2):
                     res[i, r] = np.nan
             continue
@@ -263,12 +272,13 @@ def _schur_workspace(m, s):
 
 
 @njit(cache=True)
-def _track_step(model, storage, rows, i, consts, m, s, refine, zero_on_degenerate, ws, toff, g):
+def _track_step(model, storage, rows, i, consts, m, s, refine, ws, toff, g):
     """Track ``i``'s :func:`_track_schur`, its gradient ``g_j += F_j^T b_j - V_j y`` for each
     view ``j`` and its cost: ``(True, 0.5 |b|^2)``, or for a degenerate track ``(False, NaN)``
-    (``(False, 0)`` with ``zero_on_degenerate``); the caller adds the Hessian blocks."""
+    (``(False, 0)`` where its policy is :func:`zero_on_degenerate`); the caller adds the
+    Hessian blocks."""
     if not _track_schur(model, storage, rows, i, consts, m, s, refine, ws):
-        return False, (0.0 if zero_on_degenerate else np.nan)
+        return False, (0.0 if zero_on_degenerate(consts, i, m, s) else np.nan)
     b, F, V, y = ws[5], ws[7], ws[9], ws[10]
     e2 = 0.0
     for r in range(2 * m):
@@ -282,8 +292,8 @@ def _track_step(model, storage, rows, i, consts, m, s, refine, zero_on_degenerat
 
 
 @njit(cache=True)
-def smart_hessian_batch(model, storage, rows, consts, m, s, refine, zero_on_degenerate, toff,
-                        pos, col_shift, H_data, g, weights, cost):
+def smart_hessian_batch(model, storage, rows, consts, m, s, refine, toff, pos, col_shift,
+                        H_data, g, weights, cost):
     """Add the batch's Schur complements straight into ``H_data`` / ``g`` (the scatter map of
     :func:`fgopt._assembly.scatter_batch`); return ``cost`` plus the batch's cost.
 
@@ -300,8 +310,7 @@ def smart_hessian_batch(model, storage, rows, consts, m, s, refine, zero_on_dege
     F, V = ws[7], ws[9]
     for i in range(n):
         weights[i] = 1.0
-        ok, c = _track_step(model, storage, rows, i, consts, m, s, refine, zero_on_degenerate,
-                            ws, toff, g)
+        ok, c = _track_step(model, storage, rows, i, consts, m, s, refine, ws, toff, g)
         cost += c
         if not ok:
             continue
@@ -328,8 +337,7 @@ def smart_hessian_batch(model, storage, rows, consts, m, s, refine, zero_on_dege
 
 
 @njit(cache=True)
-def smart_dense_batch(model, storage, rows, consts, m, s, refine, zero_on_degenerate, toff, H,
-                      g, cost):
+def smart_dense_batch(model, storage, rows, consts, m, s, refine, toff, H, g, cost):
     """:func:`smart_hessian_batch`'s sums into a dense ``H (N, N)`` (both triangles) and ``g``,
     for the small-problem driver (:mod:`fgopt.solvers.small`): the ``F_j^T F_j`` blocks by
     hand, every track's ``-V V^T`` as one product ``-B B^T`` of the ``(N, 3 n)`` matrix ``B``
@@ -341,8 +349,7 @@ def smart_dense_batch(model, storage, rows, consts, m, s, refine, zero_on_degene
     F, V = ws[7], ws[9]
     B = np.zeros((H.shape[0], 3 * n))
     for i in range(n):
-        ok, c = _track_step(model, storage, rows, i, consts, m, s, refine, zero_on_degenerate,
-                            ws, toff, g)
+        ok, c = _track_step(model, storage, rows, i, consts, m, s, refine, ws, toff, g)
         cost += c
         if not ok:
             continue

@@ -25,6 +25,9 @@ Degenerate-track policy (``degenerate=``):
   ``ZERO_ON_DEGENERACY``). GTSAM's default ``IGNORE_DEGENERACY`` reports error 0 but still
   linearizes towards a point at infinity; fgopt does not mix the two.
 
+The policy is one of the factor's constants (run-time data of the kernel), so tracks of both
+policies share a kernel: one batch, one compile, one small-problem driver.
+
 The noise model is per pixel (2-D, any Gaussian); robust losses are not supported (GTSAM's smart
 factors have none either).
 """
@@ -58,10 +61,12 @@ _HINT = ("a smart factor's landmark cannot be triangulated at this estimate (par
 
 
 @lru_cache(maxsize=None)
-def smart_kernel(model: type[Calibration], num_views: int, triangulation: str = "dlt",
-                 degenerate: str = "reject") -> FactorKernel:
+def smart_kernel(model: type[Calibration], num_views: int,
+                 triangulation: str = "dlt") -> FactorKernel:
     """Kernel of smart factors with ``num_views`` poses: args ``(SE3,) * m``, constants
-    ``(pixels (2m), calibration storage, sqrt information (4, row major), rank tolerance)``.
+    ``(pixels (2m), calibration storage, sqrt information (4, row major), rank tolerance,
+    degenerate policy)``, the policy ``0.0`` for ``"reject"`` (NaN where the track is degenerate)
+    or ``1.0`` for ``"zero"`` (:class:`SmartProjectionFactor`'s ``degenerate``).
 
     Example: two cameras 1 m apart; when their pixels disagree by 2 pixels in ``v``, the
     point triangulated inside the kernel leaves 1 pixel in each view:
@@ -71,17 +76,16 @@ def smart_kernel(model: type[Calibration], num_views: int, triangulation: str = 
     >>> K = Cal3_S2(500.0, 500.0, 0.0, 320.0, 240.0)
     >>> kernel = smart_kernel(Cal3_S2, 2)
     >>> poses = (SE3().to_storage()[None], SE3(translation=[1.0, 0.0, 0.0]).to_storage()[None])
-    >>> consts = np.array([[370.0, 140.0, 120.0, 142.0, *K.to_storage(), 1.0, 0.0, 0.0, 1.0, 1e-9]])
+    >>> consts = np.array([[370.0, 140.0, 120.0, 142.0, *K.to_storage(), 1.0, 0.0, 0.0, 1.0, 1e-9,
+    ...                     0.0]])
     >>> round(float(np.linalg.norm(kernel.residual(poses, consts))), 3)   # sqrt(1 + 1)
     1.414
     """
     if triangulation not in TRIANGULATION:
         raise FgoptError(f"triangulation must be one of {TRIANGULATION}, got {triangulation!r}")
-    if degenerate not in DEGENERATE:
-        raise FgoptError(f"degenerate must be one of {DEGENERATE}, got {degenerate!r}")
     m, s, mid = int(num_views), len(model.PARAMS), model.MODEL
-    nc = 2 * m + s + 5
-    refine, zero = triangulation == "nonlinear", degenerate == "zero"
+    nc = 2 * m + s + 6
+    refine = triangulation == "nonlinear"
     name = f"smart_{model.__name__.lower()}_{m}views"
     batch, hessian = specialize(SK.smart_batch, mid), specialize(SK.smart_hessian_batch, mid)
 
@@ -94,26 +98,26 @@ def smart_kernel(model: type[Calibration], num_views: int, triangulation: str = 
         if P.ndim != 3 or P.shape[1:] != (m, 7) or c.shape != (P.shape[0], nc):
             raise DimensionMismatchError(f"{name}: expected poses (n, 7) x {m} and constants "
                                          f"(n, {nc}); got {P.shape}, {c.shape}")
-        return batch(P, c, m, s, refine, zero, with_jac)
+        return batch(P, c, m, s, refine, with_jac)
 
     return FactorKernel(name, (SE3.batch_kind(),) * m, 2 * m, nc,
                         residual=lambda args, consts: run(args, consts, False)[0],
                         linearize=lambda args, consts: run(args, consts, True),
                         source=_SOURCE, nonfinite_hint=_HINT,
-                        recipe=(smart_kernel, (model, m, triangulation, degenerate)),
+                        recipe=(smart_kernel, (model, m, triangulation)),
                         trusted_linearize=lambda args, consts: batch(
-                            np.stack(args, axis=1), consts, m, s, refine, zero, True),
+                            np.stack(args, axis=1), consts, m, s, refine, True),
                         # every argument is an SE3 pose: one storage for all
                         scatter_hessian=lambda st, rows, consts, toff, pos, shift, H, g, w, cost:
-                        hessian(st[0], rows, consts, m, s, refine, zero, toff, pos, shift, H, g,
-                                w, cost),
+                        hessian(st[0], rows, consts, m, s, refine, toff, pos, shift, H, g, w,
+                                cost),
                         # the same sums from a small-problem driver (fgopt.solvers.small)
                         # (run-time sizes and flags, the model's specialized copy: the
-                        # general path's machine code, one compile for every track length)
+                        # general path's machine code, one compile for every track length;
+                        # the degenerate policy is in consts: one driver for both)
                         compiled_call=CompiledCall(
                             SK.__name__, "smart_dense_batch", prefix=f"np.int64({mid}), ",
-                            suffix=(f", np.int64({m}), np.int64({s}), np.bool_({refine}), "
-                                    f"np.bool_({zero})"),
+                            suffix=f", np.int64({m}), np.int64({s}), np.bool_({refine})",
                             hessian=True, specialized=mid))
 
 
@@ -169,15 +173,19 @@ class SmartProjectionFactor(CameraKernelFactor):
         if not is_positive(rank_tol):
             raise FgoptError(f"{where}: rank_tol must be a finite number > 0, got {rank_tol!r}")
         tol = float(rank_tol)
+        if degenerate not in DEGENERATE:
+            raise FgoptError(f"{where}: degenerate must be one of {DEGENERATE}, got "
+                             f"{degenerate!r}")
         self.measured = z.copy()
         self.calibration = calibration
         self.pixel_noise = noise
         self.triangulation = triangulation
         consts = np.concatenate([z.reshape(-1), calibration._data,
-                                 np.asarray(noise.sqrt_information).reshape(-1), [tol]])
+                                 np.asarray(noise.sqrt_information).reshape(-1),
+                                 [tol, float(degenerate == "zero")]])
         self._rank_tol = tol
-        super().__init__(smart_kernel(type(calibration), m, triangulation, degenerate), keys,
-                         consts, Unit(2 * m))
+        super().__init__(smart_kernel(type(calibration), m, triangulation), keys, consts,
+                         Unit(2 * m))
 
     def point(self, values: Any) -> np.ndarray | None:
         """The landmark triangulated from the poses in ``values``, or ``None`` if degenerate."""

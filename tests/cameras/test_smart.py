@@ -181,6 +181,27 @@ def test_degenerate_track_policy():
     assert zero.point(v) is None
 
 
+def test_degenerate_policy_is_per_factor_in_one_kernel():
+    """The degenerate policy is a constant of each factor, not of the kernel: tracks of both
+    policies share one kernel (one batch, one small-problem driver), and in one batch call each
+    row follows its own policy (zero residual and Jacobian / NaN) whichever row comes first."""
+    K = Cal3_S2(500, 500, 0, 320, 240)
+    poses = [SE3(), SE3(SO3.exp([0.0, 0.05, 0.0]))]  # one centre: every track degenerate
+    ms = np.array([PinholeCamera(p, K).project(np.array([0.3, 0.2, 5.0])) for p in poses])
+    zero = SmartProjectionFactor([X(0), X(1)], ms, K, degenerate="zero")
+    reject = SmartProjectionFactor([X(0), X(1)], ms, K)
+    assert zero.kernel is reject.kernel
+    args = tuple(np.stack([p.to_storage()] * 2) for p in poses)
+    for order in ((zero, reject), (reject, zero)):
+        consts = np.stack([f.constants for f in order])
+        res, jac = zero.kernel.linearize(args, consts)
+        for i, f in enumerate(order):
+            if f is zero:
+                assert not np.any(res[i]) and not np.any(jac[i])
+            else:
+                assert np.all(np.isnan(res[i]))
+
+
 def test_bad_input_is_named():
     """One view, NaN pixels, wrong shapes, a calibration key, a robust loss and unknown options
     raise FgoptError naming the factor (and index)."""

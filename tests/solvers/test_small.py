@@ -345,11 +345,14 @@ def test_smart_factors_match_the_general_path(seed):
 def test_smart_factor_degenerate_track_policies():
     """Tracks degenerate at the start (x0 and x1 turned to look away: the landmarks are behind
     them) follow their policy in the driver as on the general path: 'zero' adds nothing there
-    (same iterations), 'reject' makes the solve raise the general path's error naming a factor
-    (the scenes' kernels only: no driver beyond the two scenes')."""
+    (same iterations), 'reject' makes the solve raise the general path's error naming a factor.
+    The policy is the factors' data: both scenes run one driver (compiled once)."""
     turn = SE3(SO3.exp([0.0, np.pi, 0.0]), np.zeros(3))
+    keys = set()
     for degenerate in ("zero", "reject"):
         graph, init = smart_scene(0, degenerate=degenerate)
+        keys.add(small._plan(fgopt.Problem(graph, init, backend="numba",
+                                           build_structure=False).batches).key)
         start = Variables()
         for k in init.keys():
             start.add(k, init.at(k) * turn if k in (key("x", 0), key("x", 1)) else init.at(k))
@@ -362,6 +365,7 @@ def test_smart_factor_degenerate_track_policies():
         else:
             with pytest.raises(NonFiniteError, match=r"smart_cal3_s2_\dviews\(x"):
                 solve(graph, start)
+    assert len(keys) == 1
 
 
 def sim3_chain(n=4, seed=0):
