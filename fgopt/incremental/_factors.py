@@ -20,9 +20,9 @@ import numpy as np
 
 from .._jit import njit
 from .. import _assembly as asm
-from ..errors import FgoptError, NonFiniteError
+from ..errors import FgoptError, KeyNotFoundError, ManifoldError, NonFiniteError
 from ..factors.base import Factor
-from ..key import Key
+from ..key import Key, key_str
 from ..noise import RobustLoss
 from . import _pool
 from ._pool import alloc
@@ -293,14 +293,44 @@ class FactorStore:
         return slot, handle
 
     def add_all(self, factors: list[Factor], slot_of: dict) -> tuple[np.ndarray, list, list]:
-        """:meth:`add` each of ``factors``: their slots, handles, variable slots (concatenated)."""
+        """:meth:`add` each of ``factors``: their slots, handles, variable slots (concatenated).
+        Checked on the way (the smoother's update rolls back what was added when this raises):
+        each key is a variable (``slot_of``), each argument of a kernel factor of its kind."""
         new, handles, observed, add = np.empty(len(factors), np.int64), [], [], self.add
+        kind_of, fac_batch, batches = self.vars.kind_of, self.fac_batch, self.batches
         for i, f in enumerate(factors):
-            vsl = [slot_of[k] for k in f.keys]
-            new[i], h = add(f, vsl)
+            try:
+                vsl = [slot_of[k] for k in f.keys]
+            except KeyError:
+                k = next(k for k in f.keys if k not in slot_of)
+                raise KeyNotFoundError(f"update: {f.describe()} uses {key_str(k)}, which is "
+                                       "neither a variable of the smoother nor in new_values")
+            s, h = add(f, vsl)
+            b = fac_batch[s]
+            if b >= 0:
+                kids = batches[b].kids
+                for j, v in enumerate(vsl):
+                    kid = kind_of[v]
+                    if kid != kids[j] or kid < 0:
+                        self._check_kinds(batches[b], f, vsl)
+                        break
+            new[i] = s
             handles.append(h)
             observed += vsl
         return new, handles, observed
+
+    def _check_kinds(self, batch: _Batch, f: Factor, var_slots: list[int]) -> None:
+        """Raise ``ManifoldError`` if an argument of ``f`` is not of the kind its kernel
+        expects; else bring ``batch.kids`` up to date (kinds that appeared after the batch)."""
+        vars_, kinds = self.vars, f.kernel.arg_kinds
+        for j, v in enumerate(var_slots):
+            kid = int(vars_.kind_of[v])
+            kind = vars_.kinds[kid] if kid >= 0 else None
+            if kind is not kinds[j]:
+                raise ManifoldError(
+                    f"update: {f.describe()} expects {kinds[j].name} for argument {j}, but "
+                    f"{key_str(f.keys[j])} is a {getattr(kind, 'name', 'Python-manifold value')}")
+        batch.kids = tuple(vars_._kind_id.get(id(kind), -1) for kind in kinds)
 
     def drop(self, slots: np.ndarray) -> None:
         """Forget factors (after commit removed them from the tree)."""

@@ -35,12 +35,23 @@ N_INFO = 6
 
 
 @njit(cache=True)
-def tree_update(vs, fs, cs, meta, cvpool, cnpool, hpool, marked, unused, new_facs, removed,
-                observed, first, n_live, batch_frac, tol, iw, fw, bitset_limit, lin):
-    """See the module docstring. ``first``: variables ordered before all others (group 0).
-    ``lin``: local systems to write first (``FactorStore.linearize``'s deferred batch); a
-    non-finite one returns ``NONFINITE`` before anything else changes."""
+def tree_update(vs, fs, cs, meta, cvpool, cnpool, hpool, more_marked, unused, new_facs,
+                removed, observed, first, n_live, batch_frac, tol, iw, fw, bitset_limit, lin):
+    """See the module docstring. ``observed``: the variables of the new factors (repeats
+    allowed); they and ``more_marked`` are re-eliminated. ``first``: variables ordered before
+    all others (group 0). ``lin``: local systems to write first (``FactorStore.linearize``'s
+    deferred batch); a non-finite one returns ``NONFINITE`` before anything else changes."""
     cv0, cn0, hp0 = cvpool, cnpool, hpool
+    observed = np.sort(observed)   # without repeats (the top's order follows it)
+    n = 0
+    for i in range(observed.shape[0]):
+        if n == 0 or observed[i] != observed[n - 1]:
+            observed[n] = observed[i]
+            n += 1
+    observed = observed[:n]
+    marked = observed
+    if more_marked.shape[0]:
+        marked = np.concatenate((observed, more_marked))
     ok, hpool = _local_systems(lin[0], lin[1], lin[2], lin[3], lin[4], lin[5], hpool, meta,
                                fs[0][1], lin[6])
     if not ok:

@@ -34,7 +34,7 @@ from typing import Any, Iterable
 
 import numpy as np
 
-from ..errors import (DuplicateKeyError, FgoptError, KeyNotFoundError, ManifoldError,
+from ..errors import (DuplicateKeyError, FgoptError, KeyNotFoundError,
                       NotPositiveDefiniteError)
 from ..factors.base import Factor
 from ..graph import FactorGraph
@@ -143,7 +143,7 @@ class IncrementalSmoother:
             every = {**self._constants, **consts}
             factors = [_constants.substitute(f, every) for f in factors]
             new_values = {k: v for k, v in self._values_items(new_values) if k not in consts}
-        values = self._check_values(new_values, factors)
+        values = self._check_values(new_values)
         removed = self._check_remove(remove)
         p = self.params
         self._count += 1
@@ -338,44 +338,16 @@ class IncrementalSmoother:
             out[k] = given[k]
         return out
 
-    def _check_values(self, new_values: Any, factors: list[Factor]) -> list[tuple[Key, Any, Any]]:
-        """``(key, value, batch kind)`` of each new value, checked against the factors."""
-        items = self._values_items(new_values)
-        known = self._vars.slot_of
-        new_kind = {}
-        for k, v in items:
+    def _check_values(self, new_values: Any) -> list[tuple[Key, Any, Any]]:
+        """``(key, value, batch kind)`` of each new value (checked against the factors as they
+        are added, :meth:`._factors.FactorStore.add_all`)."""
+        known, out = self._vars.slot_of, []
+        for k, v in self._values_items(new_values):
             if k in known or k in self._constants:
                 raise DuplicateKeyError(f"update: {key_str(k)} is already a variable of the "
                                         "smoother; new_values may only hold new keys")
-            new_kind[k] = ops_for(v).batch_kind(v)
-        touched = set()
-        vars_ = self._vars
-        for f in factors:
-            kinds = f.kernel.arg_kinds if f.kernel is not None else None
-            for j, k in enumerate(f.keys):
-                slot = known.get(k)
-                if slot is None and k not in new_kind:
-                    raise KeyNotFoundError(
-                        f"update: {f.describe()} uses {key_str(k)}, which is neither a "
-                        "variable of the smoother nor in new_values")
-                touched.add(k)
-                if kinds is not None:
-                    if slot is not None:
-                        kid = int(vars_.kind_of[slot])
-                        kind = vars_.kinds[kid] if kid >= 0 else None
-                    else:
-                        kind = new_kind[k]
-                    if kind is not kinds[j]:
-                        raise ManifoldError(
-                            f"update: {f.describe()} expects {kinds[j].name} for argument {j}, "
-                            f"but {key_str(k)} is a "
-                            f"{getattr(kind, 'name', 'Python-manifold value')}")
-        for k, _ in items:
-            if k not in touched:
-                raise NotPositiveDefiniteError(
-                    f"update: new variable {key_str(k)} has no factor, so the system would be "
-                    "indefinite: add a factor on it in the same update")
-        return [(k, v, new_kind[k]) for k, v in items]
+            out.append((k, v, ops_for(v).batch_kind(v)))
+        return out
 
     def _check_remove(self, remove: Iterable[int]) -> np.ndarray:
         if isinstance(remove, (tuple, list)) and not remove:
@@ -411,10 +383,14 @@ class IncrementalSmoother:
         facs.begin()
         try:
             add = vars_.add
-            for k, x, kind in values:
-                add(k, x, kind)
+            new_slots = [add(k, x, kind) for k, x, kind in values]
             new_facs, handles, obs = facs.add_all(factors, vars_.slot_of)
-            observed = np.array(sorted(set(obs)), np.int64) if obs else _EMPTY
+            for v in new_slots:
+                if v not in obs:
+                    raise NotPositiveDefiniteError(
+                        f"update: new variable {vars_.describe(v)} has no factor, so the "
+                        "system would be indefinite: add a factor on it in the same update")
+            observed = np.array(obs, np.int64)  # (repeats: tree_update sorts them out)
             t1 = _clock()
             timing["check"] = t1 - t0
             # fluid relinearization
@@ -424,12 +400,12 @@ class IncrementalSmoother:
                 J = _solve.relinearize_candidates(tree.var_live, tree.var_dim, tree.delta,
                                                   tree.thr)
             to_lin = new_facs
-            marked = observed
+            marked = _EMPTY   # (besides the observed variables)
             if J.shape[0]:
                 vars_.relinearize(J)
                 relin_facs, relin_vars = _top.adjacent(tree.vs, tree.fs, tree.meta, J, removed)
                 to_lin = np.concatenate((new_facs, relin_facs))
-                marked = np.concatenate((marked, J, relin_vars))
+                marked = np.concatenate((J, relin_vars))
             lin = facs.linearize(to_lin, new_facs.shape[0], defer=True)
             t2 = _clock()
             timing["linearize"] = t2 - t1
