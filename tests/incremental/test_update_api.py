@@ -7,7 +7,7 @@ import pytest
 import fgopt
 from fgopt import (BetweenFactor, FactorGraph, FgoptError, IncrementalParams,
                    IncrementalSmoother, PriorFactor, key)
-from fgopt.errors import (DuplicateKeyError, KeyNotFoundError, NonFiniteError,
+from fgopt.errors import (DuplicateKeyError, KeyNotFoundError, ManifoldError, NonFiniteError,
                           NotPositiveDefiniteError)
 from fgopt.factors import NumericalFactor
 from fgopt.factors.library.range_bearing import range_bearing_factor, range_factor
@@ -140,6 +140,15 @@ BAD_CASES = {
     "unknown key": (lambda s, h: ([BetweenFactor(x(8), key("y", 3), SE2(),
                                                  Diagonal.sigmas([1.0] * 3))], {}, ()),
                     KeyNotFoundError, "y3"),
+    # found while the update's own factors are added: what was added before is rolled back
+    "unknown key after new factors": (
+        lambda s, h: (s[0][0] + [BetweenFactor(x(8), key("y", 3), SE2(),
+                                               Diagonal.sigmas([1.0] * 3))], s[0][1], ()),
+        KeyNotFoundError, "y3"),
+    "wrong manifold after new factors": (
+        lambda s, h: (s[0][0] + [PriorFactor(x(8), np.zeros(2), Diagonal.sigmas([1.0] * 2))],
+                      s[0][1], ()),
+        ManifoldError, "x8"),
     "known key in new_values": (lambda s, h: (s[0][0], {**s[0][1], x(4): SE2()}, ()),
                                 DuplicateKeyError, "x4"),
     "removing a missing factor": (lambda s, h: (s[0][0], s[0][1], [h[-1] + 100]),
