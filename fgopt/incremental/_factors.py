@@ -310,7 +310,7 @@ class FactorStore:
             if b >= 0:
                 kids = batches[b].kids
                 for j, v in enumerate(vsl):
-                    kid = kind_of[v]
+                    kid = kind_of.item(v)  # (a Python int: compares faster)
                     if kid != kids[j] or kid < 0:
                         self._check_kinds(batches[b], f, vsl)
                         break
