@@ -492,7 +492,8 @@ TABLE_PROTOCOL = {
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--datasets", default="m3500,sphere2500,w20000,victoria")
+    ap.add_argument("--datasets", default="m3500,sphere2500,w20000,victoria",
+                    help="replays of whole datasets ('' for none: e.g. only --full-estimate)")
     ap.add_argument("--threshold", type=float, default=0.1)
     ap.add_argument("--skip", type=int, default=10)
     ap.add_argument("--warm", type=int, default=300, help="untimed warm-up steps per library")
@@ -504,7 +505,7 @@ def main(argv=None):
     ap.add_argument("--out", default=None, help="write the table (.md) and numbers (.json)")
     args = ap.parse_args(argv)
     results = []
-    for name in args.datasets.split(","):
+    for name in filter(None, args.datasets.split(",")):   # '' runs none
         r = run_dataset(name.strip(), args.threshold, args.skip, args.warm)
         results.append(r)
         print(table([r]), flush=True)

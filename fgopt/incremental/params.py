@@ -116,9 +116,9 @@ class UpdateResult:
     timing: dict = field(default_factory=dict)
 
     @classmethod
-    def _of(cls, **fields: Any) -> "UpdateResult":
-        """An UpdateResult from every one of its fields, without the generated ``__init__``
-        (~2 us of an update's ~100)."""
+    def _of(cls, fields: dict) -> "UpdateResult":
+        """An UpdateResult from a dict of every one of its fields, without the generated
+        ``__init__`` (~2 us of an update's ~100; a dict display costs less than keywords)."""
         out = object.__new__(cls)
         out.__dict__ = fields
         return out

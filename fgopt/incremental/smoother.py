@@ -476,12 +476,12 @@ class IncrementalSmoother:
             self._force_batch = False
         elif n > 64 and self._nnz > p.fill_refresh * self._nnz_per_var_ref * n:
             self._force_batch = True
-        return UpdateResult._of(
-            new_factor_indices=handles, variables_relinearized=int(J.shape[0]),
-            variables_reeliminated=t, factors_relinearized=int(to_lin.shape[0]),
-            cliques_reeliminated=new_cliques, cliques=int(tree.meta[M_NCLIQUES]),
-            batch=bool(batch), removed_keys=removed_keys, marginalized_keys=[],
-            relinearized_keys=vars_.key_of[J] if J.shape[0] else _EMPTY, timing=timing)
+        return UpdateResult._of({
+            "new_factor_indices": handles, "variables_relinearized": int(J.shape[0]),
+            "variables_reeliminated": t, "factors_relinearized": int(to_lin.shape[0]),
+            "cliques_reeliminated": new_cliques, "cliques": int(tree.meta[M_NCLIQUES]),
+            "batch": bool(batch), "removed_keys": removed_keys, "marginalized_keys": [],
+            "relinearized_keys": vars_.key_of[J] if J.shape[0] else _EMPTY, "timing": timing})
 
     def _unused(self, rem_vars: np.ndarray, removed: np.ndarray,
                 observed: np.ndarray) -> np.ndarray:
