@@ -39,15 +39,10 @@ def loss_parts(loss: Any) -> tuple[np.ndarray, int, float, float]:
 
 
 def compiled_linearize(kernel: Any) -> Any:
-    """``kernel.linearize`` on numba whatever the batch size: the kernel's
-    ``trusted_linearize`` where it has one (the smoother's gathered rows and constants are
-    C-contiguous float64), else ``linearize``.
-
-    Generated kernel modules run a NumPy twin of the kernel up to ``NUMPY_MAX_BATCH`` instances
-    (no numba start-up for small problems); an online update linearizes one to a few factors
-    per call, where the twin costs ~150 us and the compiled kernel ~3 us (M3500: 0.22 vs
-    0.11 ms per update).
-    """
+    """``kernel.linearize`` on numba whatever the batch size (not the NumPy twin generated
+    modules run up to ``NUMPY_MAX_BATCH`` instances: ~150 us against ~3 us for the one to few
+    factors of an update): its ``trusted_linearize`` where it has one (the smoother's gathered
+    rows and constants are C-contiguous float64), else ``linearize``."""
     return kernel.trusted_linearize or kernel.linearize
 
 
@@ -301,10 +296,10 @@ class FactorStore:
         for i, f in enumerate(factors):
             try:
                 vsl = [slot_of[k] for k in f.keys]
-            except KeyError:
-                k = next(k for k in f.keys if k not in slot_of)
-                raise KeyNotFoundError(f"update: {f.describe()} uses {key_str(k)}, which is "
-                                       "neither a variable of the smoother nor in new_values")
+            except KeyError as e:
+                raise KeyNotFoundError(f"update: {f.describe()} uses {key_str(e.args[0])}, which "
+                                       "is neither a variable of the smoother nor in "
+                                       "new_values") from None
             s, h = add(f, vsl)
             b = fac_batch[s]
             if b >= 0:
@@ -320,12 +315,11 @@ class FactorStore:
         return new, handles, observed
 
     def _check_kinds(self, batch: _Batch, f: Factor, var_slots: list[int]) -> None:
-        """Raise ``ManifoldError`` if an argument of ``f`` is not of the kind its kernel
-        expects; else bring ``batch.kids`` up to date (kinds that appeared after the batch)."""
+        """Raise ``ManifoldError`` if an argument of ``f`` is not of its kernel's kind; else set
+        ``batch.kids`` (kinds new since the batch was made: :meth:`linearize` reads them)."""
         vars_, kinds = self.vars, f.kernel.arg_kinds
         for j, v in enumerate(var_slots):
-            kid = int(vars_.kind_of[v])
-            kind = vars_.kinds[kid] if kid >= 0 else None
+            kind = vars_.kinds[vars_.kind_of.item(v)] if vars_.kind_of.item(v) >= 0 else None
             if kind is not kinds[j]:
                 raise ManifoldError(
                     f"update: {f.describe()} expects {kinds[j].name} for argument {j}, but "
@@ -403,7 +397,7 @@ class FactorStore:
             batch = self.batches[b]
             r = fac_row[s]
             args = tuple([theta[kid][v:v + 1]
-                          for v, kid in zip(batch.var_slots[r].tolist(), self._kids(batch))])
+                          for v, kid in zip(batch.var_slots[r].tolist(), batch.kids)])
             return self._run(batch, slots, args, batch.consts[r:r + 1], batch.R[r:r + 1], defer)
         fb = [fac_batch[s] for s in sl]
         if fb.count(fb[0]) == len(fb):     # one batch
@@ -429,7 +423,7 @@ class FactorStore:
                 vs = batch.var_slots.take(rows, 0)
                 consts, R = batch.consts.take(rows, 0), batch.R.take(rows, 0)
             args = tuple([theta[kid].take(vs[:, j], 0)
-                          for j, kid in enumerate(self._kids(batch))])
+                          for j, kid in enumerate(batch.kids)])
             out = self._run(batch, sel, args, consts, R, defer and i == len(groups) - 1)
         return out
 
@@ -467,11 +461,6 @@ class FactorStore:
         raise NonFiniteError(f"{where} has a non-finite residual or Jacobian at the "
                              "linearization point: check its measurement and variables")
 
-    def _kids(self, batch: _Batch) -> tuple[int, ...]:
-        if -1 in batch.kids:      # kinds that first appeared after the batch was made
-            batch.kids = tuple(self.vars._kind_id[id(kind)] for kind in batch.kernel.arg_kinds)
-        return batch.kids
-
     def _linearize_python(self, slot: int) -> None:
         f = self.python[slot]
         view = _ThetaView(self.vars)
@@ -495,7 +484,7 @@ class FactorStore:
             if rows.shape[0] == 0:
                 continue
             vs = batch.var_slots[rows]
-            args = tuple(storages[kid][vs[:, j]] for j, kid in enumerate(self._kids(batch)))
+            args = tuple(storages[kid][vs[:, j]] for j, kid in enumerate(batch.kids))
             res = batch.kernel.residual(args, batch.consts[rows])
             total += asm.batch_cost(res, batch.R[rows], False, batch.code, batch.k, batch.shape,
                                     0.0)
