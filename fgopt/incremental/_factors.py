@@ -288,9 +288,8 @@ class FactorStore:
         return slot, handle
 
     def add_all(self, factors: list[Factor], slot_of: dict) -> tuple[np.ndarray, list, list]:
-        """:meth:`add` each of ``factors``: their slots, handles, variable slots (concatenated).
-        Checked on the way (the smoother's update rolls back what was added when this raises):
-        each key is a variable (``slot_of``), each argument of a kernel factor of its kind."""
+        """:meth:`add` each of ``factors`` (slots, handles, variable slots concatenated), checked
+        on the way (``update`` rolls back on error): keys known, kernel arguments of their kind."""
         new, handles, observed, add = np.empty(len(factors), np.int64), [], [], self.add
         kind_of, fac_batch, batches = self.vars.kind_of, self.fac_batch, self.batches
         for i, f in enumerate(factors):
@@ -495,7 +494,7 @@ class FactorStore:
         return float(total)
 
 
-class _EstimateView:
+class _EstimateView(_ThetaView):
     def __init__(self, store: VariableStore, storages: list[np.ndarray], objects: dict):
         self._s, self._st, self._obj = store, storages, objects
 
@@ -507,9 +506,6 @@ class _EstimateView:
         return self._s.kinds[kid].from_storage(self._st[kid][v])
 
     __getitem__ = at
-
-    def __contains__(self, k: object) -> bool:
-        return k in self._s.slot_of
 
 
 def _robust(batch: _Batch, base: Any) -> Any:
