@@ -129,7 +129,9 @@ class IncrementalSmoother:
         Raises :class:`~fgopt.FgoptError` (naming the key or factor) and leaves the smoother
         unchanged when a factor uses an unknown key, ``new_values`` repeats a known key, a
         constant key is not in ``new_values``, a handle in ``remove`` is not a factor of the
-        smoother, or a variable would be left unconstrained.
+        smoother, or a variable would be left unconstrained by its factors. A variable that
+        ``remove`` leaves with no factor at all is dropped from the smoother (as GTSAM's ISAM2
+        drops unused keys): ``estimate`` no longer holds it.
 
         Example::
 
@@ -385,8 +387,9 @@ class IncrementalSmoother:
             add = vars_.add
             new_slots = [add(k, x, kind) for k, x, kind in values]
             new_facs, handles, obs = facs.add_all(factors, vars_.slot_of)
+            seen = set(obs) if new_slots else ()
             for v in new_slots:
-                if v not in obs:
+                if v not in seen:
                     raise NotPositiveDefiniteError(
                         f"update: new variable {vars_.describe(v)} has no factor, so the "
                         "system would be indefinite: add a factor on it in the same update")

@@ -239,3 +239,24 @@ def test_relinearization_threshold_per_key_kind():
     bad = IncrementalSmoother(IncrementalParams(relinearize_threshold={"x": [0.1, 0.2]}))
     with pytest.raises(FgoptError, match="x0"):
         bad.update([PriorFactor(x(0), SE2(), od)], {x(0): SE2()})
+
+
+def test_removing_every_factor_of_a_variable_drops_it():
+    """The documented rule for a variable left with no factor: it leaves the smoother (as
+    GTSAM's ISAM2 drops unused keys), and the other estimates stay as they were."""
+    from fgopt import BetweenFactor, PriorFactor, SE2, Variables, key
+    from fgopt.incremental import IncrementalSmoother
+    from fgopt.noise import Diagonal
+
+    noise = Diagonal.pose2(x=0.1, y=0.1, theta=0.05)
+    s = IncrementalSmoother()
+    r = s.update([PriorFactor(key("x", 0), SE2.identity(), noise),
+                  BetweenFactor(key("x", 0), key("x", 1), SE2.from_xytheta(1, 0, 0), noise),
+                  BetweenFactor(key("x", 1), key("x", 2), SE2.from_xytheta(1, 0, 0), noise)],
+                 Variables().add(key("x", 0), SE2.identity())
+                 .add(key("x", 1), SE2.from_xytheta(1, 0, 0))
+                 .add(key("x", 2), SE2.from_xytheta(2, 0, 0)))
+    before = s.estimate(key("x", 1))
+    s.update(remove=[r.new_factor_indices[2]])
+    assert key("x", 2) not in s and len(s) == 2
+    assert s.estimate(key("x", 1)).equals(before)
