@@ -85,6 +85,10 @@ class GNCParams:
     """After GNC, classify factors (inlier iff r^2 <= c^2), drop the outliers and re-solve, so
     the estimate is exactly the least-squares solution of the inliers."""
     mu_step: float = 1.4
+    """Factor by which ``mu`` grows (TLS) or shrinks (GM) each round (GTSAM's default). A
+    coarser schedule is faster but less robust: with 3, 17 of the 18 cases of the GNC benchmark
+    ran 1.5-2.3x faster, but M3500 without a prior and 30 % wrong closures (the ``file``
+    generator) ended at 33 times the optimum's cost with 21 true closures rejected (2: 18)."""
     max_rounds: int = 100
     weights_tolerance: float = 1e-4
     cost_tolerance: float = 1e-5
