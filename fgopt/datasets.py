@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._checks import is_count, number
 from .errors import FgoptError
 from .factors.library.prior_between import BetweenFactor, PriorFactor
 from .noise.models import Diagonal
@@ -28,7 +29,7 @@ from .variables import Variables
 
 
 def _check_count(where: str, name: str, value, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+    if not is_count(value) or value < minimum:
         raise FgoptError(f"{where}: {name} must be an integer >= {minimum}, got {value!r}")
     return int(value)
 
@@ -382,7 +383,7 @@ def random_loop_closures(graph: FactorGraph, reference: Variables, fraction: flo
     """
     from .noise.models import Isotropic
 
-    if not (isinstance(fraction, (int, float, np.floating)) and 0.0 <= fraction < np.inf):
+    if number(fraction) is None or not 0.0 <= fraction < np.inf:
         raise FgoptError(f"random_loop_closures: fraction must be a finite number >= 0, got "
                          f"{fraction!r}")
     rng = np.random.default_rng(seed)

@@ -15,7 +15,7 @@ from .._jit import specialize
 from ..errors import CalibrationError, CheiralityError, DimensionMismatchError, NonFiniteError
 from ..manifolds.base import BatchKind, register
 from . import _calib_kernels as CK
-from ._checks import float_array, is_count, is_positive, number
+from .._checks import float_array, is_count, is_positive, number
 
 #: Default pixel tolerance and iteration limit of the iterative ``calibrate``.
 CALIBRATE_TOL = 1e-9

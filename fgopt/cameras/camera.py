@@ -24,7 +24,7 @@ from ..errors import (CheiralityError, DimensionMismatchError, FgoptError, Manif
 from ..manifolds import SE3, SO3
 from ..manifolds.base import BatchKind, register
 from . import _projection_kernels as PK
-from ._checks import float_array
+from .._checks import float_array
 from .calibration import Cal3_S2, Cal3_S2Stereo, Calibration, as_points2
 
 

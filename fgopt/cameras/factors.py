@@ -48,7 +48,7 @@ from ..manifolds.base import vector_kind
 from ..noise._keyword import UNSET, loss_argument
 from ..symbolic.runtime import kernel_array
 from . import _projection_kernels as PK
-from ._checks import float_array
+from .._checks import float_array
 from .calibration import Cal3_S2Stereo, Calibration
 
 CHEIRALITY = ("reject", "allow")

@@ -48,7 +48,7 @@ from ..key import as_key, key_str
 from ..noise._keyword import UNSET, loss_argument
 from ..manifolds import SE3
 from . import _smart_kernels as SK
-from ._checks import float_array, is_positive
+from .._checks import float_array, is_positive
 from .calibration import Calibration
 from .factors import CameraKernelFactor
 

@@ -23,7 +23,7 @@ from .._jit import specialize
 from ..errors import (CalibrationError, CheiralityError, DimensionMismatchError, FgoptError,
                       NonFiniteError, TriangulationError)
 from . import _triangulation_kernels as TK
-from ._checks import float_array, is_count, is_positive
+from .._checks import float_array, is_count, is_positive
 from .camera import PinholeCamera
 
 METHODS = ("dlt", "nonlinear")

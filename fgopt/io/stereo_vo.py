@@ -23,7 +23,7 @@ import numpy as np
 
 from ..cameras import Cal3_S2Stereo
 from ..cameras.factors import stereo_kernel
-from ..cameras._checks import is_positive
+from .._checks import is_positive
 from ..errors import CalibrationError, FgoptError, FileFormatError
 from ..factors import PriorFactor
 from ..graph import FactorGraph

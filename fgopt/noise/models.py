@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from .._checks import is_count, number
 from ..errors import DimensionMismatchError, NonFiniteError, NotPositiveDefiniteError
 
 
@@ -239,17 +240,17 @@ def _three(v: Any, name: str) -> list:
 
 
 def _dimension(dim: Any) -> int:
-    if isinstance(dim, bool) or not isinstance(dim, (int, np.integer)) or dim < 1:
+    if not is_count(dim) or dim < 1:
         raise DimensionMismatchError(f"noise model dimension must be an integer >= 1, got "
                                      f"{dim!r}")
     return int(dim)
 
 
 def _number(value: Any, name: str) -> float:
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        raise DimensionMismatchError(f"{name} must be a number, got {value!r}") from None
+    x = number(value)
+    if x is None:
+        raise DimensionMismatchError(f"{name} must be a number, got {value!r}")
+    return x
 
 
 def _positive_vector(values, name: str) -> np.ndarray:

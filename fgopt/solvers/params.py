@@ -2,31 +2,34 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
-from numbers import Integral, Real
 
+from .._checks import is_count, is_positive, number
 from ..errors import FgoptError
 
 
 def check_numbers(params, integers: tuple[str, ...] = (), nonnegative: tuple[str, ...] = (),
                   positive: tuple[str, ...] = ()) -> None:
     """Raise an :class:`FgoptError` naming the field when a parameter is not a number of the
-    kind it must be: ``integers`` non-negative integers, ``nonnegative`` finite reals >= 0
-    (``None`` allowed where the field's default is ``None``), ``positive`` reals > 0."""
+    kind it must be: ``integers`` whole numbers >= 0 (``20.0`` is stored as ``20``),
+    ``nonnegative`` finite numbers >= 0, ``positive`` finite numbers > 0 (``None`` passes where
+    it is the field's default)."""
     name = type(params).__name__
     for f in integers:
         v = getattr(params, f)
-        if isinstance(v, bool) or not isinstance(v, Integral) or v < 0:
+        if not is_count(v):
             raise FgoptError(f"{name}.{f} must be an integer >= 0, got {v!r}")
-    for f, strict in [(f, False) for f in nonnegative] + [(f, True) for f in positive]:
+        if type(v) is not int:
+            object.__setattr__(params, f, int(v))  # (frozen dataclass: set once, here)
+    for f in nonnegative + positive:
         v = getattr(params, f)
         if v is None and getattr(type(params), f, 0) is None:
             continue
-        if isinstance(v, bool) or not isinstance(v, Real) or math.isnan(v) or v < 0 \
-                or (strict and v == 0) or (not strict and math.isinf(v)):
-            raise FgoptError(f"{name}.{f} must be a {'positive' if strict else 'finite'} number"
-                             f"{'' if strict else ' >= 0'}, got {v!r}")
+        x = number(v)
+        if f in positive and not is_positive(v):
+            raise FgoptError(f"{name}.{f} must be a finite number > 0, got {v!r}")
+        if x is None or not 0.0 <= x < float("inf"):
+            raise FgoptError(f"{name}.{f} must be a finite number >= 0, got {v!r}")
 
 
 @dataclass(frozen=True)

@@ -41,9 +41,11 @@ def test_bad_gnc_numbers_name_the_field(field, value):
 
 
 def test_good_values_still_accepted():
-    """Defaults, NumPy integers, ``None`` where the default is ``None`` and 0 tolerances pass."""
-    assert LMParams(max_iterations=np.int64(7), relative_tolerance=None,
-                    absolute_tolerance=0.0).max_iterations == 7
+    """Defaults, NumPy integers and whole floats (stored as ``int``, as the kernels take), ``None``
+    where the default is ``None`` and 0 tolerances pass."""
+    p = LMParams(max_iterations=np.int64(7), relative_tolerance=None, absolute_tolerance=0.0)
+    assert p.max_iterations == 7 and type(p.max_iterations) is int
+    assert type(LMParams(max_iterations=20.0).max_iterations) is int  # a whole float: stored int
     assert GNCParams(time_limit=None, max_rounds=0).max_rounds == 0
     assert DoglegParams(initial_radius=0.5).initial_radius == 0.5
 

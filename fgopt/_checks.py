@@ -1,5 +1,6 @@
-"""Argument checks shared by the camera API and its readers: one number, a float array, a
-positive tolerance, an iteration count (each failure an :class:`~fgopt.errors.FgoptError`)."""
+"""Argument checks shared by the public API (solver parameters, noise models, generators,
+cameras and their readers): one number, a float array, a positive number, a count. Callers
+raise an :class:`~fgopt.errors.FgoptError` naming the argument when a check fails."""
 
 from __future__ import annotations
 
@@ -7,12 +8,13 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import DimensionMismatchError
+from .errors import DimensionMismatchError
 
 
 def number(x: Any) -> float | None:
-    """``float(x)`` if ``x`` is one real number (not None, a bool or an array), else None."""
-    if x is None or isinstance(x, bool) or np.ndim(x) != 0:
+    """``float(x)`` if ``x`` is one real number (not None, a bool, a string or an array), else
+    None."""
+    if x is None or isinstance(x, (bool, str, bytes)) or np.ndim(x) != 0:
         return None
     try:
         return float(x)
