@@ -131,7 +131,7 @@ class IncrementalSmoother:
         constant key is not in ``new_values``, a handle in ``remove`` is not a factor of the
         smoother, or a variable would be left unconstrained by its factors. A variable that
         ``remove`` leaves with no factor at all is dropped from the smoother (as GTSAM's ISAM2
-        drops unused keys): ``estimate`` no longer holds it.
+        drops unused keys; ``UpdateResult.removed_keys`` lists it).
 
         Example::
 

@@ -14,22 +14,29 @@ def check_numbers(params, integers: tuple[str, ...] = (), nonnegative: tuple[str
     kind it must be: ``integers`` whole numbers >= 0 (``20.0`` is stored as ``20``),
     ``nonnegative`` finite numbers >= 0, ``positive`` finite numbers > 0 (``None`` passes where
     it is the field's default)."""
-    name = type(params).__name__
     for f in integers:
         v = getattr(params, f)
+        if type(v) is int and v >= 0:  # the common case first: every optimize call checks
+            continue
         if not is_count(v):
-            raise FgoptError(f"{name}.{f} must be an integer >= 0, got {v!r}")
-        if type(v) is not int:
-            object.__setattr__(params, f, int(v))  # (frozen dataclass: set once, here)
-    for f in nonnegative + positive:
+            raise FgoptError(f"{type(params).__name__}.{f} must be an integer >= 0, got {v!r}")
+        object.__setattr__(params, f, int(v))  # (frozen dataclass: set once, here)
+    for f, low in [(f, 0.0) for f in nonnegative] + [(f, None) for f in positive]:
         v = getattr(params, f)
+        if type(v) is float and (0.0 < v if low is None else 0.0 <= v) and v < _INF:
+            continue
         if v is None and getattr(type(params), f, 0) is None:
             continue
+        if low is None and not is_positive(v):
+            raise FgoptError(f"{type(params).__name__}.{f} must be a finite number > 0, got "
+                             f"{v!r}")
         x = number(v)
-        if f in positive and not is_positive(v):
-            raise FgoptError(f"{name}.{f} must be a finite number > 0, got {v!r}")
-        if x is None or not 0.0 <= x < float("inf"):
-            raise FgoptError(f"{name}.{f} must be a finite number >= 0, got {v!r}")
+        if x is None or not 0.0 <= x < _INF:
+            raise FgoptError(f"{type(params).__name__}.{f} must be a finite number >= 0, got "
+                             f"{v!r}")
+
+
+_INF = float("inf")
 
 
 @dataclass(frozen=True)
@@ -56,14 +63,14 @@ class TerminationParams:
     step_tolerance: float = 1e-10
     """Stop when |delta| <= step_tolerance * (|x| + step_tolerance) (Ceres' parameter tolerance)."""
 
+    # fields checked when the params are built (subclasses add theirs; no annotation: not fields)
+    _INTEGERS = ("max_iterations",)
+    _NONNEGATIVE = ("relative_tolerance", "absolute_tolerance", "gradient_tolerance",
+                    "step_tolerance")
+    _POSITIVE = ()
+
     def __post_init__(self):
-        own = [f for f in ("threads", "initial_lambda", "min_lambda", "max_lambda",
-                           "lambda_factor", "initial_radius") if hasattr(self, f)]
-        check_numbers(self, integers=("max_iterations",) + (("threads",) if "threads" in own
-                                                            else ()),
-                      nonnegative=("relative_tolerance", "absolute_tolerance",
-                                   "gradient_tolerance", "step_tolerance"),
-                      positive=tuple(own))
+        check_numbers(self, self._INTEGERS, self._NONNEGATIVE, self._POSITIVE)
 
 
 @dataclass(frozen=True)
@@ -79,6 +86,9 @@ class LMParams(TerminationParams):
     >>> fgopt.optimize(sample.graph, sample.initial, params=params).success
     True
     """
+
+    _INTEGERS = ("max_iterations", "threads")
+    _POSITIVE = ("threads", "initial_lambda", "min_lambda", "max_lambda", "lambda_factor")
 
     initial_lambda: float | None = None
     """Initial damping of ``H + lambda D``. ``None``: GTSAM's 1e-5 with identity damping, Ceres'
@@ -136,6 +146,9 @@ class GaussNewtonParams(TerminationParams):
     ('gn', True)
     """
 
+    _INTEGERS = ("max_iterations", "threads")
+    _POSITIVE = ("threads",)
+
     linear_solver: str = "auto"
     ordering: str = "amd"
     threads: int = 1
@@ -159,6 +172,9 @@ class DoglegParams(TerminationParams):
     ...                params=DoglegParams(initial_radius=10.0)).success
     True
     """
+
+    _INTEGERS = ("max_iterations", "threads")
+    _POSITIVE = ("threads", "initial_radius")
 
     initial_radius: float = 1.0
     """Initial trust-region radius (GTSAM's deltaInitial)."""

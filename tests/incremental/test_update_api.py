@@ -243,7 +243,8 @@ def test_relinearization_threshold_per_key_kind():
 
 def test_removing_every_factor_of_a_variable_drops_it():
     """The documented rule for a variable left with no factor: it leaves the smoother (as
-    GTSAM's ISAM2 drops unused keys), and the other estimates stay as they were."""
+    GTSAM's ISAM2 drops unused keys), ``removed_keys`` names it, and the other estimates stay
+    as they were."""
     from fgopt import BetweenFactor, PriorFactor, SE2, Variables, key
     from fgopt.incremental import IncrementalSmoother
     from fgopt.noise import Diagonal
@@ -257,6 +258,7 @@ def test_removing_every_factor_of_a_variable_drops_it():
                  .add(key("x", 1), SE2.from_xytheta(1, 0, 0))
                  .add(key("x", 2), SE2.from_xytheta(2, 0, 0)))
     before = s.estimate(key("x", 1))
-    s.update(remove=[r.new_factor_indices[2]])
+    dropped = s.update(remove=[r.new_factor_indices[2]])
+    assert dropped.removed_keys == [key("x", 2)]
     assert key("x", 2) not in s and len(s) == 2
     assert s.estimate(key("x", 1)).equals(before)
